@@ -1,0 +1,542 @@
+"""Bits on the wire: CRC-15, bit stuffing, the complete frame bit sequence, and a decoder.
+
+Rules (ISO 11898-1, CAN 2.0A/B):
+- CRC-15, generator 0x4599 (x^15+x^14+x^10+x^8+x^7+x^4+x^3+1), initial value 0, computed over
+  the unstuffed bits SOF..end of data.
+- Stuffing covers SOF..CRC sequence: after five equal bits (stuff bits included) the transmitter
+  inserts one bit of the opposite level; a sixth equal bit there is a stuff error.
+- Fixed-form fields after the CRC: CRC delimiter (1), ACK slot, ACK delimiter (1), EOF (7 × 1).
+  A dominant bit in a fixed-form field is a form error (except the last EOF bit, where a
+  receiver treats it as an overload condition, not an error).
+Bit level convention: 0 = dominant, 1 = recessive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Iterable, Iterator, Sequence
+
+from .frame import Frame, data_length
+
+__all__ = [
+    "CRC15_POLY",
+    "Field",
+    "FrameBits",
+    "DecodedFrame",
+    "BitError",
+    "BitDecoder",
+    "crc15",
+    "crc15_bytes",
+    "stuff",
+    "destuff",
+    "encode",
+    "decode",
+    "unstuffed_length",
+    "worst_case_length",
+    "INTERMISSION_BITS",
+]
+
+CRC15_POLY = 0x4599
+INTERMISSION_BITS = 3
+
+
+class Field(str, Enum):
+    """Frame fields in wire order, named as in ISO 11898-1."""
+
+    SOF = "SOF"
+    ID = "ID"  # base identifier, 11 bits
+    SRR = "SRR"
+    IDE = "IDE"
+    ID_EXT = "ID_EXT"  # identifier extension, 18 bits
+    RTR = "RTR"
+    R1 = "r1"
+    R0 = "r0"
+    DLC = "DLC"
+    DATA = "DATA"
+    CRC = "CRC"
+    CRC_DELIM = "CRC_DELIM"
+    ACK_SLOT = "ACK_SLOT"
+    ACK_DELIM = "ACK_DELIM"
+    EOF = "EOF"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+def crc15(bits: Iterable[int]) -> int:
+    """CRC-15/CAN (poly 0x4599, init 0) over a sequence of bits, most significant first."""
+    crc = 0
+    for b in bits:
+        nxt = b ^ (crc >> 14)
+        crc = (crc << 1) & 0x7FFF
+        if nxt:
+            crc ^= CRC15_POLY
+    return crc
+
+
+def crc15_bytes(data: bytes) -> int:
+    """CRC-15/CAN over whole bytes, MSB first (check value over b"123456789" is 0x059E)."""
+    return crc15(((byte >> (7 - i)) & 1) for byte in data for i in range(8))
+
+
+def stuff(bits: Sequence[int]) -> tuple[list[int], list[int]]:
+    """Insert stuff bits: after 5 equal bits, one of the opposite level (stuff bits count).
+
+    Returns the stuffed bits and the indices (in the stuffed sequence) of the stuff bits.
+    """
+    out: list[int] = []
+    positions: list[int] = []
+    last = -1
+    run = 0
+    for b in bits:
+        out.append(b)
+        if b == last:
+            run += 1
+        else:
+            last, run = b, 1
+        if run == 5:
+            positions.append(len(out))
+            last ^= 1
+            out.append(last)
+            run = 1
+    return out, positions
+
+
+def destuff(bits: Sequence[int]) -> list[int]:
+    """Remove stuff bits; raises ValueError naming the bit index at a stuff error.
+
+    Inverse of `stuff`: destuff(stuff(x)[0]) == x. A stuff bit equal to the five before it is a
+    stuff error.
+    """
+    out: list[int] = []
+    last = -1
+    run = 0
+    skip = False
+    for i, b in enumerate(bits):
+        if skip:
+            if b == last:
+                raise ValueError(f"stuff error at bit {i}: sixth consecutive {'recessive' if b else 'dominant'} bit")
+            last, run, skip = b, 1, False
+            continue
+        out.append(b)
+        if b == last:
+            run += 1
+        else:
+            last, run = b, 1
+        if run == 5:
+            skip = True
+    return out
+
+
+def _int_bits(value: int, width: int) -> list[int]:
+    return [(value >> (width - 1 - i)) & 1 for i in range(width)]
+
+
+def unstuffed_length(n: int, extended: bool) -> int:
+    """Bits from SOF to end of EOF without stuffing: 44 + 8n standard, 64 + 8n extended."""
+    return (64 if extended else 44) + 8 * n
+
+
+def worst_case_length(n: int, extended: bool = False) -> int:
+    """Worst-case stuffed length SOF..EOF for n data bytes (intermission not included).
+
+    Adds floor((34 + 8n - 1) / 4) stuff bits (standard) or floor((54 + 8n - 1) / 4) (extended)
+    to the unstuffed length.
+    """
+    if not 0 <= n <= 8:
+        raise ValueError(f"{n} data bytes: a CAN 2.0 frame carries 0..8")
+    stuffed_region = (54 if extended else 34) + 8 * n
+    return unstuffed_length(n, extended) + (stuffed_region - 1) // 4
+
+
+@dataclass(frozen=True)
+class FrameBits:
+    """The exact bit sequence of one frame, SOF to the end of EOF, as sent by its transmitter.
+
+    ``bits`` is a string of '0'/'1' with the ACK slot dominant (as seen on a bus where someone
+    acknowledges). ``fields`` gives, per field, the stuffed positions of its bits in order;
+    ``stuff_positions`` the stuff bits. ``crc_end`` is the index of the CRC delimiter.
+    """
+
+    bits: str
+    crc: int
+    stuff_positions: tuple[int, ...]
+    fields: dict[Field, tuple[int, ...]]
+    crc_delim: int
+
+    @property
+    def length(self) -> int:
+        """Bits from SOF to end of EOF, stuff bits included."""
+        return len(self.bits)
+
+    @property
+    def stuff_count(self) -> int:
+        """Number of stuff bits."""
+        return len(self.stuff_positions)
+
+    def position(self, fld: Field | str, index: int = 0) -> int:
+        """Stuffed bit position of bit ``index`` (0 = first sent) of a field; ValueError if none."""
+        try:
+            f = Field(fld) if not isinstance(fld, Field) else fld
+        except ValueError:
+            raise ValueError(
+                f"unknown field {fld!r}: one of {', '.join(x.value for x in Field)}"
+            ) from None
+        pos = self.fields.get(f)
+        if not pos:
+            raise ValueError(f"this frame has no {f.value} field")
+        if not 0 <= index < len(pos):
+            raise ValueError(f"bit {index} outside field {f.value} of {len(pos)} bits (0..{len(pos) - 1})")
+        return pos[index]
+
+    def field_at(self, position: int) -> tuple[Field, int | None]:
+        """The field a stuffed position belongs to and the bit index in it (None for a stuff bit;
+        a stuff bit is reported in the field of the bit before it)."""
+        if not 0 <= position < len(self.bits):
+            raise ValueError(f"bit {position} outside the frame (0..{len(self.bits) - 1})")
+        for f, pos in self.fields.items():
+            if pos and pos[0] <= position <= pos[-1] + (1 if position in self.stuff_positions else 0):
+                if position in pos:
+                    return f, pos.index(position)
+                if position in self.stuff_positions and pos[0] < position:
+                    # stuff bit right after or inside this field
+                    nxt = [p for p in pos if p > position]
+                    if nxt or position == pos[-1] + 1:
+                        return f, None
+        raise ValueError(f"bit {position} is not in any field")  # pragma: no cover
+
+
+def _unstuffed_fields(frame: Frame) -> list[tuple[Field, list[int]]]:
+    fields: list[tuple[Field, list[int]]] = [(Field.SOF, [0])]
+    if frame.extended:
+        fields += [
+            (Field.ID, _int_bits(frame.can_id >> 18, 11)),
+            (Field.SRR, [1]),
+            (Field.IDE, [1]),
+            (Field.ID_EXT, _int_bits(frame.can_id & 0x3FFFF, 18)),
+            (Field.RTR, [int(frame.remote)]),
+            (Field.R1, [0]),
+            (Field.R0, [0]),
+        ]
+    else:
+        fields += [
+            (Field.ID, _int_bits(frame.can_id, 11)),
+            (Field.RTR, [int(frame.remote)]),
+            (Field.IDE, [0]),
+            (Field.R0, [0]),
+        ]
+    fields.append((Field.DLC, _int_bits(frame.dlc, 4)))
+    data_bits = [(byte >> (7 - i)) & 1 for byte in frame.data for i in range(8)]
+    fields.append((Field.DATA, data_bits))
+    return fields
+
+
+def encode(frame: Frame) -> FrameBits:
+    """The complete bit sequence of a frame: SOF..EOF with stuff bits, CRC and fixed fields.
+
+    Use ``frame.bits`` to get it cached on the frame.
+    """
+    fields = _unstuffed_fields(frame)
+    raw: list[int] = []
+    owners: list[Field] = []
+    for f, bs in fields:
+        raw += bs
+        owners += [f] * len(bs)
+    crc = crc15(raw)
+    crc_bits = _int_bits(crc, 15)
+    raw += crc_bits
+    owners += [Field.CRC] * 15
+    stuffed, stuff_pos = stuff(raw)
+    positions: dict[Field, list[int]] = {f: [] for f, _ in fields}
+    positions[Field.CRC] = []
+    sp = set(stuff_pos)
+    j = 0
+    for i in range(len(stuffed)):
+        if i in sp:
+            continue
+        positions[owners[j]].append(i)
+        j += 1
+    n = len(stuffed)
+    tail = [(Field.CRC_DELIM, [1]), (Field.ACK_SLOT, [0]), (Field.ACK_DELIM, [1]), (Field.EOF, [1] * 7)]
+    for f, bs in tail:
+        positions[f] = list(range(n, n + len(bs)))
+        stuffed += bs
+        n += len(bs)
+    return FrameBits(
+        bits="".join("1" if b else "0" for b in stuffed),
+        crc=crc,
+        stuff_positions=tuple(stuff_pos),
+        fields={f: tuple(p) for f, p in positions.items()},
+        crc_delim=positions[Field.CRC_DELIM][0],
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Decoding
+
+
+@dataclass(frozen=True)
+class BitError:
+    """A detected error: kind ('stuff', 'crc', 'form'), the field and bit index in it, and the
+    position in the bit stream counted from SOF (stuff bits included)."""
+
+    kind: str
+    field: Field
+    index: int
+    position: int
+
+    def __str__(self) -> str:
+        return f"{self.kind} error in {self.field.value} bit {self.index} (bit {self.position} from SOF)"
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """What a receiver made of one frame's bits.
+
+    ``frame`` is None when the header did not complete. ``crc`` is the CRC as received,
+    ``crc_ok`` whether it matched; ``ack`` whether the ACK slot was dominant; ``error`` the first
+    error detected (None for a valid frame); ``length`` bits consumed from SOF (to the end of EOF
+    for a valid frame, to the erroneous bit otherwise). ``overload`` is set when the last EOF bit
+    was dominant (an overload condition, the frame stays valid for a receiver).
+    """
+
+    frame: Frame | None
+    crc: int | None
+    crc_ok: bool
+    ack: bool
+    error: BitError | None
+    length: int
+    stuff_count: int
+    overload: bool = False
+    can_id: int | None = None
+    extended: bool = False
+    remote: bool = False
+    dlc: int | None = None
+    data: bytes = b""
+
+    @property
+    def ok(self) -> bool:
+        """True if the frame is valid for a receiver (no stuff, CRC or form error)."""
+        return self.error is None and self.frame is not None
+
+
+class BitDecoder:
+    """A receiver's bit-stream state machine: feed one sampled bit at a time from SOF on.
+
+    `feed` returns a `DecodedFrame` when the frame ends (after the last EOF bit, or at the bit
+    where an error is detected) and None otherwise. Errors detected: stuff (sixth equal bit in
+    SOF..CRC), form (dominant CRC delimiter, ACK delimiter, or EOF bits 1..6) and CRC (mismatch,
+    reported when the ACK delimiter has been received, where the standard signals it).
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the current frame; the next bit fed is expected to be SOF."""
+        self._pos = 0
+        self._last = -1
+        self._run = 0
+        self._stuffing = True
+        self._expect_stuff = False
+        self._stuff_count = 0
+        self._raw: list[int] = []
+        self._field = Field.SOF
+        self._field_index = 0
+        self._crc = 0
+        self._crc_rx = 0
+        self._ext = False
+        self._rtr = 0
+        self._dlc = 0
+        self._data_bits = 0
+        self._data = 0
+        self._id = 0
+        self._ack = False
+        self._crc_ok = False
+        self._error: BitError | None = None
+        self._layout: list[tuple[Field, int]] = [(Field.SOF, 1), (Field.ID, 11), (Field.RTR, 1)]
+        self._li = 0
+        self._done: set[Field] = set()
+
+    @property
+    def in_frame(self) -> bool:
+        """True between SOF and the end of the frame."""
+        return self._pos > 0
+
+    @property
+    def field(self) -> Field:
+        """Field of the next expected bit."""
+        return self._field
+
+    @property
+    def position(self) -> int:
+        """Bits fed since SOF."""
+        return self._pos
+
+    def _result(self, error: BitError | None, overload: bool = False) -> DecodedFrame:
+        frame = None
+        header_done = self._li_done_header
+        dlen = 0 if self._rtr else data_length(self._dlc)
+        data = self._data.to_bytes(dlen, "big") if header_done and dlen else b""
+        if error is None or (error.kind == "crc"):
+            try:
+                frame = Frame(self._id, data, extended=self._ext, remote=bool(self._rtr), dlc=self._dlc)
+            except ValueError:  # pragma: no cover - header fields are range-checked by width
+                frame = None
+        res = DecodedFrame(
+            frame=frame if error is None else None,
+            crc=self._crc_rx if self._crc_done else None,
+            crc_ok=self._crc_ok,
+            ack=self._ack,
+            error=error,
+            length=self._pos,
+            stuff_count=self._stuff_count,
+            overload=overload,
+            can_id=self._id if self._id_done else None,
+            extended=self._ext,
+            remote=bool(self._rtr),
+            dlc=self._dlc if header_done else None,
+            data=data if header_done else b"",
+        )
+        self.reset()
+        return res
+
+    # progress markers used by _result
+    @property
+    def _id_done(self) -> bool:
+        return Field.RTR in self._done
+
+    @property
+    def _li_done_header(self) -> bool:
+        return Field.DLC in self._done
+
+    @property
+    def _crc_done(self) -> bool:
+        return Field.CRC in self._done
+
+    def feed(self, bit: int) -> DecodedFrame | None:
+        """Consume one bit (0 dominant, 1 recessive); see the class docstring."""
+        pos = self._pos
+        self._pos = pos + 1
+        if self._stuffing:
+            if self._expect_stuff:
+                if bit == self._last:
+                    return self._result(BitError("stuff", self._field, self._field_index, pos))
+                self._last, self._run, self._expect_stuff = bit, 1, False
+                self._stuff_count += 1
+                if self._field == Field.CRC_DELIM:
+                    self._stuffing = False
+                return None
+            if bit == self._last:
+                self._run += 1
+            else:
+                self._last, self._run = bit, 1
+            if self._run == 5:
+                self._expect_stuff = True
+            return self._stuffed_bit(bit, pos)
+        return self._fixed_bit(bit, pos)
+
+    def _advance(self) -> None:
+        self._field_index += 1
+        f, width = self._layout[self._li]
+        if self._field_index >= width:
+            self._done.add(f)
+            self._li += 1
+            self._field_index = 0
+            while self._li < len(self._layout) and self._layout[self._li][1] == 0:
+                self._done.add(self._layout[self._li][0])
+                self._li += 1
+            if self._li < len(self._layout):
+                self._field = self._layout[self._li][0]
+            else:
+                self._field = Field.CRC_DELIM
+                if not self._expect_stuff:
+                    self._stuffing = False
+
+    def _stuffed_bit(self, bit: int, pos: int) -> DecodedFrame | None:
+        f = self._field
+        if f != Field.CRC:
+            self._crc = ((self._crc << 1) & 0x7FFF) ^ (CRC15_POLY if bit ^ (self._crc >> 14) else 0)
+        if f == Field.ID:
+            self._id = (self._id << 1) | bit
+        elif f == Field.RTR:
+            # in a standard frame this is RTR; if IDE turns out 1 it was SRR
+            self._rtr = bit
+            if self._ext:
+                self._layout += [(Field.R1, 1), (Field.R0, 1), (Field.DLC, 4)]
+        elif f == Field.IDE and self._li == 3:
+            if bit:
+                self._ext = True
+                self._layout[2] = (Field.SRR, 1)
+                self._layout += [(Field.ID_EXT, 18), (Field.RTR, 1)]
+            else:
+                self._layout += [(Field.R0, 1), (Field.DLC, 4)]
+        elif f == Field.SRR:
+            pass
+        elif f == Field.ID_EXT:
+            self._id = (self._id << 1) | bit
+        elif f == Field.DLC:
+            self._dlc = (self._dlc << 1) | bit
+            if self._field_index == 3:
+                n = 0 if self._rtr else data_length(self._dlc)
+                self._layout += [(Field.DATA, 8 * n), (Field.CRC, 15)]
+        elif f == Field.DATA:
+            self._data = (self._data << 1) | bit
+        elif f == Field.CRC:
+            self._crc_rx = (self._crc_rx << 1) | bit
+        if f == Field.SOF and self._li == 0:
+            self._layout.insert(3, (Field.IDE, 1))
+        self._advance()
+        return None
+
+    def _fixed_bit(self, bit: int, pos: int) -> DecodedFrame | None:
+        f = self._field
+        if f == Field.CRC_DELIM:
+            self._crc_ok = self._crc == self._crc_rx
+            if not bit:
+                return self._result(BitError("form", f, 0, pos))
+            self._field, self._field_index = Field.ACK_SLOT, 0
+        elif f == Field.ACK_SLOT:
+            self._ack = bit == 0
+            self._field = Field.ACK_DELIM
+        elif f == Field.ACK_DELIM:
+            if not bit:
+                return self._result(BitError("form", f, 0, pos))
+            if not self._crc_ok:
+                # a CRC error is signalled after the ACK delimiter
+                return self._result(BitError("crc", Field.CRC, 0, pos))
+            self._field, self._field_index = Field.EOF, 0
+        elif f == Field.EOF:
+            i = self._field_index
+            if not bit:
+                if i < 6:
+                    return self._result(BitError("form", f, i, pos))
+                return self._result(None, overload=True)
+            if i == 6:
+                return self._result(None)
+            self._field_index = i + 1
+        return None
+
+
+def decode(bits: str | Sequence[int]) -> DecodedFrame:
+    """Decode one frame from its bit sequence starting at SOF (a string of '0'/'1' or ints).
+
+    Detects stuff, CRC and form errors and reports the first with its field and bit. A sequence
+    that ends before the frame does raises ValueError naming the field it stopped in.
+    """
+    dec = BitDecoder()
+    if isinstance(bits, str):
+        seq: Iterator[int] = (1 if c == "1" else 0 for c in bits if c in "01")
+    else:
+        seq = iter(bits)
+    first = True
+    for b in seq:
+        if first:
+            first = False
+            if b != 0:
+                raise ValueError("a frame starts with a dominant SOF bit (0); got 1")
+        res = dec.feed(b)
+        if res is not None:
+            return res
+    raise ValueError(f"bit sequence ended after {dec.position} bits, inside field {dec.field.value}")

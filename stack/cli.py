@@ -1,0 +1,76 @@
+"""The `canstack` command line.
+
+Each subcommand lives in the module that implements it and exposes
+``register(subparsers) -> None``; the handler it sets with ``set_defaults(func=...)`` takes the
+parsed arguments and returns an exit status. Bad input raises `CliError` (or ValueError from the
+library), which is printed as one line on stderr with exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+__all__ = ["CliError", "main", "parse_int"]
+
+# modules that contribute subcommands, in the order they are listed in --help
+SUBCOMMAND_MODULES = [
+    "stack.commands",
+    "stack.bittiming",
+    "stack.sync",
+    "stack.waveform",
+]
+
+
+class CliError(Exception):
+    """A bad command-line argument or input file: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse would print usage + message; keep one line
+        raise CliError(f"{self.prog}: {message}")
+
+
+def parse_int(text: str) -> int:
+    """An integer given in decimal or with 0x/0o/0b prefix (CAN identifiers are usually hex)."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser with every available subcommand registered."""
+    parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name in SUBCOMMAND_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # subcommand not built yet
+            raise
+        mod.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `canstack` console script."""
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        return int(args.func(args) or 0)
+    except (CliError, ValueError, OSError) as exc:
+        print(f"canstack: error: {exc}" if not str(exc).startswith("canstack") else f"{exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:  # pragma: no cover
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
