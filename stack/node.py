@@ -1,0 +1,353 @@
+"""A node: the software CAN controller the layers above talk to.
+
+The node is sans-IO: it is attached to a driver (the simulated bus, or a python-can bus) that
+gives it a clock and a wire. Layers above use only `send`, `subscribe`, `listen`, `call_at`,
+`call_later` and `now`, so the same profile or ECU runs unchanged on either driver.
+
+Controller features (per node): transmit queue policy (`stack.queues`), acceptance filters with
+python-can semantics, a bounded receive FIFO that counts overruns, automatic replies to remote
+frames, self-reception, listen-only and one-shot modes, and the counters a user expects.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+
+import can
+
+from .events import ArbitrationLost, Received, TxDone, TxFailed
+from .filters import AcceptanceFilter
+from .frame import Frame
+from .queues import QueueFull, TxRequest, make_queue
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .sim import SimBus
+
+__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState"]
+
+from enum import Enum
+
+
+class ErrorState(str, Enum):
+    """Fault confinement states (CAN 2.0 rules 9-12; WARNING at TEC or REC >= 96)."""
+
+    ACTIVE = "error-active"
+    WARNING = "error-warning"
+    PASSIVE = "error-passive"
+    BUS_OFF = "bus-off"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class NodeError(Exception):
+    """An operation the node cannot do in its current mode (listen-only, detached, bus off)."""
+
+
+class Timer:
+    """A pending callback on the driver's clock; `cancel()` stops it from running."""
+
+    __slots__ = ("time", "callback", "args", "cancelled")
+
+    def __init__(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self.time = time
+        self.callback = callback
+        self.args = args
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        """Do not run the callback."""
+        self.cancelled = True
+
+    def __lt__(self, other: "Timer") -> bool:  # pragma: no cover - heap entries carry a seq
+        return self.time < other.time
+
+
+class Subscription:
+    """A receive callback with its own filters; `unsubscribe()` removes it."""
+
+    __slots__ = ("node", "callback", "filter")
+
+    def __init__(self, node: "Node", callback: Callable[[Received], Any], flt: AcceptanceFilter | None) -> None:
+        self.node = node
+        self.callback = callback
+        self.filter = flt
+
+    def unsubscribe(self) -> None:
+        """Stop receiving through this callback."""
+        self.node._unsubscribe(self)
+
+
+class Node:
+    """A CAN node with a software controller.
+
+    Parameters name the controller's configuration: ``queue`` ('priority', 'fifo', 'mailbox'),
+    ``mailboxes`` and ``abort`` for the mailbox policy, ``tx_queue_size``, ``rx_fifo_size``,
+    acceptance ``filters`` (python-can format), ``receive_own_messages`` (self-reception),
+    ``listen_only`` (no ACK, no transmission, no error flags), ``one_shot`` (no retransmission
+    after a lost arbitration or an error).
+    """
+
+    def __init__(
+        self,
+        name: str = "node",
+        *,
+        queue: str = "priority",
+        mailboxes: int | None = None,
+        abort: bool = False,
+        tx_queue_size: int = 1024,
+        rx_fifo_size: int = 64,
+        filters: Iterable[Mapping[str, Any]] | None = None,
+        receive_own_messages: bool = False,
+        listen_only: bool = False,
+        one_shot: bool = False,
+    ) -> None:
+        if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
+            raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
+        self.name = str(name)
+        self.queue = make_queue(queue, capacity=tx_queue_size, mailboxes=mailboxes, abort=abort)
+        self.acceptance = AcceptanceFilter(filters)
+        self.rx_fifo: deque[tuple[int, Frame, Any]] = deque()
+        self.rx_fifo_size = rx_fifo_size
+        self.receive_own_messages = bool(receive_own_messages)
+        self.listen_only = bool(listen_only)
+        self.one_shot = bool(one_shot)
+        # counters
+        self.tx_frames = 0
+        self._rx_frames = 0
+        self._rx_overruns = 0
+        self.retransmissions = 0
+        self.tx_failed = 0
+        self._arb_lost = 0
+        # fault confinement (CAN 2.0 rules 1-12)
+        self.tec = 0
+        self.rec = 0
+        self.state = ErrorState.ACTIVE
+        self.auto_recovery = True
+        # wiring
+        self.bus: "SimBus | Any | None" = None
+        self._head: TxRequest | None = None
+        self._subs: list[Subscription] = []
+        self._listeners: dict[type, list[Callable[[Any], Any]]] = {}
+        self._remote_replies: dict[tuple[int, bool], Frame] = {}
+        self._cursor = 0  # lazy reception: position in the bus's delivery log
+        self._ready_at = 0  # suspend transmission (error passive) ends here
+        self._suspended = False  # set aside from arbitration until _ready_at
+        self.connected = True
+
+    # ------------------------------------------------------------------ clock and timers
+    def now(self) -> int:
+        """Current time of the driver's clock in ns."""
+        return self._driver().now()
+
+    def call_at(self, time: int, callback: Callable[..., Any], *args: Any) -> Timer:
+        """Run ``callback(*args)`` at absolute driver time ``time`` (ns)."""
+        return self._driver().call_at(int(time), callback, args)
+
+    def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
+        """Run ``callback(*args)`` ``delay`` ns from now."""
+        d = self._driver()
+        return d.call_at(d.now() + int(delay), callback, args)
+
+    def _driver(self) -> Any:
+        if self.bus is None:
+            raise NodeError(f"node {self.name!r} is not attached to a bus")
+        return self.bus
+
+    # ------------------------------------------------------------------ transmit
+    def send(self, frame: Frame | can.Message) -> TxRequest:
+        """Queue a frame for transmission; returns its request (state, losses, retries).
+
+        Raises `QueueFull` when the transmit queue has no room, `NodeError` in listen-only mode,
+        when bus off, or when not attached.
+        """
+        if not isinstance(frame, Frame):
+            if isinstance(frame, can.Message):
+                frame = Frame.from_message(frame)
+            else:
+                raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
+        bus = self._driver()
+        if self.listen_only:
+            raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
+        if self.state is ErrorState.BUS_OFF:
+            raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
+        req = TxRequest(self, frame, bus._next_seq(), bus.now())
+        moved = self.queue.push(req)
+        for m in moved:  # aborted out of a mailbox into the backlog: not offered any more
+            self._settle_losses(m)
+        self._update_head()
+        return req
+
+    def abort(self, req: TxRequest) -> bool:
+        """Abort a queued request that is not on the wire; True if it was aborted."""
+        if req.state != "queued" or req.on_wire or req.node is not self:
+            return False
+        self._settle_losses(req)
+        req.state = "aborted"
+        req.reason = "aborted"
+        self.queue.remove(req)
+        self._update_head()
+        self._emit(TxFailed(self.bus.now() if self.bus else 0, req.frame, req, "aborted"))
+        return True
+
+    def pending(self) -> list[TxRequest]:
+        """Requests still queued."""
+        return self.queue.pending()
+
+    def _settle_losses(self, req: TxRequest) -> None:
+        # arbitration rounds lost while this request was the offered head
+        if self._head is req and self.bus is not None and req.head_since >= 0 and self._eligible():
+            lost = self.bus.rounds - req.head_since
+            if lost > 0:
+                req.losses += lost
+                self._arb_lost += lost
+            req.head_since = self.bus.rounds
+
+    def _eligible(self) -> bool:
+        return self.connected and not self._suspended and self.state is not ErrorState.BUS_OFF
+
+    def _update_head(self) -> None:
+        cur = self._head
+        if cur is not None and cur.on_wire:
+            return
+        new = self.queue.head()
+        if new is cur:
+            return
+        if cur is not None and cur.state == "queued":
+            self._settle_losses(cur)
+        self._head = new
+        if new is not None and self.bus is not None:
+            new.head_since = self.bus.rounds
+            self.bus._offer(self, new)
+
+    # ------------------------------------------------------------------ receive
+    def subscribe(self, callback: Callable[[Received], Any],
+                  filters: Iterable[Mapping[str, Any]] | None = None) -> Subscription:
+        """Call ``callback(Received)`` for every received frame passing ``filters``.
+
+        With at least one subscription the node works like a controller with a receive
+        interrupt: frames go to the callbacks at reception time instead of the FIFO.
+        """
+        sub = Subscription(self, callback, AcceptanceFilter(filters) if filters else None)
+        if self.bus is not None:
+            self.bus._sync(self)
+        self._subs.append(sub)
+        if self.bus is not None:
+            self.bus._reclassify(self)
+        return sub
+
+    def _unsubscribe(self, sub: Subscription) -> None:
+        if sub in self._subs:
+            self._subs.remove(sub)
+            if self.bus is not None:
+                self.bus._reclassify(self)
+
+    def listen(self, event_type: type, callback: Callable[[Any], Any]) -> None:
+        """Call ``callback(event)`` for events of ``event_type``: TxDone, TxFailed,
+        ArbitrationLost (and the fault-confinement events of `stack.errors`)."""
+        self._listeners.setdefault(event_type, []).append(callback)
+        if self.bus is not None:
+            self.bus._reclassify(self)
+
+    def _emit(self, event: Any) -> None:
+        for cb in self._listeners.get(type(event), ()):
+            cb(event)
+
+    def recv(self) -> tuple[int, Frame] | None:
+        """Pop the oldest frame from the receive FIFO as (time_ns, frame), or None if empty."""
+        if self.bus is not None:
+            self.bus._sync(self)
+        if self.rx_fifo:
+            t, frame, _ = self.rx_fifo.popleft()
+            return t, frame
+        return None
+
+    def set_filters(self, filters: Iterable[Mapping[str, Any]] | None) -> None:
+        """Replace the acceptance filters (python-can format; None accepts everything)."""
+        flt = AcceptanceFilter(filters)
+        if self.bus is not None:
+            self.bus._sync(self)
+        self.acceptance = flt
+        if self.bus is not None:
+            self.bus._filters_changed(self)
+
+    def set_remote_reply(self, frame: Frame | None, *, can_id: int | None = None, extended: bool = False) -> None:
+        """Answer remote frames for ``frame``'s identifier automatically with ``frame``
+        (a mailbox configured for automatic RTR reply); None with can_id removes it."""
+        if frame is None:
+            if can_id is None:
+                raise ValueError("give the frame to reply with, or can_id to remove a reply")
+            self._remote_replies.pop((can_id, extended), None)
+        else:
+            if frame.remote:
+                raise ValueError("the automatic reply to a remote frame must be a data frame")
+            self._remote_replies[(frame.can_id, frame.extended)] = frame
+        if self.bus is not None:
+            self.bus._filters_changed(self)
+
+    def _deliver(self, t: int, frame: Frame, sender: Any) -> None:
+        """Reception at the end of a valid frame (eager path; see SimBus for the lazy one)."""
+        if sender is self and not self.receive_own_messages:
+            return
+        if not self.acceptance.accepts(frame):
+            return
+        if self._subs:
+            self._rx_frames += 1
+            ev = Received(t, frame)
+            for sub in tuple(self._subs):
+                if sub.filter is None or sub.filter.accepts(frame):
+                    sub.callback(ev)
+        elif len(self.rx_fifo) < self.rx_fifo_size:
+            self._rx_frames += 1
+            self.rx_fifo.append((t, frame, sender))
+        else:
+            self._rx_overruns += 1
+
+    # ------------------------------------------------------------------ counters
+    @property
+    def rx_frames(self) -> int:
+        """Frames received and accepted by the filters (delivered to the FIFO or callbacks)."""
+        if self.bus is not None:
+            self.bus._sync(self)
+        return self._rx_frames
+
+    @property
+    def rx_overruns(self) -> int:
+        """Accepted frames lost because the receive FIFO was full."""
+        if self.bus is not None:
+            self.bus._sync(self)
+        return self._rx_overruns
+
+    @property
+    def arbitration_lost(self) -> int:
+        """Arbitration rounds this node entered and lost."""
+        n = self._arb_lost
+        h = self._head
+        if h is not None and h.state == "queued" and not h.on_wire and self.bus is not None and self._eligible():
+            n += max(0, self.bus.rounds - h.head_since)
+        return n
+
+    def counters(self) -> dict[str, int]:
+        """All counters by name (tx/rx frames, arbitration losses, retransmissions, overruns,
+        failed transmissions, TEC/REC as Linux's txerr/rxerr)."""
+        return {
+            "tx_frames": self.tx_frames,
+            "rx_frames": self.rx_frames,
+            "rx_overruns": self.rx_overruns,
+            "arbitration_lost": self.arbitration_lost,
+            "retransmissions": self.retransmissions,
+            "tx_failed": self.tx_failed,
+            "txerr": self.tec,
+            "rxerr": self.rec,
+        }
+
+    # fault-confinement hooks (rules 7 and 8), extended by stack.errors
+    def _on_tx_success(self) -> None:
+        self.tec -= 1
+
+    def _on_rx_success(self) -> None:
+        pass
+
+    def __repr__(self) -> str:
+        return f"<Node {self.name!r} {self.state}>"

@@ -1,0 +1,746 @@
+"""The simulated bus: a deterministic discrete-event engine with an integer-nanosecond clock.
+
+Model (CAN 2.0 / ISO 11898-1, at frame granularity with bit-exact lengths):
+- When the bus is idle (3 bits of intermission after EOF or after an error delimiter) every node
+  with a pending frame starts; bitwise arbitration picks the lowest arbitration key (data beats
+  remote, standard beats extended with the same base ID); losers retry at the next idle.
+- The winning frame occupies the bus for its exact stuffed length (SOF..EOF), then intermission.
+- Every other node on the bus that is not listen-only acknowledges; a transmitter without any
+  acknowledging node gets an ACK error and retransmits (fault confinement hooks in `stack.errors`).
+- Two nodes sending the same arbitration field but different frames (for example two remote
+  frames with the same ID and different DLC) collide after arbitration: the one sending
+  recessive where the other sends dominant sees a bit error and the attempt ends in an error
+  frame. The engine reports it (`collisions`, trace records of kind 'collision').
+
+Determinism: events at the same time run in the order they were scheduled; arbitration at an
+instant runs after every timer due at that instant; nothing reads the wall clock or an unseeded
+random source, so a scenario with the same seed gives the same trace.
+
+Hot path, hand-written on purpose (DESIGN.md allows it for the event loop): the current
+transmission and the next arbitration are two slots compared with the timer heap instead of
+heap events, contenders sit in their own heap (O(log n) per round for 1000 nodes), and receivers
+that only buffer frames (no callbacks) read a shared delivery log lazily — batched when the log
+is flushed — instead of being visited per frame. See `python -m stack.bench` for the figures.
+"""
+
+from __future__ import annotations
+
+import heapq
+from bisect import bisect_left
+import random
+from collections import Counter
+from typing import Any, Callable, Iterable, Iterator
+
+import can
+
+from .bits import Field, INTERMISSION_BITS
+from .events import ArbitrationLost, TxDone, TxFailed
+from .frame import Frame
+from .node import ErrorState, Node, Timer
+from .queues import TxRequest
+
+__all__ = ["SimBus", "TraceRecord", "IdStats", "ERROR_DELIMITER_BITS", "SUSPEND_BITS"]
+
+INF = float("inf")
+ERROR_FLAG_BITS = 6
+ERROR_DELIMITER_BITS = 8
+SUSPEND_BITS = 8
+LOG_LIMIT = 1 << 15
+
+
+class TraceRecord:
+    """One bus event: a frame ('frame'), a failed attempt ending in an error frame ('error'),
+    or a collision after arbitration ('collision').
+
+    ``start``/``end`` in ns (SOF to end of EOF, or to the end of the error delimiter);
+    ``sender`` node name(s); ``bits`` the stuffed length on the wire; ``losses`` arbitration
+    rounds the frame lost before winning; ``queued`` the time it was queued; ``detail`` a dict
+    (error kind, field, bit position, nodes that saw it, counters after).
+    """
+
+    __slots__ = ("kind", "start", "end", "sender", "frame", "bits", "losses", "queued", "detail")
+
+    def __init__(self, kind: str, start: int, end: int, sender: str, frame: Frame, bits: int,
+                 losses: int, queued: int, detail: dict[str, Any] | None = None) -> None:
+        self.kind = kind
+        self.start = start
+        self.end = end
+        self.sender = sender
+        self.frame = frame
+        self.bits = bits
+        self.losses = losses
+        self.queued = queued
+        self.detail = detail
+
+    def as_tuple(self) -> tuple[Any, ...]:
+        """A plain tuple for comparisons (determinism checks)."""
+        return (self.kind, self.start, self.end, self.sender, self.frame.key, self.frame.dlc,
+                self.frame.data, self.bits, self.losses, self.queued,
+                tuple(sorted((self.detail or {}).items())))
+
+    def to_message(self, channel: Any = None) -> can.Message:
+        """python-can message of this record (an error frame for 'error'/'collision')."""
+        if self.kind == "frame":
+            return self.frame.to_message(timestamp=self.end / 1e9, channel=channel)
+        return can.Message(timestamp=self.end / 1e9, is_error_frame=True, channel=channel,
+                           arbitration_id=0, dlc=0, check=False)
+
+    def __repr__(self) -> str:
+        return (f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
+                f" bits={self.bits} losses={self.losses}{' ' + str(self.detail) if self.detail else ''})")
+
+
+class IdStats:
+    """Per-identifier statistics: frames and latency (queued to end of EOF) min/mean/max in ns."""
+
+    __slots__ = ("can_id", "extended", "count", "total", "min", "max", "losses")
+
+    def __init__(self, can_id: int, extended: bool) -> None:
+        self.can_id = can_id
+        self.extended = extended
+        self.count = 0
+        self.total = 0
+        self.min = 1 << 62
+        self.max = 0
+        self.losses = 0
+
+    @property
+    def mean(self) -> float:
+        """Mean latency in ns."""
+        return self.total / self.count if self.count else 0.0
+
+
+class SimBus:
+    """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
+
+    ``record`` keeps a `TraceRecord` per bus event in ``trace``; ``seed`` seeds ``rng`` (used by
+    fault injection and by scenario code that asks for randomness).
+    """
+
+    def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0",
+                 record: bool = True) -> None:
+        if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
+            raise ValueError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+        self.bitrate = bitrate
+        self.name = name
+        self.seed = seed
+        self.rng = random.Random(seed)
+        self.record = record
+        self.trace: list[TraceRecord] = []
+        self.nodes: list[Node] = []
+        self._dur = [n * 1_000_000_000 // bitrate for n in range(1024)]
+        self.bit_ns = 1_000_000_000 / bitrate
+        self._now = 0
+        self._timers: list[tuple[int, int, Timer]] = []
+        self._seq = 0
+        self._contenders: list[TxRequest] = []
+        self._suspended: list[Node] = []
+        self.rounds = 0
+        self._idle_at = 0
+        self._tx: tuple[Any, ...] | None = None
+        self._tx_end: int = 0
+        # reception
+        self._log: list[tuple[int, Frame, Node]] = []
+        self._log_base = 0
+        self._lazy: list[Node] = []
+        self._eager: list[Node] = []
+        self._arb_watch: list[Node] = []
+        self._tx_watch = False
+        self._rtr: dict[tuple[int, bool], list[Node]] = {}
+        self._key_receivers: dict[int, tuple[Node, ...]] = {}
+        self._ack_count = 0
+        # statistics
+        self.frames_ok = 0
+        self.error_frames = 0
+        self.collisions = 0
+        self.busy_ns = 0
+        self.id_stats: dict[int, IdStats] = {}
+        self._bus_listeners: list[Callable[[TraceRecord], Any]] = []
+        self._first_sof: int | None = None
+        self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
+
+    # ------------------------------------------------------------------ nodes
+    def add(self, node: Node) -> Node:
+        """Attach a node to the bus (it starts receiving and may transmit at the next idle)."""
+        if node.bus is not None:
+            raise ValueError(f"node {node.name!r} is already attached to a bus")
+        if any(n.name == node.name for n in self.nodes):
+            raise ValueError(f"a node named {node.name!r} is already on bus {self.name!r}")
+        node.bus = self
+        self.nodes.append(node)
+        node._cursor = self._log_base + len(self._log)
+        self._filters_changed(node)
+        self._reclassify(node)
+        node._update_head()
+        return node
+
+    def node(self, name: str, **config: Any) -> Node:
+        """Create a `Node` with ``config`` (see Node) and attach it."""
+        return self.add(Node(name, **config))
+
+    def __getitem__(self, name: str) -> Node:
+        for n in self.nodes:
+            if n.name == name:
+                return n
+        raise KeyError(f"no node named {name!r} on bus {self.name!r}: {', '.join(n.name for n in self.nodes) or 'none'}")
+
+    def disconnect(self, node: Node) -> None:
+        """Take a node off the wire: it neither receives, acknowledges nor transmits."""
+        self._sync(node)
+        node.connected = False
+        self._reclassify(node)
+
+    def reconnect(self, node: Node) -> None:
+        """Put a disconnected node back on the wire; it receives from now on."""
+        node.connected = True
+        node._cursor = self._log_base + len(self._log)
+        self._reclassify(node)
+        if node._head is not None:
+            node._head.head_since = self.rounds
+            self._offer(node, node._head)
+        else:
+            node._update_head()
+
+    def _reclassify(self, node: Node) -> None:
+        for lst in (self._lazy, self._eager, self._arb_watch):
+            if node in lst:
+                lst.remove(node)
+        on = node.connected and node.state is not ErrorState.BUS_OFF
+        if on:
+            if node._subs:
+                self._sync(node)
+                self._eager.append(node)
+            else:
+                node._cursor = max(node._cursor, self._log_base)
+                self._lazy.append(node)
+            if node.one_shot or node._listeners.get(ArbitrationLost):
+                self._arb_watch.append(node)
+        # keep the delivery order deterministic: attach order
+        order = {n: i for i, n in enumerate(self.nodes)}
+        for lst in (self._lazy, self._eager, self._arb_watch):
+            lst.sort(key=order.__getitem__)
+        self._tx_watch = any(n._listeners for n in self.nodes)
+        self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
+                              and n.state is not ErrorState.BUS_OFF)
+
+    def _filters_changed(self, node: Node) -> None:
+        self._key_receivers = {}
+        self._rtr = {}
+        for n in self.nodes:
+            for k in n._remote_replies:
+                self._rtr.setdefault(k, []).append(n)
+
+    # ------------------------------------------------------------------ clock
+    def now(self) -> int:
+        """Virtual time in ns."""
+        return self._now
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer:
+        """Schedule ``callback(*args)`` at virtual time ``time`` ns (not before now)."""
+        if time < self._now:
+            time = self._now
+        t = Timer(time, callback, args)
+        self._seq += 1
+        heapq.heappush(self._timers, (time, self._seq, t))
+        return t
+
+    def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
+        """Schedule ``callback(*args)`` ``delay`` ns from now."""
+        return self.call_at(self._now + int(delay), callback, args)
+
+    def bits_to_ns(self, bits: int) -> int:
+        """Duration of ``bits`` bit times in ns."""
+        return bits * 1_000_000_000 // self.bitrate
+
+    # ------------------------------------------------------------------ engine
+    def _offer(self, node: Node, req: TxRequest) -> None:
+        if node.connected and node.state is not ErrorState.BUS_OFF:
+            heapq.heappush(self._contenders, (req.key, req.seq, req))
+
+    def run(self, until: int | None = None, *, duration: int | None = None,
+            frames: int | None = None) -> "SimBus":
+        """Advance the simulation to virtual time ``until`` (ns), for ``duration`` ns, or until
+        ``frames`` more frames were transmitted successfully — whichever comes first. With no
+        bound it runs until nothing is left to do."""
+        if duration is not None:
+            until = self._now + int(duration)
+        limit = INF if until is None else until
+        stop = INF if frames is None else self.frames_ok + frames
+        if until is None and frames is None and self._unbounded_risk():
+            raise ValueError("run() without until/duration/frames would never end: a node keeps "
+                             "retransmitting without acknowledgement; give a bound")
+        timers = self._timers
+        heappop = heapq.heappop
+        while self.frames_ok < stop:
+            tt = timers[0][0] if timers else INF
+            if self._tx is not None:
+                tb = self._tx_end
+            elif self._contenders:
+                tb = self._idle_at if self._idle_at > self._now else self._now
+            elif self._suspended:
+                tb = max(self._idle_at, self._now, min(n._ready_at for n in self._suspended))
+            else:
+                tb = INF
+            if tt <= tb:
+                if tt > limit or tt == INF:
+                    break
+                t, _, timer = heappop(timers)
+                if timer.cancelled:
+                    continue
+                self._now = t
+                timer.callback(*timer.args)
+            else:
+                if tb > limit:
+                    break
+                self._now = tb
+                if self._tx is not None:
+                    self._complete()
+                else:
+                    self._arbitrate()
+        if until is not None and self._now < until and self.frames_ok < stop:
+            self._now = until
+        return self
+
+    def _unbounded_risk(self) -> bool:
+        return any(n._head is not None for n in self.nodes) and self._ack_count <= 1
+
+    def _wake(self, now: int) -> None:
+        still = []
+        for n in self._suspended:
+            if n._ready_at <= now:
+                n._suspended = False
+                h = n._head
+                if h is not None and h.state == "queued":
+                    h.head_since = self.rounds
+                    heapq.heappush(self._contenders, (h.key, h.seq, h))
+            else:
+                still.append(n)
+        self._suspended = still
+
+    def _valid(self, req: TxRequest) -> bool:
+        node = req.node
+        return req.state == "queued" and node._head is req and node.connected and node.state is not ErrorState.BUS_OFF
+
+    def _arbitrate(self) -> None:
+        now = self._now
+        if self._suspended:
+            self._wake(now)
+        heap = self._contenders
+        heappop = heapq.heappop
+        winner = None
+        BUS_OFF = ErrorState.BUS_OFF
+        while heap:
+            req = heap[0][2]
+            node = req.node
+            if req.state != "queued" or node._head is not req or not node.connected or node.state is BUS_OFF:
+                heappop(heap)
+                continue
+            if node._ready_at > now:  # error passive: suspend transmission
+                heappop(heap)
+                if not node._suspended:
+                    node._suspended = True
+                    self._suspended.append(node)
+                continue
+            winner = heappop(heap)[2]
+            break
+        if winner is None:
+            return
+        r = self.rounds
+        self.rounds = r + 1
+        key = winner.key
+        txs = [winner]
+        while heap and heap[0][0] == key:
+            q = heappop(heap)[2]
+            if self._valid(q) and q.node is not winner.node and q.node._ready_at <= now:
+                if q not in txs:
+                    txs.append(q)
+            elif self._valid(q) and q.node._ready_at > now and not q.node._suspended:
+                q.node._suspended = True
+                self._suspended.append(q.node)
+        for q in txs:
+            lost = r - q.head_since
+            if lost > 0:
+                q.losses += lost
+                q.node._arb_lost += lost
+            q.head_since = r + 1
+            q.on_wire = True
+        if self._arb_watch:
+            self._notify_losers(now, r, txs)
+        frame = winner.frame
+        fb = frame.bits
+        if self._first_sof is None:
+            self._first_sof = now
+        if len(txs) > 1:
+            bits0 = fb.bits
+            diff = None
+            for q in txs[1:]:
+                b = q.frame.bits.bits
+                if b != bits0:
+                    d = next(i for i, (x, y) in enumerate(zip(bits0, b)) if x != y)
+                    diff = d if diff is None else min(diff, d)
+            if diff is not None:
+                self._start_collision(now, txs, diff)
+                return
+        ackers = self._ack_count
+        for q in txs:
+            n = q.node
+            if not n.listen_only:
+                ackers -= 1
+        if ackers <= 0:
+            pos = fb.fields[Field.ACK_SLOT][0]
+            self._start_error(now, txs, "ack", pos, Field.ACK_SLOT, {q.node for q in txs})
+            return
+        self._tx = (txs, now, None)
+        self._tx_end = now + self._dur[fb.length]
+
+    def _notify_losers(self, now: int, r: int, txs: list[TxRequest]) -> None:
+        winners = {q.node for q in txs}
+        wframe = txs[0].frame
+        for n in tuple(self._arb_watch):
+            h = n._head
+            if n in winners or h is None or h.state != "queued" or h.on_wire or n._suspended:
+                continue
+            if not (n.connected and n.state is not ErrorState.BUS_OFF) or h.head_since > r:
+                continue
+            n._emit(ArbitrationLost(now, h.frame, wframe))
+            if n.one_shot and h.state == "queued":
+                lost = r + 1 - h.head_since
+                h.losses += lost
+                n._arb_lost += lost
+                h.head_since = r + 1
+                self._fail_request(h, now, "arbitration lost (one-shot)")
+
+    def _fail_request(self, req: TxRequest, now: int, reason: str) -> None:
+        node = req.node
+        req.on_wire = False
+        req.state = "failed"
+        req.reason = reason
+        req.t_done = now
+        node.tx_failed += 1
+        node.queue.remove(req)
+        node._update_head()
+        node._emit(TxFailed(now, req.frame, req, reason))
+
+    def _start_collision(self, now: int, txs: list[TxRequest], pos: int) -> None:
+        """Same arbitration field, different frames: whoever sends recessive at ``pos`` while
+        another sends dominant sees a bit error (outside arbitration, so it is an error)."""
+        self.collisions += 1
+        detectors = {q.node for q in txs if q.frame.bits.bits[pos] == "1"}
+        fld, idx = txs[0].frame.bits.field_at(pos)
+        self._start_error(now, txs, "bit", pos, fld, detectors, collision=True)
+
+    def _wire_bits(self, txs: list[TxRequest], upto: int) -> str:
+        if len(txs) == 1:
+            return txs[0].frame.bits.bits[:upto]
+        out = []
+        for i in range(upto):
+            out.append("0" if any(q.frame.bits.bits[i] == "0" for q in txs) else "1")
+        return "".join(out)
+
+    def _start_error(self, now: int, txs: list[TxRequest], kind: str, pos: int, fld: Field,
+                     detectors: set[Node], collision: bool = False) -> None:
+        """An attempt that ends in an error frame: the error is detected at bit ``pos``; the
+        first error flag starts at the next bit (after the ACK delimiter for a CRC error)."""
+        fb = txs[0].frame.bits
+        flag_start = pos + 1
+        wire = self._wire_bits(txs, flag_start)
+        observers = any(
+            n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only and n not in detectors
+            for n in self.nodes)
+        active = any(n.state is not ErrorState.PASSIVE for n in detectors)
+        span = error_flag_span(wire, flag_start, fb.crc_delim, active, observers)
+        end = now + self._dur[flag_start + span + ERROR_DELIMITER_BITS]
+        detail = {"error": kind, "field": fld.value, "bit": pos,
+                  "seen_by": ",".join(sorted(n.name for n in detectors))}
+        if collision:
+            detail["frames"] = " / ".join(repr(q.frame) for q in txs)
+        self._tx = (txs, now, detail)
+        self._tx_end = end
+
+    def _complete(self) -> None:
+        txs, start, detail = self._tx
+        self._tx = None
+        end = self._tx_end
+        dur = self._dur
+        idle = end + dur[INTERMISSION_BITS]
+        if detail is not None:
+            self._complete_error(txs, start, end, idle, detail)
+            return
+        winner = txs[0]
+        frame = winner.frame
+        sender = winner.node
+        self.frames_ok += 1
+        self.busy_ns += idle - start
+        st = self.id_stats.get(frame.key)
+        if st is None:
+            st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
+        for q in txs:
+            node = q.node
+            q.on_wire = False
+            q.state = "sent"
+            q.t_done = end
+            node.tx_frames += 1
+            node.queue.remove(q)
+            lat = end - q.t_queued
+            st.count += 1
+            st.total += lat
+            st.losses += q.losses
+            if lat < st.min:
+                st.min = lat
+            if lat > st.max:
+                st.max = lat
+            if node.state is ErrorState.PASSIVE:
+                node._ready_at = idle + dur[SUSPEND_BITS]
+            if node.tec:
+                node._on_tx_success()
+            node._update_head()
+            if node._listeners:
+                node._emit(TxDone(end, frame, q))
+        if self.record:
+            rec = TraceRecord("frame", start, end, sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
+                              frame, frame.bits.length, winner.losses, winner.t_queued)
+            self.trace.append(rec)
+            for cb in self._bus_listeners:
+                cb(rec)
+        # reception: receivers validate the frame at the end of EOF
+        if self._lazy:
+            log = self._log
+            log.append((end, frame, sender))
+            if len(log) >= LOG_LIMIT:
+                self._flush()
+        for n in self._eager:
+            n._deliver(end, frame, sender)
+        if self._rec_nonzero:
+            for n in tuple(self._rec_nonzero):
+                n._on_rx_success()
+        if frame.remote and self._rtr:
+            for n in self._rtr.get((frame.can_id, frame.extended), ()):
+                if n is not sender and n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only:
+                    n.send(n._remote_replies[(frame.can_id, frame.extended)])
+        self._idle_at = idle
+
+    def _complete_error(self, txs: list[TxRequest], start: int, end: int, idle: int, detail: dict[str, Any]) -> None:
+        self.error_frames += 1
+        self.busy_ns += idle - start
+        for q in txs:
+            node = q.node
+            q.on_wire = False
+            if node.one_shot:
+                self._fail_request(q, end, f"{detail['error']} error (one-shot)")
+            else:
+                q.retries += 1
+                node.retransmissions += 1
+                q.head_since = self.rounds
+                if node._head is q:
+                    self._offer(node, q)
+                else:
+                    node._update_head()
+            if node.state is ErrorState.PASSIVE:
+                node._ready_at = idle + self._dur[SUSPEND_BITS]
+        if self.record:
+            winner = txs[0]
+            rec = TraceRecord("collision" if "frames" in detail else "error", start, end,
+                              "+".join(q.node.name for q in txs), winner.frame,
+                              winner.frame.bits.length, winner.losses, winner.t_queued, detail)
+            self.trace.append(rec)
+            for cb in self._bus_listeners:
+                cb(rec)
+        self._idle_at = idle
+
+    # ------------------------------------------------------------------ lazy reception
+    def _sync(self, node: Node) -> None:
+        """Bring a buffering node's FIFO and counters up to date from the delivery log."""
+        log = self._log
+        i = node._cursor - self._log_base
+        if i >= len(log) or node not in self._lazy:
+            node._cursor = self._log_base + len(log)
+            return
+        entries = log[i:] if i > 0 else log
+        node._cursor = self._log_base + len(log)
+        self._absorb(node, entries, None)
+
+    def _absorb(self, node: Node, entries: list[tuple[int, Frame, Node]],
+                senders: Counter[Node] | None) -> None:
+        fifo = node.rx_fifo
+        cap = node.rx_fifo_size
+        acc = node.acceptance
+        own = node.receive_own_messages
+        n = len(entries)
+        i = 0
+        got = 0
+        while len(fifo) < cap and i < n:
+            e = entries[i]
+            i += 1
+            if (e[2] is node and not own) or not acc.accepts(e[1]):
+                continue
+            fifo.append(e)
+            got += 1
+        node._rx_frames += got
+        if i >= n:
+            return
+        # FIFO full: the rest are overruns (data overrun: the new frame is lost)
+        if acc.accepts_all:
+            rest = n - i
+            if not own:
+                if i == 0 and senders is not None:
+                    rest -= senders.get(node, 0)
+                else:
+                    rest -= sum(1 for e in entries[i:] if e[2] is node)
+            node._rx_overruns += rest
+            return
+        accepts = acc.accepts
+        node._rx_overruns += sum(1 for e in entries[i:] if (own or e[2] is not node) and accepts(e[1]))
+
+    def _receivers_of(self, frame: Frame) -> tuple[Node, ...]:
+        """Nodes whose acceptance filters pass this arbitration key (cached until filters change)."""
+        r = self._key_receivers.get(frame.key)
+        if r is None:
+            r = tuple(n for n in self.nodes if n.acceptance.accepts(frame))
+            self._key_receivers[frame.key] = r
+        return r
+
+    def _flush(self) -> None:
+        """Hand the delivery log to every buffering node, then drop it.
+
+        Work is per delivery that lands in a FIFO, plus per distinct identifier and receiver:
+        the log is indexed by identifier once, each node walks only the positions of the
+        identifiers its filters pass until its FIFO is full, and counts the rest as overruns by
+        bisection. A thousand filtered nodes therefore cost about what ten do.
+        """
+        log = self._log
+        base = self._log_base
+        lazy = set(self._lazy)
+        by_key: dict[int, list[int]] = {}
+        by_sender: dict[Node, list[int]] = {}
+        first: dict[int, Frame] = {}
+        for idx, e in enumerate(log):
+            k = e[1].key
+            lst = by_key.get(k)
+            if lst is None:
+                by_key[k] = [idx]
+                first[k] = e[1]
+            else:
+                lst.append(idx)
+            s_lst = by_sender.get(e[2])
+            if s_lst is None:
+                by_sender[e[2]] = [idx]
+            else:
+                s_lst.append(idx)
+        node_lists: dict[Node, list[list[int]]] = {}
+        for k, lst in by_key.items():
+            for node in self._receivers_of(first[k]):
+                if node in lazy:
+                    node_lists.setdefault(node, []).append(lst)
+        for node in self._lazy:
+            lists = node_lists.get(node)
+            if lists:
+                self._absorb_indexed(node, log, lists, node._cursor - base, by_sender.get(node, ()))
+        self._log_base = base + len(log)
+        self._log = []
+        for node in self._lazy:
+            node._cursor = self._log_base
+
+    def _absorb_indexed(self, node: Node, log: list[tuple[int, Frame, Node]], lists: list[list[int]],
+                        start: int, own_positions: Iterable[int]) -> None:
+        fifo = node.rx_fifo
+        cap = node.rx_fifo_size
+        own = node.receive_own_messages
+        merged = lists[0] if len(lists) == 1 else heapq.merge(*lists)
+        got = 0
+        stop_at = None
+        for idx in merged:
+            if idx < start:
+                continue
+            e = log[idx]
+            if e[2] is node and not own:
+                continue
+            if len(fifo) >= cap:
+                stop_at = idx
+                break
+            fifo.append(e)
+            got += 1
+        node._rx_frames += got
+        if stop_at is None:
+            return
+        rest = sum(len(lst) - bisect_left(lst, stop_at) for lst in lists)
+        if not own:
+            acc = node.acceptance.accepts
+            rest -= sum(1 for i in own_positions if i >= stop_at and acc(log[i][1]))
+        node._rx_overruns += rest
+
+    # ------------------------------------------------------------------ results
+    @property
+    def elapsed(self) -> int:
+        """Virtual time since the first SOF (or since 0 if nothing was sent), ns."""
+        return self._now
+
+    def bus_load(self) -> float:
+        """Fraction of elapsed time the bus was not idle (frames and error frames with their
+        intermission), 0..1."""
+        return self.busy_ns / self._now if self._now else 0.0
+
+    def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
+        """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""
+        self._bus_listeners.append(callback)
+
+    def messages(self, channel: Any = None) -> Iterator[can.Message]:
+        """The trace as python-can messages (error attempts as error frames)."""
+        ch = self.name if channel is None else channel
+        for rec in self.trace:
+            yield rec.to_message(ch)
+
+    def save_trace(self, path: str) -> int:
+        """Write the trace with python-can's writer for the file's suffix (.asc, .blf, .log,
+        .csv, .trc, .mf4 ...); returns the number of messages written."""
+        from .trace import save_messages
+
+        return save_messages(self.messages(), path)
+
+    def summary(self) -> dict[str, Any]:
+        """Bus load, frame and error counts, per-ID latency and per-node counters."""
+        return {
+            "bitrate": self.bitrate,
+            "elapsed_s": self._now / 1e9,
+            "frames": self.frames_ok,
+            "error_frames": self.error_frames,
+            "collisions": self.collisions,
+            "bus_load": self.bus_load(),
+            "ids": {
+                (f"0x{s.can_id:08X}" if s.extended else f"0x{s.can_id:03X}"): {
+                    "count": s.count, "latency_min_us": s.min / 1e3, "latency_mean_us": s.mean / 1e3,
+                    "latency_max_us": s.max / 1e3, "arbitration_losses": s.losses}
+                for _, s in sorted(self.id_stats.items())
+            },
+            "nodes": {n.name: n.counters() for n in self.nodes},
+        }
+
+
+def error_flag_span(wire: str, flag_start: int, crc_delim: int, active: bool, observers: bool) -> int:
+    """Bits from the first error flag bit to the end of the superposed error flags.
+
+    An active flag is 6 dominant bits. Other nodes that have not detected the error see it: in
+    the stuffed region (before the CRC delimiter) as a stuff error once 6 equal dominant bits
+    have passed (counting dominant bits already on the wire before the flag), in a fixed-form
+    field as a form error at the first flag bit; they then send their own 6-bit flag. The
+    superposition is therefore 6..12 bits. A passive flag (6 recessive) from a transmitter is
+    seen by receivers the same way once 6 recessive bits have passed.
+    """
+    if not observers:
+        return ERROR_FLAG_BITS
+    level = "0" if active else "1"
+    if flag_start <= crc_delim:
+        run = 0
+        for c in reversed(wire):
+            if c != level or run == 5:
+                break
+            run += 1
+        detect = flag_start + (ERROR_FLAG_BITS - run) - 1
+    else:
+        if not active:
+            return ERROR_FLAG_BITS
+        detect = flag_start
+    return max(ERROR_FLAG_BITS, detect + 1 + ERROR_FLAG_BITS - flag_start)
