@@ -73,4 +73,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    from stack.cli import main as _main  # the package's module, so its CliError is the one raised
+
+    sys.exit(_main())

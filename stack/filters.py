@@ -49,8 +49,8 @@ class AcceptanceFilter:
     __slots__ = ("filters", "_rules", "_cache")
 
     def __init__(self, filters: Iterable[Mapping[str, Any]] | None = None) -> None:
+        self._rules = validate_filters(filters)
         self.filters = [dict(f) for f in filters] if filters else None
-        self._rules = validate_filters(self.filters)
         self._cache: dict[int, bool] = {}
 
     @property

@@ -24,7 +24,7 @@ from .queues import QueueFull, TxRequest, make_queue
 if TYPE_CHECKING:  # pragma: no cover
     from .sim import SimBus
 
-__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState"]
+__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask"]
 
 from enum import Enum
 
@@ -178,6 +178,12 @@ class Node:
             self._settle_losses(m)
         self._update_head()
         return req
+
+    def send_periodic(self, frame: "Frame | Callable[[], Frame]", period: int, *, offset: int = 0,
+                      count: int | None = None) -> "PeriodicTask":
+        """Send ``frame`` every ``period`` ns, first ``offset`` ns from now (a cyclic
+        transmission on the node's clock; see `PeriodicTask`)."""
+        return PeriodicTask(self, frame, period, offset=offset, count=count)
 
     def abort(self, req: TxRequest) -> bool:
         """Abort a queued request that is not on the wire; True if it was aborted."""
@@ -351,3 +357,46 @@ class Node:
 
     def __repr__(self) -> str:
         return f"<Node {self.name!r} {self.state}>"
+
+
+class PeriodicTask:
+    """A frame sent every ``period`` ns on the node's clock (a cyclic transmission).
+
+    ``frame`` may be a `Frame` or a callable returning the next frame (alive counters, changing
+    signals). ``count`` limits the number of transmissions; `stop()` ends it.
+    """
+
+    def __init__(self, node: Node, frame: Frame | Callable[[], Frame], period: int, *,
+                 offset: int = 0, count: int | None = None) -> None:
+        if isinstance(period, bool) or not isinstance(period, int) or period <= 0:
+            raise ValueError(f"period {period!r} ns must be a positive int")
+        self.node = node
+        self.frame = frame
+        self.period = period
+        self.count = count
+        self.sent = 0
+        self.overflows = 0
+        self._stopped = False
+        self._next = node.now() + max(0, int(offset))
+        self._timer = node.call_at(self._next, self._fire)
+
+    def _fire(self) -> None:
+        if self._stopped:
+            return
+        f = self.frame() if callable(self.frame) else self.frame
+        try:
+            self.node.send(f)
+        except QueueFull:
+            self.overflows += 1
+        self.sent += 1
+        if self.count is not None and self.sent >= self.count:
+            self._stopped = True
+            return
+        self._next += self.period
+        self._timer = self.node.call_at(self._next, self._fire)
+
+    def stop(self) -> None:
+        """Stop sending."""
+        self._stopped = True
+        self._timer.cancel()
+

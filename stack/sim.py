@@ -202,6 +202,7 @@ class SimBus:
             node._update_head()
 
     def _reclassify(self, node: Node) -> None:
+        was_lazy = node in self._lazy
         for lst in (self._lazy, self._eager, self._arb_watch):
             if node in lst:
                 lst.remove(node)
@@ -211,7 +212,8 @@ class SimBus:
                 self._sync(node)
                 self._eager.append(node)
             else:
-                node._cursor = max(node._cursor, self._log_base)
+                if not was_lazy:  # frames delivered while it was eager or off the bus are not its
+                    node._cursor = self._log_base + len(self._log)
                 self._lazy.append(node)
             if node.one_shot or node._listeners.get(ArbitrationLost):
                 self._arb_watch.append(node)

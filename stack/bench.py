@@ -1,0 +1,159 @@
+"""`python -m stack.bench`: speed figures, each as a ratio against a reference measured in the
+same run (so the figures compare across machines).
+
+- ``vs_python_can_virtual``: frames delivered per second from one sender to one receiver on a
+  canstack `SimBus`, divided by the same on python-can's ``virtual`` interface (send + recv in one
+  process). canstack does arbitration and exact timing; the virtual bus does neither.
+- ``realtime_factor_10_nodes``: 10 nodes at 1 Mbit/s sending 8-byte frames back to back (100 %
+  bus load), every node receiving everything through its filters into its FIFO, counters on,
+  trace recording off: simulated time divided by wall time (the wire is the reference).
+- ``scale_1000_vs_10_nodes``: frames per second with 1000 such nodes (each filtering the 16
+  identifiers of its group) divided by the 10-node figure.
+- ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.waveform`.
+
+``--json`` prints one JSON object; ``--quick`` runs smaller counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any, Callable
+
+import can
+
+from .events import Received, TxDone
+from .frame import Frame
+from .sim import SimBus
+
+__all__ = ["bench_python_can_virtual", "bench_canstack_pair", "bench_saturated", "main"]
+
+
+def _progress(msg: str) -> None:
+    print(f"[bench] {msg}", file=sys.stderr, flush=True)
+
+
+def bench_python_can_virtual(n: int) -> float:
+    """Frames per second through python-can's virtual interface, one sender, one receiver."""
+    tx = can.Bus(interface="virtual", channel="bench", receive_own_messages=False)
+    rx = can.Bus(interface="virtual", channel="bench", receive_own_messages=False)
+    msg = can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False)
+    got = 0
+    t0 = time.perf_counter()
+    for _ in range(n):
+        tx.send(msg)
+        if rx.recv(timeout=1.0) is not None:
+            got += 1
+    dt = time.perf_counter() - t0
+    tx.shutdown()
+    rx.shutdown()
+    return got / dt
+
+
+def _resend(node: Any) -> Callable[[TxDone], None]:
+    send = node.send
+    return lambda ev: send(ev.frame)
+
+
+def bench_canstack_pair(n: int) -> float:
+    """Frames per second delivered from one sender to one subscribed receiver on a SimBus."""
+    bus = SimBus(1_000_000, record=False)
+    tx = bus.node("tx")
+    rx = bus.node("rx")
+    got = [0]
+
+    def on_rx(ev: Received) -> None:
+        got[0] += 1
+
+    rx.subscribe(on_rx)
+    tx.listen(TxDone, _resend(tx))
+    tx.send(Frame(0x123, bytes(8)))
+    t0 = time.perf_counter()
+    bus.run(frames=n)
+    dt = time.perf_counter() - t0
+    return got[0] / dt
+
+
+def bench_saturated(nodes: int, n: int, group_filters: bool) -> tuple[float, float]:
+    """(frames per second, real-time factor) for ``nodes`` saturating senders at 1 Mbit/s."""
+    bus = SimBus(1_000_000, record=False)
+    for i in range(nodes):
+        cid = (0x100 + i) & 0x7FF
+        kw: dict[str, Any] = {}
+        if group_filters:
+            kw["filters"] = [{"can_id": cid & 0x7F0, "can_mask": 0x7F0, "extended": False}]
+        node = bus.node(f"n{i}", **kw)
+        node.listen(TxDone, _resend(node))
+        node.send(Frame(cid, bytes([i & 0xFF]) * 8))
+    t0 = time.perf_counter()
+    bus.run(frames=n)
+    dt = time.perf_counter() - t0
+    return n / dt, bus.now() / 1e9 / dt
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmarks and print each figure as a ratio against its reference."""
+    ap = argparse.ArgumentParser(prog="python -m stack.bench")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="smaller counts (a quick look)")
+    ap.add_argument("--no-waveform", action="store_true", help="skip the capture-decoding figure")
+    args = ap.parse_args(argv)
+    scale = 0.2 if args.quick else 1.0
+    res: dict[str, Any] = {}
+
+    _progress("python-can virtual: 1 sender -> 1 receiver")
+    ref = bench_python_can_virtual(int(50_000 * scale))
+    _progress("canstack SimBus: 1 sender -> 1 receiver")
+    ours = bench_canstack_pair(int(200_000 * scale))
+    res["python_can_virtual_fps"] = ref
+    res["canstack_pair_fps"] = ours
+    res["vs_python_can_virtual"] = ours / ref
+
+    _progress("10 nodes, 1 Mbit/s, 100 % load")
+    fps10, rtf10 = bench_saturated(10, int(300_000 * scale), False)
+    res["fps_10_nodes"] = fps10
+    res["realtime_factor_10_nodes"] = rtf10
+    _progress("1000 nodes, 1 Mbit/s, 100 % load")
+    fps1000, rtf1000 = bench_saturated(1000, int(300_000 * scale), True)
+    res["fps_1000_nodes"] = fps1000
+    res["scale_1000_vs_10_nodes"] = fps1000 / fps10
+
+    if not args.no_waveform:
+        try:
+            from . import waveform
+
+            bench = getattr(waveform, "benchmark", None)
+        except Exception:  # pragma: no cover - module optional while being built
+            bench = None
+        if bench is not None:
+            _progress("decoding a 12 M-sample capture")
+            try:
+                w = bench()
+            except FileNotFoundError as exc:
+                _progress(f"skipped: {exc}")
+            else:
+                res["decode_s"] = w.get("decode_s")
+                res["sigrok_s"] = w.get("sigrok_s")
+                res["decode_vs_sigrok"] = w.get("vs_sigrok")
+
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"frames/s 1 sender -> 1 receiver: {ours:,.0f} vs python-can virtual {ref:,.0f}: "
+          f"{res['vs_python_can_virtual']:.2f}x (target >= 3)")
+    print(f"10 nodes @ 1 Mbit/s, 100 % load: {fps10:,.0f} frames/s, real-time factor "
+          f"{rtf10:.1f}x the wire (target >= 50)")
+    print(f"1000 nodes: {fps1000:,.0f} frames/s = {res['scale_1000_vs_10_nodes']:.2f} of the 10-node "
+          f"figure (target >= 0.5)")
+    if res.get("decode_vs_sigrok") is not None:
+        print(f"capture decode: {res['decode_s']:.2f} s vs sigrok-cli {res['sigrok_s']:.2f} s: "
+              f"{res['decode_vs_sigrok']:.2f}x (target >= 1)")
+    elif "decode_s" in res:
+        print(f"capture decode: {res['decode_s']:.2f} s (sigrok-cli not installed)")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""`canstack demo` and `canstack frame`: the engine's own subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from .bits import Field, worst_case_length, INTERMISSION_BITS
+from .cli import CliError, parse_int
+from .frame import Frame
+from .sim import SimBus
+
+__all__ = ["register", "build_demo", "format_summary"]
+
+MS = 1_000_000
+
+
+def build_demo(bus: SimBus) -> None:
+    """The demo network: five ECUs with periodic traffic at different priorities, an extended
+    (J1939-style) message, and a remote request answered automatically by a mailbox."""
+    brake = bus.node("brake")
+    engine = bus.node("engine")
+    body = bus.node("body")
+    gateway = bus.node("gateway")
+    tester = bus.node("tester", filters=[{"can_id": 0x0C1, "can_mask": 0x7FF, "extended": False},
+                                         {"can_id": 0x700, "can_mask": 0x7FF, "extended": False}])
+    # every ECU reads its receive FIFO from an interrupt-like callback, as firmware would
+    for ecu in (brake, engine, body, gateway, tester):
+        ecu.subscribe(lambda ev: None)
+    counter = {"n": 0}
+
+    def wheel_speeds() -> Frame:
+        counter["n"] = (counter["n"] + 1) & 0xFF
+        return Frame(0x0A0, bytes([0x12, 0x34, 0x56, counter["n"]]))
+
+    brake.send_periodic(wheel_speeds, 5 * MS)
+    engine.send_periodic(Frame(0x0C1, bytes.fromhex("4001087500000000")), 10 * MS, offset=1 * MS)
+    engine.send_periodic(Frame(0x0C2, bytes.fromhex("0011223344556677")), 10 * MS, offset=1 * MS)
+    body.send_periodic(Frame(0x3E8, bytes.fromhex("0102")), 100 * MS)
+    body.send_periodic(Frame(0x3E9, bytes.fromhex("00")), 20 * MS, offset=3 * MS)
+    gateway.send_periodic(Frame(0x18FEF100, bytes.fromhex("FFFF3C00FFFFFFFF"), extended=True), 20 * MS)
+    # a burst every 50 ms: six frames queued at once compete with everyone's periodic traffic
+    for i in range(6):
+        gateway.send_periodic(Frame(0x500 + i, bytes(8)), 50 * MS, offset=1 * MS)
+    body.set_remote_reply(Frame(0x700, bytes.fromhex("5A5A")))
+    tester.send_periodic(Frame(0x700, remote=True, dlc=2), 50 * MS, offset=7 * MS)
+
+
+def format_summary(bus: SimBus) -> str:
+    """A readable summary: bus load, per-ID latency and arbitration losses, node counters."""
+    s = bus.summary()
+    lines = [
+        f"bus {bus.name}: {bus.bitrate // 1000} kbit/s, {s['elapsed_s']:.3f} s simulated, "
+        f"{s['frames']} frames, {s['error_frames']} error frames, bus load {100 * s['bus_load']:.1f} %",
+        "",
+        f"{'ID':>10}  {'frames':>6}  {'latency min/mean/max (us)':>27}  {'arb. losses':>11}",
+    ]
+    for ident, st in s["ids"].items():
+        lat = f"{st['latency_min_us']:.0f} / {st['latency_mean_us']:.0f} / {st['latency_max_us']:.0f}"
+        lines.append(f"{ident:>10}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
+    lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'arb.lost':>8} {'retx':>5} {'overrun':>7} {'TEC':>4} {'REC':>4}"]
+    for name, c in s["nodes"].items():
+        lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['arbitration_lost']:>8} "
+                     f"{c['retransmissions']:>5} {c['rx_overruns']:>7} {c['txerr']:>4} {c['rxerr']:>4}")
+    return "\n".join(lines)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    if args.duration <= 0:
+        raise CliError(f"--duration {args.duration}: must be > 0 seconds")
+    if args.trace:
+        from .trace import _check_suffix
+        _check_suffix(args.trace)
+    bus = SimBus(args.bitrate, seed=args.seed, record=True)
+    build_demo(bus)
+    bus.run(until=int(args.duration * 1e9))
+    if args.json:
+        print(json.dumps(bus.summary(), indent=2))
+    else:
+        print(format_summary(bus))
+    if args.trace:
+        n = bus.save_trace(args.trace)
+        if not args.json:
+            print(f"\ntrace: {n} records written to {args.trace}")
+    return 0
+
+
+def _bitrate(text: str) -> int:
+    v = parse_int(text)
+    if not 1_000 <= v <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+    return v
+
+
+def _frame_from_args(args: argparse.Namespace) -> Frame:
+    try:
+        data = bytes.fromhex(args.data.replace(" ", "")) if args.data else b""
+    except ValueError:
+        raise CliError(f"--data {args.data!r} is not hex bytes (e.g. 4001087500000000)") from None
+    return Frame(args.id, data, extended=args.extended, remote=args.remote, dlc=args.dlc)
+
+
+def _frame(args: argparse.Namespace) -> int:
+    frame = _frame_from_args(args)
+    fb = frame.bits
+    if args.json:
+        print(json.dumps({"bits": fb.bits, "crc": fb.crc, "length": fb.length, "stuff_bits": fb.stuff_count}))
+        return 0
+    stuff = set(fb.stuff_positions)
+    print(f"frame       {frame!r}")
+    print(f"CRC         0x{fb.crc:04X}")
+    print(f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
+          f"worst case {worst_case_length(frame.length, frame.extended)}")
+    print("bits        (stuff bits in [ ])")
+    for fld, positions in fb.fields.items():
+        if not positions:
+            continue
+        out = []
+        for p in range(positions[0], positions[-1] + 2):
+            if p in stuff:
+                out.append(f"[{fb.bits[p]}]")
+            elif p in positions:
+                out.append(fb.bits[p])
+        print(f"  {fld.value:<10}{''.join(out)}")
+    print(f"stuffed     {fb.bits}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add `demo` and `frame`."""
+    p = sub.add_parser("demo", help="run the demo network on the simulated bus and print a summary")
+    p.add_argument("--duration", type=float, default=1.0, help="simulated seconds (default 1)")
+    p.add_argument("--bitrate", type=_bitrate, default=500_000, help="bit/s (default 500000)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=_demo)
+
+    p = sub.add_parser("frame", help="show a frame's bits on the wire: stuffing, CRC, length")
+    p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")
+    p.add_argument("--data", default="", help="data bytes as hex")
+    p.add_argument("--extended", action="store_true", help="29-bit identifier")
+    p.add_argument("--remote", action="store_true", help="remote frame (give --dlc)")
+    p.add_argument("--dlc", type=parse_int, default=None, help="DLC 0..15 (default: data length)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_frame)

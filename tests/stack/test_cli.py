@@ -1,0 +1,61 @@
+"""`canstack demo` and `canstack frame`, and the CLI's bad-input contract (one line, status 2)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from stack.bits import decode
+from stack.cli import main
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "stack.cli", *args], capture_output=True, text=True)
+
+
+def test_demo_prints_summary_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    assert "bus load" in out and "0x0C1" in out and "arb. losses" in out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_writes_trace_when_asked(tmp_path, capsys):
+    path = tmp_path / "out.asc"
+    assert main(["demo", "--duration", "0.1", "--trace", str(path)]) == 0
+    assert path.read_text().count("Rx") > 50
+
+
+def test_frame_json_golden_crc_and_bits(capsys):
+    assert main(["frame", "--id", "0x0C1", "--data", "4001087500000000", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["crc"] == 0x5B40 and out["stuff_bits"] == 10 and out["length"] == 118 == len(out["bits"])
+    d = decode(out["bits"])
+    assert d.ok and d.frame.can_id == 0x0C1 and d.frame.data.hex() == "4001087500000000"
+
+
+def test_frame_remote_extended(capsys):
+    assert main(["frame", "--id", "0x18FEF100", "--extended", "--remote", "--dlc", "8", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    d = decode(out["bits"])
+    assert d.frame.remote and d.frame.extended and d.frame.dlc == 8
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["frame", "--id", "0x800"], "0x800 out of range"),
+    (["frame", "--id", "0x1", "--data", "zz"], "not hex"),
+    (["frame", "--id", "0x1", "--remote", "--dlc", "16"], "DLC 16"),
+    (["frame", "--id", "0x1", "--data", "112233445566778899"], "at most 8"),
+    (["frame", "--id", "abc"], "not an integer"),
+    (["demo", "--bitrate", "5000000"], "1000..1000000"),
+    (["demo", "--trace", "x.unknown"], "unknown suffix"),
+    (["demo", "--duration", "-1"], "--duration"),
+    (["nosuchcommand"], "invalid choice"),
+])
+def test_bad_input_is_one_line_and_status_2(args, needle):
+    p = run_cli(*args)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in p.stderr
