@@ -307,6 +307,21 @@ class SimBus:
             self._now = until
         return self
 
+    def next_event_time(self) -> float:
+        """Virtual time (ns) of the next thing the engine will do: a timer, the end of the
+        current transmission, or the next arbitration; ``inf`` when idle with nothing queued.
+        A real-time driver sleeps until the wall clock reaches it."""
+        tt = self._timers[0][0] if self._timers else INF
+        if self._tx is not None:
+            tb = self._tx_end
+        elif self._contenders:
+            tb = max(self._idle_at, self._now)
+        elif self._suspended:
+            tb = max(self._idle_at, self._now, min(n._ready_at for n in self._suspended))
+        else:
+            tb = INF
+        return min(tt, tb)
+
     def _unbounded_risk(self) -> bool:
         return any(n._head is not None for n in self.nodes) and self._ack_count <= 1
 
