@@ -129,6 +129,8 @@ class SimBus:
         self.trace: list[TraceRecord] = []
         self.nodes: list[Node] = []
         self._dur = [n * 1_000_000_000 // bitrate for n in range(1024)]
+        self._ifs_ns = self._dur[INTERMISSION_BITS]
+        self._suspend_ns = self._dur[SUSPEND_BITS]
         self.bit_ns = 1_000_000_000 / bitrate
         self._now = 0
         self._timers: list[tuple[int, int, Timer]] = []
@@ -482,8 +484,7 @@ class SimBus:
         txs, start, detail = self._tx
         self._tx = None
         end = self._tx_end
-        dur = self._dur
-        idle = end + dur[INTERMISSION_BITS]
+        idle = end + self._ifs_ns
         if detail is not None:
             self._complete_error(txs, start, end, idle, detail)
             return
@@ -492,9 +493,29 @@ class SimBus:
         sender = winner.node
         self.frames_ok += 1
         self.busy_ns += idle - start
+        self._idle_at = idle
+        if self.record:
+            rec = TraceRecord("frame", start, end, sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
+                              frame, frame.bits.length, winner.losses, winner.t_queued)
+            self.trace.append(rec)
+            for cb in self._bus_listeners:
+                cb(rec)
+        # receivers validate the frame at the last-but-one EOF bit, before the transmitter
+        # does at the last one: deliver first, then confirm the transmission
+        if self._lazy:
+            log = self._log
+            log.append((end, frame, sender))
+            if len(log) >= LOG_LIMIT:
+                self._flush()
+        for n in self._eager:
+            n._deliver(end, frame, sender)
+        if self._rec_nonzero:
+            for n in tuple(self._rec_nonzero):
+                n._on_rx_success()
         st = self.id_stats.get(frame.key)
         if st is None:
             st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
+        PASSIVE = ErrorState.PASSIVE
         for q in txs:
             node = q.node
             q.on_wire = False
@@ -510,35 +531,18 @@ class SimBus:
                 st.min = lat
             if lat > st.max:
                 st.max = lat
-            if node.state is ErrorState.PASSIVE:
-                node._ready_at = idle + dur[SUSPEND_BITS]
+            if node.state is PASSIVE:
+                node._ready_at = idle + self._suspend_ns
             if node.tec:
                 node._on_tx_success()
             node._update_head()
             if node._listeners:
-                node._emit(TxDone(end, frame, q))
-        if self.record:
-            rec = TraceRecord("frame", start, end, sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
-                              frame, frame.bits.length, winner.losses, winner.t_queued)
-            self.trace.append(rec)
-            for cb in self._bus_listeners:
-                cb(rec)
-        # reception: receivers validate the frame at the end of EOF
-        if self._lazy:
-            log = self._log
-            log.append((end, frame, sender))
-            if len(log) >= LOG_LIMIT:
-                self._flush()
-        for n in self._eager:
-            n._deliver(end, frame, sender)
-        if self._rec_nonzero:
-            for n in tuple(self._rec_nonzero):
-                n._on_rx_success()
+                for cb in node._listeners.get(TxDone, ()):
+                    cb(TxDone(end, frame, q))
         if frame.remote and self._rtr:
             for n in self._rtr.get((frame.can_id, frame.extended), ()):
                 if n is not sender and n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only:
                     n.send(n._remote_replies[(frame.can_id, frame.extended)])
-        self._idle_at = idle
 
     def _complete_error(self, txs: list[TxRequest], start: int, end: int, idle: int, detail: dict[str, Any]) -> None:
         self.error_frames += 1
