@@ -135,6 +135,7 @@ class Node:
         self._ready_at = 0  # suspend transmission (error passive) ends here
         self._suspended = False  # set aside from arbitration until _ready_at
         self.connected = True
+        self._on_bus = False  # connected and not bus off; kept by the bus
 
     # ------------------------------------------------------------------ clock and timers
     def now(self) -> int:
@@ -162,22 +163,35 @@ class Node:
         Raises `QueueFull` when the transmit queue has no room, `NodeError` in listen-only mode,
         when bus off, or when not attached.
         """
-        if not isinstance(frame, Frame):
-            if isinstance(frame, can.Message):
-                frame = Frame.from_message(frame)
-            else:
-                raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
-        bus = self._driver()
+        if type(frame) is not Frame:
+            frame = self._coerce(frame)
+        bus = self.bus
+        if bus is None or self.listen_only or self.state is ErrorState.BUS_OFF:
+            self._refuse()
+        bus._seq += 1
+        req = TxRequest(self, frame, bus._seq, bus._now)
+        if self.queue.push(req):
+            for m in self.queue.moved:  # aborted out of a mailbox: not offered any more
+                self._settle_losses(m)
+        cur = self._head
+        if cur is None or (not cur.on_wire and req.key < cur.key):
+            self._update_head()
+        return req
+
+    @staticmethod
+    def _coerce(frame: Any) -> Frame:
+        if isinstance(frame, Frame):
+            return frame
+        if isinstance(frame, can.Message):
+            return Frame.from_message(frame)
+        raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
+
+    def _refuse(self) -> None:
+        if self.bus is None:
+            raise NodeError(f"node {self.name!r} is not attached to a bus")
         if self.listen_only:
             raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
-        if self.state is ErrorState.BUS_OFF:
-            raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
-        req = TxRequest(self, frame, bus._next_seq(), bus.now())
-        moved = self.queue.push(req)
-        for m in moved:  # aborted out of a mailbox into the backlog: not offered any more
-            self._settle_losses(m)
-        self._update_head()
-        return req
+        raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
 
     def send_periodic(self, frame: "Frame | Callable[[], Frame]", period: int, *, offset: int = 0,
                       count: int | None = None) -> "PeriodicTask":
@@ -296,7 +310,10 @@ class Node:
         """Reception at the end of a valid frame (eager path; see SimBus for the lazy one)."""
         if sender is self and not self.receive_own_messages:
             return
-        if not self.acceptance.accepts(frame):
+        acc = self.acceptance._cache.get(frame.key)
+        if acc is None:
+            acc = self.acceptance.accepts(frame)
+        if not acc:
             return
         if self._subs:
             self._rx_frames += 1

@@ -78,8 +78,11 @@ class TxQueue:
 
     capacity: int
 
-    def push(self, req: TxRequest) -> list[TxRequest]:
-        """Queue a request; returns requests moved out of hardware by it (mailbox abort)."""
+    moved: list[TxRequest] = []
+
+    def push(self, req: TxRequest) -> bool:
+        """Queue a request; True if it moved other requests out of hardware (mailbox abort),
+        which are then listed in ``moved``."""
         raise NotImplementedError
 
     def head(self) -> TxRequest | None:
@@ -107,12 +110,12 @@ class PriorityQueue(TxQueue):
         self._heap: list[tuple[int, int, TxRequest]] = []
         self._n = 0
 
-    def push(self, req: TxRequest) -> list[TxRequest]:
+    def push(self, req: TxRequest) -> bool:
         if self._n >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
         heapq.heappush(self._heap, (req.key, req.seq, req))
         self._n += 1
-        return []
+        return False
 
     def head(self) -> TxRequest | None:
         h = self._heap
@@ -143,12 +146,12 @@ class FifoQueue(TxQueue):
         self._q: deque[TxRequest] = deque()
         self._n = 0
 
-    def push(self, req: TxRequest) -> list[TxRequest]:
+    def push(self, req: TxRequest) -> bool:
         if self._n >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
         self._q.append(req)
         self._n += 1
-        return []
+        return False
 
     def head(self) -> TxRequest | None:
         q = self._q
@@ -186,13 +189,13 @@ class MailboxQueue(TxQueue):
     def __len__(self) -> int:
         return len(self.boxes) + len(self.backlog)
 
-    def push(self, req: TxRequest) -> list[TxRequest]:
+    def push(self, req: TxRequest) -> bool:
         if len(self) >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
+        self.moved = []
         if len(self.boxes) < self.n and not self.backlog:
             self.boxes.append(req)
-            return []
-        moved: list[TxRequest] = []
+            return False
         if self.abort:
             victims = [b for b in self.boxes if not b.on_wire]
             if victims:
@@ -202,9 +205,10 @@ class MailboxQueue(TxQueue):
                     self.backlog.appendleft(worst)
                     self.boxes.append(req)
                     self.aborts += 1
-                    return [worst]
+                    self.moved = [worst]
+                    return True
         self.backlog.append(req)
-        return moved
+        return False
 
     def head(self) -> TxRequest | None:
         return min(self.boxes) if self.boxes else None

@@ -160,6 +160,7 @@ class SimBus:
         self._bus_listeners: list[Callable[[TraceRecord], Any]] = []
         self._first_sof: int | None = None
         self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
+        self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
 
     # ------------------------------------------------------------------ nodes
     def add(self, node: Node) -> Node:
@@ -209,6 +210,7 @@ class SimBus:
             if node in lst:
                 lst.remove(node)
         on = node.connected and node.state is not ErrorState.BUS_OFF
+        node._on_bus = on
         if on:
             if node._subs:
                 self._sync(node)
@@ -262,7 +264,7 @@ class SimBus:
 
     # ------------------------------------------------------------------ engine
     def _offer(self, node: Node, req: TxRequest) -> None:
-        if node.connected and node.state is not ErrorState.BUS_OFF:
+        if node._on_bus:
             heapq.heappush(self._contenders, (req.key, req.seq, req))
 
     def run(self, until: int | None = None, *, duration: int | None = None,
@@ -341,8 +343,7 @@ class SimBus:
         self._suspended = still
 
     def _valid(self, req: TxRequest) -> bool:
-        node = req.node
-        return req.state == "queued" and node._head is req and node.connected and node.state is not ErrorState.BUS_OFF
+        return req.state == "queued" and req.node._head is req and req.node._on_bus
 
     def _arbitrate(self) -> None:
         now = self._now
@@ -351,11 +352,10 @@ class SimBus:
         heap = self._contenders
         heappop = heapq.heappop
         winner = None
-        BUS_OFF = ErrorState.BUS_OFF
         while heap:
             req = heap[0][2]
             node = req.node
-            if req.state != "queued" or node._head is not req or not node.connected or node.state is BUS_OFF:
+            if req.state != "queued" or node._head is not req or not node._on_bus:
                 heappop(heap)
                 continue
             if node._ready_at > now:  # error passive: suspend transmission
@@ -370,16 +370,10 @@ class SimBus:
             return
         r = self.rounds
         self.rounds = r + 1
-        key = winner.key
-        txs = [winner]
-        while heap and heap[0][0] == key:
-            q = heappop(heap)[2]
-            if self._valid(q) and q.node is not winner.node and q.node._ready_at <= now:
-                if q not in txs:
-                    txs.append(q)
-            elif self._valid(q) and q.node._ready_at > now and not q.node._suspended:
-                q.node._suspended = True
-                self._suspended.append(q.node)
+        if heap and heap[0][0] == winner.key:
+            txs = self._tied(winner, now)
+        else:
+            txs = (winner,)
         for q in txs:
             lost = r - q.head_since
             if lost > 0:
@@ -390,31 +384,51 @@ class SimBus:
         if self._arb_watch:
             self._notify_losers(now, r, txs)
         frame = winner.frame
-        fb = frame.bits
-        if self._first_sof is None:
-            self._first_sof = now
+        fb = frame._bits or frame.bits
         if len(txs) > 1:
-            bits0 = fb.bits
-            diff = None
-            for q in txs[1:]:
-                b = q.frame.bits.bits
-                if b != bits0:
-                    d = next(i for i, (x, y) in enumerate(zip(bits0, b)) if x != y)
-                    diff = d if diff is None else min(diff, d)
+            diff = self._first_difference(txs)
             if diff is not None:
                 self._start_collision(now, txs, diff)
                 return
-        ackers = self._ack_count
-        for q in txs:
-            n = q.node
-            if not n.listen_only:
-                ackers -= 1
+            ackers = self._ack_count - len(txs)
+        else:
+            ackers = self._ack_count - 1  # a transmitter is never listen-only
         if ackers <= 0:
             pos = fb.fields[Field.ACK_SLOT][0]
             self._start_error(now, txs, "ack", pos, Field.ACK_SLOT, {q.node for q in txs})
             return
+        if self._faults is not None and self._faults.attempt(self, now, txs):
+            return
         self._tx = (txs, now, None)
-        self._tx_end = now + self._dur[fb.length]
+        self._tx_end = now + self._dur[len(fb.bits)]
+
+    def _tied(self, winner: TxRequest, now: int) -> tuple[TxRequest, ...]:
+        """Other nodes sending the same arbitration field: they all go on transmitting."""
+        heap = self._contenders
+        key = winner.key
+        txs = [winner]
+        while heap and heap[0][0] == key:
+            q = heapq.heappop(heap)[2]
+            if not self._valid(q) or q in txs or q.node is winner.node:
+                continue
+            if q.node._ready_at > now:
+                if not q.node._suspended:
+                    q.node._suspended = True
+                    self._suspended.append(q.node)
+                continue
+            txs.append(q)
+        return tuple(txs)
+
+    @staticmethod
+    def _first_difference(txs: tuple[TxRequest, ...]) -> int | None:
+        bits0 = txs[0].frame.bits.bits
+        diff = None
+        for q in txs[1:]:
+            b = q.frame.bits.bits
+            if b != bits0:
+                d = next(i for i, (x, y) in enumerate(zip(bits0, b)) if x != y)
+                diff = d if diff is None else min(diff, d)
+        return diff
 
     def _notify_losers(self, now: int, r: int, txs: list[TxRequest]) -> None:
         winners = {q.node for q in txs}
