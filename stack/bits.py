@@ -374,6 +374,11 @@ class BitDecoder:
         """Bits fed since SOF."""
         return self._pos
 
+    @property
+    def crc_matches(self) -> bool:
+        """After the CRC delimiter: whether the received CRC matched (a receiver ACKs if so)."""
+        return self._crc_ok
+
     def _result(self, error: BitError | None, overload: bool = False) -> DecodedFrame:
         frame = None
         header_done = self._li_done_header

@@ -16,7 +16,7 @@ from .frame import Frame
 if TYPE_CHECKING:  # pragma: no cover
     from .queues import TxRequest
 
-__all__ = ["Received", "TxDone", "TxFailed", "ArbitrationLost", "Event"]
+__all__ = ["Received", "TxDone", "TxFailed", "ArbitrationLost", "ErrorStateChanged", "Event"]
 
 
 class Received(NamedTuple):
@@ -49,6 +49,17 @@ class ArbitrationLost(NamedTuple):
     time: int
     frame: Frame
     winner: Frame
+
+
+class ErrorStateChanged(NamedTuple):
+    """Fault confinement moved the node to another state (rules 9-12, warning at 96)."""
+
+    time: int
+    node: str
+    old: str
+    new: str
+    tec: int
+    rec: int
 
 
 Event = Any

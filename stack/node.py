@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import can
 
-from .events import ArbitrationLost, Received, TxDone, TxFailed
+from .events import ArbitrationLost, ErrorStateChanged, Received, TxDone, TxFailed
 from .filters import AcceptanceFilter
 from .frame import Frame
 from .queues import QueueFull, TxRequest, make_queue
@@ -102,6 +102,7 @@ class Node:
         receive_own_messages: bool = False,
         listen_only: bool = False,
         one_shot: bool = False,
+        auto_recovery: bool = True,
     ) -> None:
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
@@ -124,7 +125,9 @@ class Node:
         self.tec = 0
         self.rec = 0
         self.state = ErrorState.ACTIVE
-        self.auto_recovery = True
+        self.auto_recovery = bool(auto_recovery)
+        self._busoff_mark = 0
+        self.bus_off_count = 0
         # wiring
         self.bus: "SimBus | Any | None" = None
         self._head: TxRequest | None = None
@@ -365,12 +368,60 @@ class Node:
             "rxerr": self.rec,
         }
 
-    # fault-confinement hooks (rules 7 and 8), extended by stack.errors
+    # ------------------------------------------------------------------ fault confinement
     def _on_tx_success(self) -> None:
-        self.tec -= 1
+        """Rule 7: a successful transmission decrements TEC (not below 0)."""
+        self._set_counters(max(0, self.tec - 1), self.rec, self.bus.now() if self.bus else 0)
 
     def _on_rx_success(self) -> None:
-        pass
+        """Rule 8: a successful reception decrements REC if 1..127, sets it to 127 if above."""
+        rec = self.rec
+        rec = rec - 1 if 1 <= rec <= 127 else (127 if rec > 127 else rec)
+        self._set_counters(self.tec, rec, self.bus.now() if self.bus else 0)
+
+    @staticmethod
+    def state_for(tec: int, rec: int) -> ErrorState:
+        """Rules 9-11 and the warning level: bus off at TEC >= 256, error passive at TEC or REC
+        >= 128, error warning at >= 96, else error active."""
+        if tec >= 256:
+            return ErrorState.BUS_OFF
+        if tec >= 128 or rec >= 128:
+            return ErrorState.PASSIVE
+        if tec >= 96 or rec >= 96:
+            return ErrorState.WARNING
+        return ErrorState.ACTIVE
+
+    def _set_counters(self, tec: int, rec: int, t: int) -> None:
+        self.tec = tec
+        self.rec = rec
+        bus = self.bus
+        if bus is not None:
+            if rec > 0:
+                bus._rec_nonzero.add(self)
+            else:
+                bus._rec_nonzero.discard(self)
+        old = self.state
+        if old is ErrorState.BUS_OFF:
+            return  # only rule 12 leaves bus off
+        new = self.state_for(tec, rec)
+        if new is old:
+            return
+        self.state = new
+        if bus is not None:
+            bus._state_changed(self, old, new, t)
+        self._emit(ErrorStateChanged(t, self.name, old.value, new.value, tec, rec))
+
+    def recover(self) -> None:
+        """Ask a bus-off controller to recover (rule 12: after 128 occurrences of 11
+        consecutive recessive bits); needed when ``auto_recovery`` is off."""
+        if self.state is not ErrorState.BUS_OFF:
+            raise NodeError(f"node {self.name!r} is {self.state}, not bus off: nothing to recover")
+        self._driver()._start_recovery(self)
+
+    @property
+    def error_state(self) -> ErrorState:
+        """The fault confinement state (as `state`)."""
+        return self.state
 
     def __repr__(self) -> str:
         return f"<Node {self.name!r} {self.state}>"

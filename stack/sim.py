@@ -34,7 +34,7 @@ from typing import Any, Callable, Iterable, Iterator
 import can
 
 from .bits import Field, INTERMISSION_BITS
-from .events import ArbitrationLost, TxDone, TxFailed
+from .events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from .frame import Frame
 from .node import ErrorState, Node, Timer
 from .queues import TxRequest
@@ -161,6 +161,8 @@ class SimBus:
         self._first_sof: int | None = None
         self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
         self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
+        self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
+        self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
 
     # ------------------------------------------------------------------ nodes
     def add(self, node: Node) -> Node:
@@ -370,6 +372,8 @@ class SimBus:
             return
         r = self.rounds
         self.rounds = r + 1
+        if now > self._idle_at:  # rule 12 counts 11-bit recessive runs on an idle bus too
+            self._recessive_events += (now - self._idle_at) * self.bitrate // 11_000_000_000
         if heap and heap[0][0] == winner.key:
             txs = self._tied(winner, now)
         else:
@@ -386,18 +390,20 @@ class SimBus:
         frame = winner.frame
         fb = frame._bits or frame.bits
         if len(txs) > 1:
-            diff = self._first_difference(txs)
-            if diff is not None:
-                self._start_collision(now, txs, diff)
+            if self._first_difference(txs) is not None:
+                self.collisions += 1
+                self._bitlevel(now, txs, collision=True)
                 return
             ackers = self._ack_count - len(txs)
         else:
             ackers = self._ack_count - 1  # a transmitter is never listen-only
+        if self._faults is not None:
+            spec = self._faults.attempt(self, now, txs)
+            if spec is not None:
+                self._bitlevel(now, txs, **spec)
+                return
         if ackers <= 0:
-            pos = fb.fields[Field.ACK_SLOT][0]
-            self._start_error(now, txs, "ack", pos, Field.ACK_SLOT, {q.node for q in txs})
-            return
-        if self._faults is not None and self._faults.attempt(self, now, txs):
+            self._bitlevel(now, txs)  # ACK error
             return
         self._tx = (txs, now, None)
         self._tx_end = now + self._dur[len(fb.bits)]
@@ -458,41 +464,17 @@ class SimBus:
         node._update_head()
         node._emit(TxFailed(now, req.frame, req, reason))
 
-    def _start_collision(self, now: int, txs: list[TxRequest], pos: int) -> None:
-        """Same arbitration field, different frames: whoever sends recessive at ``pos`` while
-        another sends dominant sees a bit error (outside arbitration, so it is an error)."""
-        self.collisions += 1
-        detectors = {q.node for q in txs if q.frame.bits.bits[pos] == "1"}
-        fld, idx = txs[0].frame.bits.field_at(pos)
-        self._start_error(now, txs, "bit", pos, fld, detectors, collision=True)
+    def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
+                  stuck: dict[Node, int] | None = None, deaf: Iterable[Node] = (),
+                  stuck_until: int | None = None, collision: bool = False) -> None:
+        """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
+        from .errors import simulate_attempt
 
-    def _wire_bits(self, txs: list[TxRequest], upto: int) -> str:
-        if len(txs) == 1:
-            return txs[0].frame.bits.bits[:upto]
-        out = []
-        for i in range(upto):
-            out.append("0" if any(q.frame.bits.bits[i] == "0" for q in txs) else "1")
-        return "".join(out)
-
-    def _start_error(self, now: int, txs: list[TxRequest], kind: str, pos: int, fld: Field,
-                     detectors: set[Node], collision: bool = False) -> None:
-        """An attempt that ends in an error frame: the error is detected at bit ``pos``; the
-        first error flag starts at the next bit (after the ACK delimiter for a CRC error)."""
-        fb = txs[0].frame.bits
-        flag_start = pos + 1
-        wire = self._wire_bits(txs, flag_start)
-        observers = any(
-            n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only and n not in detectors
-            for n in self.nodes)
-        active = any(n.state is not ErrorState.PASSIVE for n in detectors)
-        span = error_flag_span(wire, flag_start, fb.crc_delim, active, observers)
-        end = now + self._dur[flag_start + span + ERROR_DELIMITER_BITS]
-        detail = {"error": kind, "field": fld.value, "bit": pos,
-                  "seen_by": ",".join(sorted(n.name for n in detectors))}
-        if collision:
-            detail["frames"] = " / ".join(repr(q.frame) for q in txs)
-        self._tx = (txs, now, detail)
-        self._tx_end = end
+        nodes = [n for n in self.nodes if n._on_bus]
+        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, stuck_until)
+        res.collision = collision
+        self._tx = (txs, now, res)
+        self._tx_end = now + self.bits_to_ns(res.bits)
 
     def _complete(self) -> None:
         txs, start, detail = self._tx
@@ -500,7 +482,7 @@ class SimBus:
         end = self._tx_end
         idle = end + self._ifs_ns
         if detail is not None:
-            self._complete_error(txs, start, end, idle, detail)
+            self._complete_bitlevel(txs, start, end, idle, detail)
             return
         winner = txs[0]
         frame = winner.frame
@@ -523,9 +505,11 @@ class SimBus:
                 self._flush()
         for n in self._eager:
             n._deliver(end, frame, sender)
+        self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
         if self._rec_nonzero:
             for n in tuple(self._rec_nonzero):
-                n._on_rx_success()
+                if n is not sender and n._on_bus:
+                    n._on_rx_success()
         st = self.id_stats.get(frame.key)
         if st is None:
             st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
@@ -558,14 +542,61 @@ class SimBus:
                 if n is not sender and n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only:
                     n.send(n._remote_replies[(frame.can_id, frame.extended)])
 
-    def _complete_error(self, txs: list[TxRequest], start: int, end: int, idle: int, detail: dict[str, Any]) -> None:
-        self.error_frames += 1
+    def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
+        """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,
+        transmitter outcomes, counter changes (rules 1-8) and the resulting states (9-12)."""
+        outcomes = res.outcomes
+        by_name = {n.name: n for n in self.nodes}
         self.busy_ns += idle - start
+        self._idle_at = idle
+        self._recessive_events += 1
+        winner = res.winner
+        # receivers that accepted (at the last-but-one EOF bit) keep the frame whatever happens next
+        accepted = [(by_name[name], o) for name, o in outcomes.items() if o.accepted]
+        if accepted:
+            self._flush_for_direct()
+            sender_req = winner or txs[0]
+            sender = sender_req.node
+            for node, o in accepted:
+                t_acc = start + self.bits_to_ns(o.accept_bit + 2)
+                node._deliver(t_acc, o.frame, sender)
+        if winner is not None:
+            self.frames_ok += 1
+        else:
+            self.error_frames += 1
+        # counters: error increments first, then rules 7 and 8 for successes
+        for name, o in outcomes.items():
+            node = by_name[name]
+            tec = node.tec + o.tec_delta
+            rec = node.rec + o.rec_delta
+            if o.success:
+                tec = max(0, tec - 1)  # rule 7
+            if o.accepted and o.detected is None:
+                rec = rec - 1 if 1 <= rec <= 127 else (127 if rec > 127 else rec)  # rule 8
+            node._set_counters(tec, rec, end)
         for q in txs:
             node = q.node
+            o = outcomes.get(node.name)
             q.on_wire = False
+            if o is not None and o.success:
+                self._tx_success(q, end, idle)
+                continue
+            if o is not None and o.lost_arbitration and o.detected is None:
+                q.losses += 1
+                node._arb_lost += 1
+                q.head_since = self.rounds
+                if node.one_shot:
+                    self._fail_request(q, end, "arbitration lost (one-shot)")
+                elif node._head is q:
+                    self._offer(node, q)
+                continue
+            if q.state != "queued":
+                continue
             if node.one_shot:
-                self._fail_request(q, end, f"{detail['error']} error (one-shot)")
+                kind = o.detected[0] if o is not None and o.detected else "error"
+                self._fail_request(q, end, f"{kind} error (one-shot)")
+            elif node.state is ErrorState.BUS_OFF:
+                pass  # stays queued; offered again after recovery
             else:
                 q.retries += 1
                 node.retransmissions += 1
@@ -575,16 +606,105 @@ class SimBus:
                 else:
                     node._update_head()
             if node.state is ErrorState.PASSIVE:
-                node._ready_at = idle + self._dur[SUSPEND_BITS]
+                node._ready_at = idle + self._suspend_ns
         if self.record:
-            winner = txs[0]
-            rec = TraceRecord("collision" if "frames" in detail else "error", start, end,
-                              "+".join(q.node.name for q in txs), winner.frame,
-                              winner.frame.bits.length, winner.losses, winner.t_queued, detail)
-            self.trace.append(rec)
-            for cb in self._bus_listeners:
-                cb(rec)
-        self._idle_at = idle
+            self._record_bitlevel(txs, start, end, res)
+
+    def _tx_success(self, q: TxRequest, end: int, idle: int) -> None:
+        node = q.node
+        frame = q.frame
+        q.state = "sent"
+        q.t_done = end
+        node.tx_frames += 1
+        node.queue.remove(q)
+        st = self.id_stats.get(frame.key)
+        if st is None:
+            st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
+        lat = end - q.t_queued
+        st.count += 1
+        st.total += lat
+        st.losses += q.losses
+        st.min = min(st.min, lat)
+        st.max = max(st.max, lat)
+        if node.state is ErrorState.PASSIVE:
+            node._ready_at = idle + self._suspend_ns
+        node._update_head()
+        if node._listeners:
+            for cb in node._listeners.get(TxDone, ()):
+                cb(TxDone(end, frame, q))
+
+    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any) -> None:
+        first = res.first_error
+        detail: dict[str, Any] = {}
+        if first is not None:
+            detail.update(error=first[0], field=first[1], bit=first[3])
+        detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
+        detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes
+                                      if n.name in res.outcomes)
+        acc = sorted(n for n, o in res.outcomes.items() if o.accepted)
+        if acc:
+            detail["accepted_by"] = ",".join(acc)
+        if getattr(res, "collision", False):
+            detail["frames"] = " / ".join(repr(q.frame) for q in txs)
+        kind = "frame" if res.winner is not None else ("collision" if detail.get("frames") else "error")
+        w = res.winner or txs[0] if txs else None
+        if w is None:
+            from .frame import Frame as _F
+            rec = TraceRecord(kind, start, end, "", _F(0), res.bits, 0, start, detail)
+        else:
+            rec = TraceRecord(kind, start, end, "+".join(q.node.name for q in txs), w.frame, res.bits,
+                              w.losses, w.t_queued, detail if (first or kind != "frame") else None)
+        self.trace.append(rec)
+        for cb in self._bus_listeners:
+            cb(rec)
+
+    def _flush_for_direct(self) -> None:
+        """Bring every buffering node up to date so a direct delivery lands in order."""
+        if self._log:
+            self._flush()
+
+    # ------------------------------------------------------------------ fault confinement
+    def _state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
+        if new is ErrorState.BUS_OFF:
+            self._sync(node)
+            node.bus_off_count += 1
+            self._reclassify(node)
+            self._rec_nonzero.discard(node)
+            if node.auto_recovery:
+                self._start_recovery(node)
+        elif old is ErrorState.PASSIVE and new is not ErrorState.PASSIVE:
+            node._ready_at = 0
+
+    def _recessive_count(self, now: int) -> int:
+        n = self._recessive_events
+        if self._tx is None and now > self._idle_at:
+            n += (now - self._idle_at) * self.bitrate // 11_000_000_000
+        return n
+
+    def _start_recovery(self, node: Node) -> None:
+        """Rule 12: bus off ends after 128 occurrences of 11 consecutive recessive bits."""
+        node._busoff_mark = self._recessive_count(self._now)
+        self.call_at(self._now + self.bits_to_ns(128 * 11), self._check_recovery, (node,))
+
+    def _check_recovery(self, node: Node) -> None:
+        if node.state is not ErrorState.BUS_OFF:
+            return
+        done = self._recessive_count(self._now) - node._busoff_mark
+        if done >= 128:
+            old = node.state
+            node.tec = node.rec = 0
+            node.state = ErrorState.ACTIVE
+            node._ready_at = 0
+            node._cursor = self._log_base + len(self._log)
+            self._reclassify(node)
+            if node._head is not None and node._head.state == "queued":
+                node._head.head_since = self.rounds
+                self._offer(node, node._head)
+            else:
+                node._update_head()
+            node._emit(ErrorStateChanged(self._now, node.name, old.value, node.state.value, 0, 0))
+        else:
+            self.call_at(self._now + self.bits_to_ns((128 - done) * 11), self._check_recovery, (node,))
 
     # ------------------------------------------------------------------ lazy reception
     def _sync(self, node: Node) -> None:
@@ -752,30 +872,3 @@ class SimBus:
             },
             "nodes": {n.name: n.counters() for n in self.nodes},
         }
-
-
-def error_flag_span(wire: str, flag_start: int, crc_delim: int, active: bool, observers: bool) -> int:
-    """Bits from the first error flag bit to the end of the superposed error flags.
-
-    An active flag is 6 dominant bits. Other nodes that have not detected the error see it: in
-    the stuffed region (before the CRC delimiter) as a stuff error once 6 equal dominant bits
-    have passed (counting dominant bits already on the wire before the flag), in a fixed-form
-    field as a form error at the first flag bit; they then send their own 6-bit flag. The
-    superposition is therefore 6..12 bits. A passive flag (6 recessive) from a transmitter is
-    seen by receivers the same way once 6 recessive bits have passed.
-    """
-    if not observers:
-        return ERROR_FLAG_BITS
-    level = "0" if active else "1"
-    if flag_start <= crc_delim:
-        run = 0
-        for c in reversed(wire):
-            if c != level or run == 5:
-                break
-            run += 1
-        detect = flag_start + (ERROR_FLAG_BITS - run) - 1
-    else:
-        if not active:
-            return ERROR_FLAG_BITS
-        detect = flag_start
-    return max(ERROR_FLAG_BITS, detect + 1 + ERROR_FLAG_BITS - flag_start)

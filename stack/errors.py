@@ -1,0 +1,416 @@
+"""Error detection, error signalling and fault confinement, bit by bit.
+
+A clean transmission is handled at frame granularity by `stack.sim`. Any attempt that can go
+wrong — a bit flipped by fault injection, a transmitter nobody acknowledges, two nodes sending
+different frames with the same arbitration field, a stuck or deaf node — is replayed here one
+bit at a time for every node on the bus. Each node drives a level (0 dominant, 1 recessive), the
+wire is the wired-AND of all drivers, and each node perceives the wire through its own faults
+(a flipped bit can be global or local to some nodes). Each node runs its own receiver state
+machine (`BitDecoder`), so detection happens where ISO 11898-1 puts it:
+
+- bit error: a transmitter reads a level other than the one it sent, except a recessive bit
+  read dominant in the arbitration field (lost arbitration) or in the ACK slot;
+- stuff error: a sixth equal bit in SOF..CRC (a recessive stuff bit of the transmitter read
+  dominant during arbitration is a stuff error: rule 3, exception 2);
+- CRC error: signalled after the ACK delimiter; form error: dominant CRC delimiter, ACK
+  delimiter, or EOF bits 1..6; ACK error: a transmitter reads the ACK slot recessive.
+
+Error flags (6 dominant, or 6 recessive when error passive), their superposition, the error
+delimiter (8 recessive), overload frames (dominant at the last EOF bit or the first two
+intermission bits) and intermission all take their real bit times.
+
+Fault confinement applies the 12 rules of the CAN 2.0 specification to each node's view:
+1. receiver detects an error: REC += 1 (not for a bit error while sending an active error flag
+   or an overload flag: rule 5);
+2. receiver reads dominant as the first bit after sending its error flag: REC += 8;
+3. transmitter sends an error flag: TEC += 8, except (exception 1) an error-passive transmitter
+   with an ACK error that reads no dominant bit while sending its passive flag, and (exception 2)
+   a stuff error during arbitration on a stuff bit sent recessive and read dominant;
+4. transmitter: bit error while sending an active error flag or overload flag: TEC += 8;
+5. receiver: the same: REC += 8;
+6. after an error or overload flag, the 14th consecutive dominant bit (8th after a passive
+   flag) and each further 8: transmitters TEC += 8, receivers REC += 8;
+7. successful transmission: TEC -= 1; 8. successful reception: REC -= 1 if 1..127, set to 127
+   if above (the rule allows 119..127);
+9. error passive at TEC or REC >= 128; 10. bus off at TEC >= 256; 11. back to error active
+   when both are <= 127; 12. bus off -> error active with both counters 0 after 128
+   occurrences of 11 consecutive recessive bits.
+Error warning (TEC or REC >= 96) is reported as Linux does.
+
+Data consistency: receivers accept a frame at the last-but-one EOF bit, the transmitter at the
+last. A dominant last EOF bit makes receivers send an overload frame (they keep the frame) and
+the transmitter an error frame (it retransmits): double reception. A local error at the
+last-but-one bit seen by some receivers only makes those drop the frame while the others have it
+already: inconsistent omission if the transmitter then fails before retransmitting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Iterable
+
+from .bits import BitDecoder, Field
+from .node import ErrorState
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .node import Node
+    from .queues import TxRequest
+
+__all__ = ["AttemptResult", "NodeOutcome", "simulate_attempt", "ACTIVE_FLAG_DOMINANT_LIMIT"]
+
+ACTIVE_FLAG_DOMINANT_LIMIT = 14  # rule 6: 14th consecutive dominant bit after an active/overload flag
+PASSIVE_FLAG_DOMINANT_LIMIT = 8  # rule 6: 8th after a passive flag
+MAX_ATTEMPT_BITS = 1 << 20
+
+# node phases
+FRAME, FLAG, AFTER_FLAG, DELIM, INTERMISSION, IDLE, OFF = range(7)
+
+
+@dataclass
+class NodeOutcome:
+    """What one node made of an attempt."""
+
+    name: str
+    role: str  # 'tx' (still transmitting at the end) or 'rx' (including arbitration losers)
+    detected: tuple[str, str, int, int] | None = None  # (kind, field, index in field, bit from SOF)
+    primary: bool = False  # detected on its own, before any error flag reached it
+    accepted: bool = False  # receiver: frame valid (at the last-but-one EOF bit)
+    accept_bit: int = -1
+    success: bool = False  # transmitter: no error up to the end of EOF
+    lost_arbitration: bool = False
+    detect_bit: int = -1
+    frame: Any = None  # receiver: the frame it accepted
+    tec_delta: int = 0
+    rec_delta: int = 0
+    rules: list[str] = field(default_factory=list)
+    overload_flags: int = 0
+
+
+@dataclass
+class AttemptResult:
+    """One attempt on the wire, bit by bit: its length, the first error and each node's view."""
+
+    bits: int  # from SOF to the end of the last delimiter (intermission not included)
+    wire: str
+    first_error: tuple[str, str, int, int] | None
+    outcomes: dict[str, NodeOutcome]
+    winner: "TxRequest | None"
+    accepted_frame: Any = None
+
+
+class _View:
+    __slots__ = ("node", "out", "role", "req", "bits", "arb_end", "stuff", "dec", "phase", "flag_kind",
+                 "flag_n", "flag_levels", "dom_run", "first_after", "delim_n", "im_n", "overloads",
+                 "passive", "listen_only", "stuck", "deaf_ack", "ack_slot", "eof_last", "frame_done",
+                 "flag_had_dominant", "tec0", "rec0")
+
+    def __init__(self, node: "Node", req: "TxRequest | None", stuck: int | None, deaf_ack: bool) -> None:
+        self.node = node
+        self.out = NodeOutcome(node.name, "tx" if req is not None else "rx")
+        self.role = "tx" if req is not None else "rx"
+        self.req = req
+        if req is not None:
+            fb = req.frame.bits
+            self.bits = fb.bits
+            self.stuff = set(fb.stuff_positions)
+            rtr = fb.fields[Field.RTR]
+            self.arb_end = rtr[-1]
+            self.ack_slot = fb.fields[Field.ACK_SLOT][0]
+            self.eof_last = fb.fields[Field.EOF][-1]
+        self.dec = BitDecoder()
+        self.phase = FRAME
+        self.flag_kind = ""
+        self.flag_n = 0
+        self.flag_levels: list[int] = []
+        self.dom_run = 0
+        self.first_after = True
+        self.delim_n = 0
+        self.im_n = 0
+        self.overloads = 0
+        self.passive = node.state is ErrorState.PASSIVE
+        self.listen_only = node.listen_only
+        self.stuck = stuck
+        self.deaf_ack = deaf_ack
+        self.frame_done = False
+        self.flag_had_dominant = False
+        self.tec0 = node.tec
+        self.rec0 = node.rec
+
+    def intended(self, b: int) -> int:
+        """The level this node means to send (its transmitter may be stuck)."""
+        ph = self.phase
+        if ph == FRAME:
+            if self.role == "tx":
+                if b == self.ack_slot:
+                    return 1
+                return 0 if self.bits[b] == "0" else 1
+            dec = self.dec
+            if dec.in_frame and dec.field == Field.ACK_SLOT and dec.crc_matches and not self.deaf_ack:
+                return 0
+            return 1
+        if ph == FLAG:
+            return 1 if self.flag_kind == "passive" else 0
+        return 1
+
+
+def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips: dict[int, Any],
+                     stuck: dict["Node", int] | None = None, deaf_ack: Iterable["Node"] = (),
+                     stuck_until: int | None = None) -> AttemptResult:
+    """Replay one attempt bit by bit for every node on the bus.
+
+    ``flips`` maps a bit position (from SOF) to the nodes that perceive that bit inverted (a set
+    of nodes, or None for every node: a global error). ``stuck`` maps nodes to the level they
+    force (0: stuck dominant, 1: stuck recessive / transmitter disconnected) for the first
+    ``stuck_until`` bits (all of them if None); ``deaf_ack`` nodes never acknowledge.
+    Counter changes are returned per node (``tec_delta``/``rec_delta``), not applied.
+    """
+    stuck = stuck or {}
+    deaf = set(deaf_ack)
+    txs = list(txs)
+    tx_nodes = {q.node: q for q in txs}
+    views = [_View(n, tx_nodes.get(n), stuck.get(n), n in deaf) for n in nodes]
+    wire_bits: list[str] = []
+    first_error: tuple[str, str, int, int] | None = None
+    first_flag_bit: int | None = None
+    winner_view = None
+    b = 0
+    while b < MAX_ATTEMPT_BITS:
+        if stuck_until is not None and b == stuck_until:
+            for v in views:
+                v.stuck = None
+        intended = [v.intended(b) for v in views]
+        wire = 1
+        for v, d in zip(views, intended):
+            a = 1 if (v.listen_only or v.phase == OFF) else (d if v.stuck is None else v.stuck)
+            if a == 0:
+                wire = 0
+        wire_bits.append(str(wire))
+        if wire == 0 and stuck_until is not None and b < stuck_until and any(v.stuck == 0 for v in views) \
+                and all(v.phase in (AFTER_FLAG, OFF) or (v.phase == FLAG and v.flag_kind == "passive") for v in views if v.stuck is None):
+            # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits
+            skip = stuck_until - b
+            for v in views:
+                if v.stuck is None and v.phase == AFTER_FLAG:
+                    _fast_dominant(v, skip)
+            wire_bits.append("0" * (skip - 1))
+            b += skip
+            continue
+        fl = flips.get(b, ())
+        for v, d in zip(views, intended):
+            p = wire
+            if fl is None or (fl and v.node in fl):
+                p ^= 1
+            ev = _step(v, b, d, p)
+            if ev is not None and first_error is None:
+                first_error = ev
+        if first_error is not None and first_flag_bit is None:
+            first_flag_bit = b + 1
+        if all(v.phase in (IDLE, OFF) for v in views) and (stuck_until is None or b + 1 >= stuck_until
+                                                           or not any(v.stuck == 0 for v in views)):
+            b += 1
+            break
+        b += 1
+    first_bit = min((v.out.detect_bit for v in views if v.out.detect_bit >= 0), default=-1)
+    for v in views:
+        v.out.primary = v.out.detect_bit >= 0 and v.out.detect_bit == first_bit
+        if v.role == "tx" and v.out.success:
+            winner_view = v
+    # the last 3 bits were everyone's intermission: the attempt proper ends before them
+    if all(v.phase == IDLE for v in views) and b >= 3:
+        b -= 3
+    res = AttemptResult(b, "".join(wire_bits), first_error, {v.node.name: v.out for v in views},
+                        winner_view.req if winner_view else None)
+    return res
+
+
+def _bump(v: _View, amount: int, rule: str) -> None:
+    """Add to TEC (transmitter) or REC (receiver); error passive and bus off take effect at once
+    for the rest of the attempt (rules 9 and 10)."""
+    out = v.out
+    if v.role == "tx":
+        out.tec_delta += amount
+    else:
+        out.rec_delta += amount
+    out.rules.append(rule)
+    tec = v.tec0 + out.tec_delta
+    rec = v.rec0 + out.rec_delta
+    if tec >= 256:
+        v.phase = OFF
+    elif tec >= 128 or rec >= 128:
+        v.passive = True
+
+
+def _fast_dominant(v: _View, skip: int) -> None:
+    limit = PASSIVE_FLAG_DOMINANT_LIMIT if v.flag_kind == "passive" else ACTIVE_FLAG_DOMINANT_LIMIT
+    if v.first_after and v.role == "rx" and v.flag_kind != "overload":
+        _bump(v, 8, "rule 2")
+    v.first_after = False
+    start = v.dom_run
+    end = start + skip
+    n = start + 1
+    if n < limit:
+        n = limit
+    else:
+        n = limit + -(-(n - limit) // 8) * 8
+    while n <= end and v.phase != OFF:
+        _bump(v, 8, "rule 6")
+        n += 8
+    v.dom_run = end
+
+
+def _error_detected(v: _View, b: int, kind: str, fld: Field | str, idx: int, pos: int,
+                    primary: bool = True) -> tuple[str, str, int, int]:
+    """Rules 1 and 3 when a node detects an error at bit ``b``; its flag starts at b + 1."""
+    out = v.out
+    det = (kind, fld.value if isinstance(fld, Field) else str(fld), idx, pos)
+    if out.detected is None:
+        out.detected = det
+        out.primary = primary
+    if v.role == "tx":
+        exc1 = kind == "ack" and v.passive
+        exc2 = kind == "stuff-arbitration"
+        if exc2:
+            out.rules.append("rule 3 exception 2")
+        elif not exc1:  # exception 1 is decided when the passive flag ends
+            _bump(v, 8, "rule 3")
+    else:
+        _bump(v, 1, "rule 1")
+    if v.phase == OFF:
+        return det
+    v.phase = FLAG
+    # a listen-only node never drives the bus: its flag is recessive like a passive one
+    v.flag_kind = "passive" if (v.passive or v.listen_only) else "active"
+    v.flag_n = 0
+    v.flag_levels = []
+    v.flag_had_dominant = False
+    out.detect_bit = b
+    return det
+
+
+def _start_overload(v: _View) -> None:
+    v.phase = FLAG
+    v.flag_kind = "passive" if v.listen_only else "overload"
+    v.flag_n = 0
+    v.flag_levels = []
+    v.out.overload_flags += 1
+    v.overloads += 1
+
+
+def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | None:
+    ph = v.phase
+    out = v.out
+    if ph == FRAME:
+        dec = v.dec
+        if v.role == "tx":
+            res = dec.feed(p)  # keeps a receiver's view in case arbitration is lost
+            if driven != p:
+                if b == v.ack_slot and driven == 1 and p == 0:
+                    pass  # acknowledged
+                elif driven == 1 and p == 0 and b <= v.arb_end:
+                    if b in v.stuff:
+                        return _error_detected(v, b, "stuff-arbitration", Field.ID, b, b)
+                    v.role = "rx"
+                    out.role = "rx"
+                    out.lost_arbitration = True
+                    if res is not None:
+                        return _rx_result(v, b, res)
+                    return None
+                else:
+                    fld, idx = v.req.frame.bits.field_at(b) if b < len(v.bits) else (Field.EOF, 0)
+                    return _error_detected(v, b, "bit", fld, idx if idx is not None else 0, b)
+            elif b == v.ack_slot and p == 1:
+                return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)
+            if b == v.eof_last:
+                out.success = True
+                v.phase = INTERMISSION
+                v.im_n = 0
+            return None
+        if not dec.in_frame:
+            if p == 1:
+                return None  # still idle: nothing started
+        res = dec.feed(p)
+        if res is None:
+            return None
+        return _rx_result(v, b, res)
+    if ph == FLAG:
+        if v.flag_kind == "passive":
+            v.flag_levels.append(p)
+            if p == 0:
+                v.flag_had_dominant = True
+            lv = v.flag_levels
+            # a passive flag is complete after 6 consecutive bits of equal level
+            if len(lv) >= 6 and len(set(lv[-6:])) == 1:
+                _flag_done(v)
+            return None
+        if p == 1 and driven == 0:
+            # bit error while sending an active error flag or overload flag: rules 4 and 5
+            _bump(v, 8, "rule 4" if v.role == "tx" else "rule 5")
+            v.flag_n = 0
+            return None
+        v.flag_n += 1
+        if v.flag_n >= 6:
+            _flag_done(v)
+        return None
+    if ph == AFTER_FLAG:
+        if p == 0:
+            if v.first_after and v.role == "rx" and v.flag_kind != "overload":
+                _bump(v, 8, "rule 2")
+            v.first_after = False
+            v.dom_run += 1
+            limit = PASSIVE_FLAG_DOMINANT_LIMIT if v.flag_kind == "passive" else ACTIVE_FLAG_DOMINANT_LIMIT
+            if v.dom_run >= limit and (v.dom_run - limit) % 8 == 0:
+                _bump(v, 8, "rule 6")
+            return None
+        v.first_after = False
+        v.phase = DELIM
+        v.delim_n = 1
+        return None
+    if ph == DELIM:
+        if p == 0:
+            if v.delim_n == 7:
+                _start_overload(v)  # dominant at the last delimiter bit: overload
+                return None
+            return _error_detected(v, b, "form", "ERROR_DELIM", v.delim_n, b)
+        v.delim_n += 1
+        if v.delim_n >= 8:
+            v.phase = INTERMISSION
+            v.im_n = 0
+        return None
+    if ph == INTERMISSION:
+        if p == 0 and v.im_n < 2 and v.overloads < 2:
+            _start_overload(v)
+            return None
+        v.im_n += 1
+        if v.im_n >= 3:
+            v.phase = IDLE
+        return None
+    return None
+
+
+def _flag_done(v: _View) -> None:
+    out = v.out
+    if v.role == "tx" and out.detected and out.detected[0] == "ack" and v.flag_kind == "passive":
+        if v.flag_had_dominant:
+            _bump(v, 8, "rule 3")
+        else:
+            out.rules.append("rule 3 exception 1")
+    v.phase = AFTER_FLAG
+    v.first_after = True
+    v.dom_run = 0
+
+
+def _rx_result(v: _View, b: int, res: Any) -> tuple[str, str, int, int] | None:
+    out = v.out
+    if res.error is None:
+        out.accepted = True
+        out.frame = res.frame
+        out.accept_bit = b - 1  # valid at the last-but-one EOF bit
+        v.frame_done = True
+        if res.overload:
+            _start_overload(v)  # dominant last EOF bit: overload frame, frame kept
+        else:
+            v.phase = INTERMISSION
+            v.im_n = 0
+        return None
+    e = res.error
+    return _error_detected(v, b, e.kind, e.field, e.index, e.position)
