@@ -186,11 +186,11 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
                 wire = 0
         wire_bits.append(str(wire))
         if wire == 0 and stuck_until is not None and b < stuck_until and any(v.stuck == 0 for v in views) \
-                and all(v.phase in (AFTER_FLAG, OFF) or (v.phase == FLAG and v.flag_kind == "passive") for v in views if v.stuck is None):
+                and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
             # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits
             skip = stuck_until - b
             for v in views:
-                if v.stuck is None and v.phase == AFTER_FLAG:
+                if v.phase == AFTER_FLAG:
                     _fast_dominant(v, skip)
             wire_bits.append("0" * (skip - 1))
             b += skip
@@ -205,7 +205,8 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
                 first_error = ev
         if first_error is not None and first_flag_bit is None:
             first_flag_bit = b + 1
-        if all(v.phase in (IDLE, OFF) for v in views) and (stuck_until is None or b + 1 >= stuck_until
+        if all(v.phase in (IDLE, OFF) or (v.phase == FRAME and v.role == "rx" and not v.dec.in_frame)
+               for v in views) and (stuck_until is None or b + 1 >= stuck_until
                                                            or not any(v.stuck == 0 for v in views)):
             b += 1
             break

@@ -641,6 +641,8 @@ class SimBus:
         detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
         detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes
                                       if n.name in res.outcomes)
+        detail["detected_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.detected))
+        detail["rules"] = ";".join(f"{n}:{','.join(o.rules)}" for n, o in sorted(res.outcomes.items()) if o.rules)
         acc = sorted(n for n, o in res.outcomes.items() if o.accepted)
         if acc:
             detail["accepted_by"] = ",".join(acc)

@@ -1,0 +1,317 @@
+"""Error detection, signalling and the 12 fault-confinement rules of CAN 2.0, one test per rule.
+
+Expected counter values are worked out by hand from the specification's rules for each
+scenario (the comments give the arithmetic), not read back from the implementation.
+"""
+
+import pytest
+
+from stack.bits import Field
+from stack.events import ErrorStateChanged, TxFailed
+from stack.faults import FaultInjector
+from stack.frame import Frame
+from stack.node import ErrorState
+from stack.sim import SimBus
+
+F = Frame(0x123, b"\x55\xaa")
+
+
+def three(seed=0, **kw):
+    bus = SimBus(500_000, seed=seed)
+    a, b, c = bus.node("a", **kw), bus.node("b"), bus.node("c")
+    return bus, a, b, c, FaultInjector(bus)
+
+
+def first_error(bus):
+    return next(r for r in bus.trace if r.kind != "frame" or (r.detail and "error" in r.detail))
+
+
+def test_rule_1_receivers_detecting_an_error_add_1():
+    # a global flip in the data field: the transmitter sees a bit error first, the receivers a
+    # stuff error in its error flag (they are not first, so rule 2 does not apply to them)
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="data", bit=3)
+    a.send(F)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert rec.detail["error"] == "bit" and rec.detail["seen_by"] == "a"
+    assert "b:rule 1" in rec.detail["rules"] and "rule 2" not in rec.detail["rules"]
+    assert rec.detail["counters"] == "a:8/0 b:0/1 c:0/1"
+
+
+def test_rule_2_receiver_first_to_detect_sees_dominant_after_its_flag():
+    # a local flip seen by b only: b finds a CRC error, flags after the ACK delimiter; a and c
+    # see b's flag as a form/bit error and flag too, so b reads dominant right after its flag
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="data", bit=9, nodes=["b"])
+    a.send(F)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert rec.detail["error"] == "crc" and rec.detail["seen_by"] == "b"
+    assert rec.detail["counters"] == "a:8/0 b:0/9 c:0/1"  # b: 1 (rule 1) + 8 (rule 2)
+
+
+def test_rule_3_transmitter_sending_error_flag_adds_8():
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="crc", bit=2)
+    a.send(F)
+    bus.run(duration=1_000_000)
+    assert first_error(bus).detail["counters"].startswith("a:8/0")
+    assert a.tec == 7  # then the retransmission succeeds: rule 7
+
+
+def test_rule_3_exception_1_lone_transmitter_stops_at_128_error_passive():
+    bus = SimBus(500_000)
+    a = bus.node("a")
+    states = []
+    a.listen(ErrorStateChanged, states.append)
+    a.send(F)
+    bus.run(duration=40_000_000)
+    # 16 ACK errors x 8 = 128 -> error passive; then passive ACK errors leave TEC unchanged
+    assert a.tec == 128 and a.state is ErrorState.PASSIVE
+    assert [s.new for s in states] == ["error-warning", "error-passive"]
+    assert states[0].tec == 96 and states[1].tec == 128
+    last = bus.trace[-1]
+    assert "rule 3 exception 1" in last.detail["rules"]
+
+
+def test_rule_3_exception_2_stuff_error_in_arbitration_leaves_tec():
+    # ID 0x000: SOF + 4 dominant identifier bits, then a recessive stuff bit at position 5;
+    # the transmitter alone reads it dominant: a stuff error during arbitration (exception 2)
+    f0 = Frame(0x000, b"\x01")
+    assert f0.bits.stuff_positions[0] == 5 and f0.bits.bits[5] == "1"
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x000, field="raw", bit=5, nodes=["a"])
+    a.send(f0)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert rec.detail["error"] == "stuff-arbitration"
+    assert "a:rule 3 exception 2" in rec.detail["rules"]
+    assert rec.detail["counters"].startswith("a:0/0")
+
+
+def test_rule_4_transmitter_bit_error_in_its_active_error_flag():
+    bus, a, b, c, fi = three()
+    p = F.bits.position(Field.DATA, 3)
+    fi.flip(can_id=0x123, field="data", bit=3)  # a: bit error at p, flag from p+1
+    fi.flip(can_id=0x123, field="raw", bit=p + 3, nodes=["a"])  # a reads recessive in its flag
+    a.send(F)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert "a:rule 3,rule 4" in rec.detail["rules"]
+    assert rec.detail["counters"].startswith("a:16/0")
+
+
+def test_rule_5_receiver_bit_error_in_its_active_error_flag():
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="data", bit=9, nodes=["b"])  # b: CRC error at the ACK delimiter
+    ack_delim = F.bits.position(Field.ACK_DELIM)
+    fi.flip(can_id=0x123, field="raw", bit=ack_delim + 2, nodes=["b"])  # inside b's flag
+    a.send(F)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert "b:rule 1,rule 5" in rec.detail["rules"]
+    # b restarts its flag after the bit error, so it ends last and reads recessive after it
+    # (no rule 2 for b); c's flag ends first and c reads b's flag: rule 2 for c
+    assert rec.detail["counters"] == "a:8/0 b:0/9 c:0/9"
+    assert "c:rule 1,rule 2" in rec.detail["rules"]
+
+
+def test_rule_6_dominant_bits_after_the_flag():
+    # b stuck dominant for 100 bits on an idle bus: a and c see a SOF, a stuff error at the 6th
+    # dominant bit (rule 1), send their flag (bits 7..12), then count dominant bits: the 14th
+    # after the flag and every 8th after it add 8 (rule 6)
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    fi = FaultInjector(bus)
+    fi.stuck("b", "dominant", start=1_000_000, end=1_000_000 + 100 * 2000)
+    bus.run(until=5_000_000)
+    # stuff error at bit 5 (SOF + 5 dominant): rule 1 (+1); flag at bits 6..11; bit 12 is
+    # dominant: rule 2 (+8); dominant bits 12..99 are 88: the 14th, 22nd, ..., 86th add 8 each
+    rule6 = (88 - 14) // 8 + 1
+    assert rule6 == 10
+    assert a.rec == c.rec == 1 + 8 + 8 * rule6 == 89
+    # the stuck node's own controller reads the same dominant bus
+    assert b.rec == 89
+
+
+def test_rule_7_success_decrements_tec():
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="crc", bit=0)
+    for _ in range(3):
+        a.send(F)
+    bus.run(duration=2_000_000)
+    assert a.tec == 8 - 3  # one error (+8), three frames sent (-1 each)
+
+
+def test_rule_8_reception_decrements_rec_and_caps_above_127():
+    bus, a, b, c, fi = three()
+    b._set_counters(0, 5, 0)
+    c._set_counters(0, 140, 0)
+    for _ in range(2):
+        a.send(F)
+    bus.run()
+    assert b.rec == 3 and c.rec == 126  # c: 140 -> 127 (rule 8) -> 126
+    assert c.state is ErrorState.WARNING
+
+
+def test_rule_9_and_11_passive_at_128_and_back_to_active():
+    bus = SimBus(500_000)
+    a = bus.node("a")
+    a.send(F)
+    bus.run(duration=40_000_000)
+    assert a.state is ErrorState.PASSIVE
+    bus.node("b")  # someone to acknowledge: the pending frame goes through
+    bus.run(duration=1_000_000)
+    assert a.tec == 127 and a.state is ErrorState.WARNING  # rule 11: active again (warning >= 96)
+
+
+def test_rule_10_stuck_recessive_transmitter_goes_bus_off():
+    # a's transmitter is disconnected: its SOF never reaches the wire; it reads recessive:
+    # bit error (rule 3), and again in every bit of its own error flag (rule 4) -> TEC >= 256
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b", auto_recovery=False)
+    a.auto_recovery = False
+    fi = FaultInjector(bus)
+    fi.stuck("a", "recessive")
+    failed = []
+    a.listen(ErrorStateChanged, failed.append)
+    a.send(F)
+    bus.run(duration=2_000_000)
+    assert a.state is ErrorState.BUS_OFF and a.tec >= 256
+    assert failed[-1].new == "bus-off" and b.rec == 0 and bus.frames_ok == 0
+
+
+def test_rule_12_recovery_after_128_times_11_recessive_bits():
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    a._set_counters(256, 0, 0)
+    t_off = bus.now()
+    changes = []
+    a.listen(ErrorStateChanged, changes.append)
+    bus.run(until=10_000_000)
+    assert a.state is ErrorState.ACTIVE and a.tec == a.rec == 0
+    assert changes[0].new == "error-active" and changes[0].time == t_off + 128 * 11 * 2000
+
+
+def test_rule_12_manual_recovery_waits_for_the_host():
+    bus = SimBus(500_000)
+    a, b = bus.node("a", auto_recovery=False), bus.node("b")
+    a._set_counters(256, 0, 0)
+    bus.run(until=10_000_000)
+    assert a.state is ErrorState.BUS_OFF
+    a.recover()
+    bus.run(until=20_000_000)
+    assert a.state is ErrorState.ACTIVE
+
+
+def test_recovery_counts_frame_ends_under_traffic():
+    # under load every frame end gives one run of 11 recessive bits (ACK delimiter, EOF,
+    # intermission): bus off lasts about 128 frames
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    b.listen(__import__("stack.events", fromlist=["TxDone"]).TxDone, lambda ev: b.send(ev.frame))
+    b.send(Frame(0x100, bytes(8)))
+    a._set_counters(256, 0, 0)
+    bus.run(frames=100)
+    assert a.state is ErrorState.BUS_OFF
+    bus.run(frames=40)
+    assert a.state is ErrorState.ACTIVE
+
+
+def test_double_reception_when_last_eof_bit_is_dominant():
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="eof", bit=6)  # global: receivers overload, transmitter errs
+    a.send(F)
+    bus.run()
+    got_b = [f for _, f in iter(b.recv, None)]
+    assert got_b == [F, F] and a.tx_frames == 1 and a.retransmissions == 1
+
+
+def test_inconsistent_omission_at_last_but_one_eof_bit():
+    bus, a, b, c, fi = three(one_shot=True)  # the transmitter gives up instead of resending
+    fi.flip(can_id=0x123, field="eof", bit=5, nodes=["b"])
+    a.send(F)
+    bus.run()
+    assert [f for _, f in iter(c.recv, None)] == [F]  # c accepted at the last-but-one bit
+    assert b.recv() is None  # b saw a form error and dropped it
+    assert a.tx_failed == 1
+
+
+def test_passive_receiver_error_does_not_destroy_the_frame():
+    bus, a, b, c, fi = three()
+    b._set_counters(0, 130, 0)  # error passive
+    fi.flip(can_id=0x123, field="data", bit=9, nodes=["b"])
+    a.send(F)
+    bus.run()
+    assert bus.frames_ok == 1 and a.tec == 0 and c.recv()[1] == F and b.recv() is None
+
+
+def test_error_passive_transmitter_suspends_8_bits():
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    a._set_counters(130, 0, 0)
+    a.send(Frame(0x100, b"\x01"))
+    a.send(Frame(0x100, b"\x02"))
+    b.send(Frame(0x200, b"\x03"))
+    bus.run()
+    # a sends first; its second frame would win again but a must wait 3 + 8 bits, so b goes
+    assert [r.sender for r in bus.trace] == ["a", "b", "a"]
+    r0, r1 = bus.trace[0], bus.trace[1]
+    assert r1.start - r0.end == 3 * 2000  # b starts at the end of intermission
+
+
+def test_one_shot_reports_failure_on_error():
+    bus, a, b, c, fi = three(one_shot=True)
+    fi.flip(can_id=0x123, field="data", bit=0)
+    failed = []
+    a.listen(TxFailed, failed.append)
+    a.send(F)
+    bus.run()
+    assert failed and "bit error" in failed[0].reason and bus.frames_ok == 0
+
+
+def test_never_acking_node_and_disconnect():
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    fi = FaultInjector(bus)
+    fi.never_ack("b")
+    a.send(F)
+    bus.run(duration=1_000_000)
+    assert bus.frames_ok == 0 and a.tec > 0
+    bus2 = SimBus(500_000)
+    x, y, z = bus2.node("x"), bus2.node("y"), bus2.node("z")
+    FaultInjector(bus2).disconnect("z", at=0, reconnect_at=5_000_000)
+    x.send_periodic(F, 1_000_000, count=10)
+    bus2.run()
+    assert y.rx_frames == 10 and z.rx_frames == 5
+
+
+def test_babbling_idiot_starves_lower_priorities():
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    FaultInjector(bus).babbling_idiot("c", can_id=0x001, start=1_000_000, end=5_000_000)
+    b.send_periodic(Frame(0x300, b"\x01"), 500_000)
+    bus.run(until=6_000_000)
+    during = [r for r in bus.trace if 1_200_000 < r.start < 4_900_000]
+    assert during and all(r.sender == "c" for r in during)
+
+
+@pytest.mark.parametrize("kw,msg", [
+    ({"field": "bogus"}, "unknown field 'bogus'"),
+    ({"field": "data", "bit": 64}, "bit 64 outside field data"),
+    ({"field": "crc", "bit": -1}, "bit -1 outside field crc"),
+    ({"nodes": ["nobody"]}, "unknown node 'nobody'"),
+])
+def test_bad_fault_specifications(kw, msg):
+    bus = SimBus()
+    bus.node("a")
+    with pytest.raises(ValueError, match=msg):
+        FaultInjector(bus).flip(**kw)
+
+
+@pytest.mark.parametrize("rate", [-0.1, 1.5, float("nan")])
+def test_bad_bit_error_rate(rate):
+    bus = SimBus()
+    with pytest.raises(ValueError, match="outside \\[0, 1\\]"):
+        FaultInjector(bus).bit_errors(rate)
