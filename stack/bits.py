@@ -150,20 +150,56 @@ def worst_case_length(n: int, extended: bool = False) -> int:
     return unstuffed_length(n, extended) + (stuffed_region - 1) // 4
 
 
-@dataclass(frozen=True)
 class FrameBits:
     """The exact bit sequence of one frame, SOF to the end of EOF, as sent by its transmitter.
 
     ``bits`` is a string of '0'/'1' with the ACK slot dominant (as seen on a bus where someone
-    acknowledges). ``fields`` gives, per field, the stuffed positions of its bits in order;
-    ``stuff_positions`` the stuff bits. ``crc_end`` is the index of the CRC delimiter.
+    acknowledges); ``stuff_positions`` the indices of the stuff bits; ``crc_delim`` the index of
+    the CRC delimiter. ``fields`` gives, per field, the stuffed positions of its bits in order
+    (computed on first use: the engine needs only the length).
     """
 
-    bits: str
-    crc: int
-    stuff_positions: tuple[int, ...]
-    fields: dict[Field, tuple[int, ...]]
-    crc_delim: int
+    __slots__ = ("bits", "crc", "stuff_positions", "crc_delim", "_layout", "_fields")
+
+    def __init__(self, bits: str, crc: int, stuff_positions: tuple[int, ...], crc_delim: int,
+                 layout: list[tuple[Field, int]]) -> None:
+        self.bits = bits
+        self.crc = crc
+        self.stuff_positions = stuff_positions
+        self.crc_delim = crc_delim
+        self._layout = layout
+        self._fields: dict[Field, tuple[int, ...]] | None = None
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, FrameBits) and (self.bits, self.crc) == (other.bits, other.crc)
+
+    def __repr__(self) -> str:
+        return f"FrameBits(bits={self.bits!r}, crc=0x{self.crc:04X}, stuff_positions={self.stuff_positions})"
+
+    @property
+    def fields(self) -> dict[Field, tuple[int, ...]]:
+        """Stuffed positions of each field's bits, in wire order."""
+        f = self._fields
+        if f is None:
+            f = {}
+            sp = self.stuff_positions
+            k = 0  # next stuff position to skip
+            pos = 0
+            for fld, width in self._layout:
+                out = []
+                for _ in range(width):
+                    while k < len(sp) and sp[k] == pos:
+                        pos += 1
+                        k += 1
+                    out.append(pos)
+                    pos += 1
+                f[fld] = tuple(out)
+            n = self.crc_delim
+            for fld, width in ((Field.CRC_DELIM, 1), (Field.ACK_SLOT, 1), (Field.ACK_DELIM, 1), (Field.EOF, 7)):
+                f[fld] = tuple(range(n, n + width))
+                n += width
+            self._fields = f
+        return f
 
     @property
     def length(self) -> int:
@@ -207,69 +243,97 @@ class FrameBits:
         raise ValueError(f"bit {position} is not in any field")  # pragma: no cover
 
 
-def _unstuffed_fields(frame: Frame) -> list[tuple[Field, list[int]]]:
-    fields: list[tuple[Field, list[int]]] = [(Field.SOF, [0])]
+def _crc_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 7
+        for _ in range(8):
+            crc = ((crc << 1) ^ CRC15_POLY) if crc & 0x4000 else (crc << 1)
+        table.append(crc & 0x7FFF)
+    return table
+
+
+_CRC_TABLE = _crc_table()
+
+
+def _crc15_int(value: int, nbits: int) -> int:
+    """CRC-15 of the ``nbits`` low bits of ``value`` (MSB first): leading bits one at a time,
+    then a byte at a time from a 256-entry table (about 8x faster than bit by bit)."""
+    crc = 0
+    lead = nbits % 8
+    for i in range(nbits - 1, nbits - 1 - lead, -1):
+        nxt = ((value >> i) & 1) ^ (crc >> 14)
+        crc = (crc << 1) & 0x7FFF
+        if nxt:
+            crc ^= CRC15_POLY
+    table = _CRC_TABLE
+    for shift in range(nbits - lead - 8, -1, -8):
+        crc = ((crc << 8) & 0x7FFF) ^ table[((crc >> 7) ^ (value >> shift)) & 0xFF]
+    return crc
+
+
+def _stuff_string(raw: str) -> tuple[str, list[int]]:
+    """Bit stuffing on a '0'/'1' string with str.find (C speed): after five equal bits, insert
+    the opposite bit, which starts the next run."""
+    out: list[str] = []
+    positions: list[int] = []
+    n_out = 0
+    rest = raw
+    carried = False  # rest[0] is a stuff bit already written to out
+    while True:
+        j0 = rest.find("00000")
+        j1 = rest.find("11111")
+        if j0 < 0 and j1 < 0:
+            out.append(rest[1:] if carried else rest)
+            break
+        j = j0 if j1 < 0 or (0 <= j0 < j1) else j1
+        seg = rest[: j + 5]
+        if carried:
+            seg = seg[1:]
+        stuffbit = "1" if rest[j] == "0" else "0"
+        out.append(seg)
+        n_out += len(seg)
+        positions.append(n_out)
+        out.append(stuffbit)
+        n_out += 1
+        rest = stuffbit + rest[j + 5:]
+        carried = True
+    return "".join(out), positions
+
+
+def _layout(frame: Frame) -> list[tuple[Field, int]]:
+    n = 0 if frame.remote else len(frame.data)
     if frame.extended:
-        fields += [
-            (Field.ID, _int_bits(frame.can_id >> 18, 11)),
-            (Field.SRR, [1]),
-            (Field.IDE, [1]),
-            (Field.ID_EXT, _int_bits(frame.can_id & 0x3FFFF, 18)),
-            (Field.RTR, [int(frame.remote)]),
-            (Field.R1, [0]),
-            (Field.R0, [0]),
-        ]
-    else:
-        fields += [
-            (Field.ID, _int_bits(frame.can_id, 11)),
-            (Field.RTR, [int(frame.remote)]),
-            (Field.IDE, [0]),
-            (Field.R0, [0]),
-        ]
-    fields.append((Field.DLC, _int_bits(frame.dlc, 4)))
-    data_bits = [(byte >> (7 - i)) & 1 for byte in frame.data for i in range(8)]
-    fields.append((Field.DATA, data_bits))
-    return fields
+        return [(Field.SOF, 1), (Field.ID, 11), (Field.SRR, 1), (Field.IDE, 1), (Field.ID_EXT, 18),
+                (Field.RTR, 1), (Field.R1, 1), (Field.R0, 1), (Field.DLC, 4), (Field.DATA, 8 * n),
+                (Field.CRC, 15)]
+    return [(Field.SOF, 1), (Field.ID, 11), (Field.RTR, 1), (Field.IDE, 1), (Field.R0, 1),
+            (Field.DLC, 4), (Field.DATA, 8 * n), (Field.CRC, 15)]
 
 
 def encode(frame: Frame) -> FrameBits:
     """The complete bit sequence of a frame: SOF..EOF with stuff bits, CRC and fixed fields.
 
-    Use ``frame.bits`` to get it cached on the frame.
+    Use ``frame.bits`` to get it cached on the frame. Built from integers and strings rather
+    than bit lists: random traffic encodes every frame once, and this is ~6x faster.
     """
-    fields = _unstuffed_fields(frame)
-    raw: list[int] = []
-    owners: list[Field] = []
-    for f, bs in fields:
-        raw += bs
-        owners += [f] * len(bs)
-    crc = crc15(raw)
-    crc_bits = _int_bits(crc, 15)
-    raw += crc_bits
-    owners += [Field.CRC] * 15
-    stuffed, stuff_pos = stuff(raw)
-    positions: dict[Field, list[int]] = {f: [] for f, _ in fields}
-    positions[Field.CRC] = []
-    sp = set(stuff_pos)
-    j = 0
-    for i in range(len(stuffed)):
-        if i in sp:
-            continue
-        positions[owners[j]].append(i)
-        j += 1
-    n = len(stuffed)
-    tail = [(Field.CRC_DELIM, [1]), (Field.ACK_SLOT, [0]), (Field.ACK_DELIM, [1]), (Field.EOF, [1] * 7)]
-    for f, bs in tail:
-        positions[f] = list(range(n, n + len(bs)))
-        stuffed += bs
-        n += len(bs)
-    return FrameBits(
-        bits="".join("1" if b else "0" for b in stuffed),
-        crc=crc,
-        stuff_positions=tuple(stuff_pos),
-        fields={f: tuple(p) for f, p in positions.items()},
-        crc_delim=positions[Field.CRC_DELIM][0],
-    )
+    if frame.extended:
+        cid = frame.can_id
+        # SOF, ID[28:18], SRR=1, IDE=1, ID[17:0], RTR, r1, r0, DLC
+        head = ((((cid >> 18) << 2) | 3) << 18 | (cid & 0x3FFFF)) << 3 | (int(frame.remote) << 2)
+        head = (head << 4) | frame.dlc
+        head_bits = 1 + 11 + 2 + 18 + 3 + 4
+    else:
+        # SOF, ID[10:0], RTR, IDE=0, r0=0, DLC
+        head = (((frame.can_id << 1) | int(frame.remote)) << 2) << 4 | frame.dlc
+        head_bits = 1 + 11 + 3 + 4
+    data = frame.data
+    nbits = head_bits + 8 * len(data)
+    value = (head << (8 * len(data))) | int.from_bytes(data, "big") if data else head
+    crc = _crc15_int(value, nbits)
+    raw = format((value << 15) | crc, f"0{nbits + 15}b")
+    stuffed, positions = _stuff_string(raw)
+    return FrameBits(stuffed + "1011111111", crc, tuple(positions), len(stuffed), _layout(frame))
 
 
 # ---------------------------------------------------------------------------------------------

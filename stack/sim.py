@@ -565,6 +565,7 @@ class SimBus:
         else:
             self.error_frames += 1
         # counters: error increments first, then rules 7 and 8 for successes
+        before = {name: by_name[name].state for name in outcomes}
         for name, o in outcomes.items():
             node = by_name[name]
             tec = node.tec + o.tec_delta
@@ -608,7 +609,8 @@ class SimBus:
             if node.state is ErrorState.PASSIVE:
                 node._ready_at = idle + self._suspend_ns
         if self.record:
-            self._record_bitlevel(txs, start, end, res)
+            changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
+            self._record_bitlevel(txs, start, end, res, changes)
 
     def _tx_success(self, q: TxRequest, end: int, idle: int) -> None:
         node = q.node
@@ -633,9 +635,12 @@ class SimBus:
             for cb in node._listeners.get(TxDone, ()):
                 cb(TxDone(end, frame, q))
 
-    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any) -> None:
+    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any,
+                         changes: dict[str, tuple[ErrorState, ErrorState]]) -> None:
         first = res.first_error
         detail: dict[str, Any] = {}
+        if changes:
+            detail["states"] = " ".join(f"{n}:{a.value}->{b.value}" for n, (a, b) in sorted(changes.items()))
         if first is not None:
             detail.update(error=first[0], field=first[1], bit=first[3])
         detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
@@ -643,6 +648,7 @@ class SimBus:
                                       if n.name in res.outcomes)
         detail["detected_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.detected))
         detail["rules"] = ";".join(f"{n}:{','.join(o.rules)}" for n, o in sorted(res.outcomes.items()) if o.rules)
+        detail["roles"] = ",".join(f"{n}:{o.role}" for n, o in sorted(res.outcomes.items()))
         acc = sorted(n for n, o in res.outcomes.items() if o.accepted)
         if acc:
             detail["accepted_by"] = ",".join(acc)

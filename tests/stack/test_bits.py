@@ -146,3 +146,23 @@ def test_position_rejects_unknown_field_and_index():
         fb.position("BOGUS")
     with pytest.raises(ValueError, match="bit 11 outside field ID"):
         fb.position(Field.ID, 11)
+
+
+def _reference_bits(f):
+    """A second, bit-list encoder straight from the field layout in ISO 11898-1."""
+    def ib(v, w):
+        return [(v >> (w - 1 - i)) & 1 for i in range(w)]
+    if f.extended:
+        raw = [0] + ib(f.can_id >> 18, 11) + [1, 1] + ib(f.can_id & 0x3FFFF, 18) + [int(f.remote), 0, 0]
+    else:
+        raw = [0] + ib(f.can_id, 11) + [int(f.remote), 0, 0]
+    raw += ib(f.dlc, 4) + [(b >> (7 - i)) & 1 for b in f.data for i in range(8)]
+    raw += ib(crc15(raw), 15)
+    stuffed, positions = stuff(raw)
+    return "".join(map(str, stuffed)) + "1011111111", positions
+
+
+@given(frames())
+def test_encoder_matches_bitwise_reference(f):
+    bits, positions = _reference_bits(f)
+    assert f.bits.bits == bits and list(f.bits.stuff_positions) == positions
