@@ -47,6 +47,60 @@ def build_demo(bus: SimBus) -> None:
     tester.send_periodic(Frame(0x700, remote=True, dlc=2), 50 * MS, offset=7 * MS)
 
 
+def build_fault_demo(bus: SimBus) -> list[tuple[int, dict[str, tuple[int, int]]]]:
+    """The fault demo: three ECUs; from 100 to 250 ms ecu2's receiver picks up noise (local bit errors)
+    and it goes error passive; from 400 ms its transmitter is disconnected (stuck recessive) and
+    it goes bus off; the fault clears at 410 ms and it recovers (rule 12). Returns the TEC/REC
+    samples (every 0.5 ms) the plot is drawn from."""
+    from .faults import FaultInjector
+
+    ecus = [bus.node(n) for n in ("ecu1", "ecu2", "ecu3")]
+    for e in ecus:
+        e.subscribe(lambda ev: None)
+    ecus[0].send_periodic(Frame(0x100, bytes(8)), 2 * MS)
+    ecus[1].send_periodic(Frame(0x200, bytes.fromhex("1122334455667788")), 5 * MS, offset=MS // 2)
+    ecus[2].send_periodic(Frame(0x300, bytes(4)), 3 * MS, offset=MS)
+    fi = FaultInjector(bus)
+    bus.call_at(100 * MS, lambda: fi.bit_errors(3e-3, nodes=["ecu2"]))
+    bus.call_at(250 * MS, lambda: fi.bit_errors(0.0, nodes=["ecu2"]))
+    fi.stuck("ecu2", "recessive", start=400 * MS, end=410 * MS)
+    samples: list[tuple[int, dict[str, tuple[int, int]]]] = []
+
+    def sample() -> None:
+        samples.append((bus.now(), {e.name: (e.tec, e.rec) for e in ecus}))
+        bus.call_later(MS // 2, sample)
+
+    bus.call_at(0, sample)
+    return samples
+
+
+def plot_counters(samples: list[tuple[int, dict[str, tuple[int, int]]]], path: str) -> None:
+    """TEC and REC of each node over time, with the passive (128) and bus-off (256) levels."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise CliError("--plot needs matplotlib: pip install 'canstack[plot]'") from None
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6))
+    t = [s[0] / 1e6 for s in samples]
+    for name in samples[0][1]:
+        ax1.plot(t, [s[1][name][0] for s in samples], label=name)
+        ax2.plot(t, [s[1][name][1] for s in samples], label=name)
+    ax1.axhline(256, color="red", lw=0.8, ls="--", label="bus off (256)")
+    for ax, what in ((ax1, "TEC"), (ax2, "REC")):
+        ax.axhline(96, color="gold", lw=0.8, ls="--", label="error warning (96)")
+        ax.axhline(128, color="orange", lw=0.8, ls="--", label="error passive (128)")
+        ax.set_ylabel(what)
+        ax.legend(loc="upper right", fontsize=8)
+    ax2.set_xlabel("time (ms)")
+    fig.suptitle("canstack fault demo: fault confinement counters")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def format_summary(bus: SimBus) -> str:
     """A readable summary: bus load, per-ID latency and arbitration losses, node counters."""
     s = bus.summary()
@@ -67,23 +121,52 @@ def format_summary(bus: SimBus) -> str:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    if args.duration <= 0:
-        raise CliError(f"--duration {args.duration}: must be > 0 seconds")
     if args.trace:
         from .trace import _check_suffix
         _check_suffix(args.trace)
+    if args.plot and not args.faults:
+        raise CliError("--plot draws the fault demo's counters: use it with --faults")
     bus = SimBus(args.bitrate, seed=args.seed, record=True)
-    build_demo(bus)
-    bus.run(until=int(args.duration * 1e9))
+    if args.faults:
+        from .events import ErrorStateChanged
+
+        samples = build_fault_demo(bus)
+        changes: list[ErrorStateChanged] = []
+        for n in bus.nodes:
+            n.listen(ErrorStateChanged, changes.append)
+        duration = args.duration
+        bus.run(until=int(duration * 1e9))
+    else:
+        build_demo(bus)
+        bus.run(until=int(args.duration * 1e9))
     if args.json:
         print(json.dumps(bus.summary(), indent=2))
     else:
+        if args.faults:
+            print("state changes (fault confinement):")
+            for ev in changes:
+                print(f"  {ev.time / 1e6:9.3f} ms  {ev.node:<5} {ev.old:>13} -> {ev.new:<13} TEC {ev.tec:3d} REC {ev.rec:3d}")
+            print()
         print(format_summary(bus))
+    if args.plot:
+        plot_counters(samples, args.plot)
+        if not args.json:
+            print(f"\nplot: TEC/REC over time written to {args.plot}")
     if args.trace:
         n = bus.save_trace(args.trace)
         if not args.json:
             print(f"\ntrace: {n} records written to {args.trace}")
     return 0
+
+
+def _duration(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < v <= 3600:
+        raise argparse.ArgumentTypeError(f"{v}: the duration must be > 0 and at most 3600 s")
+    return v
 
 
 def _bitrate(text: str) -> int:
@@ -130,12 +213,15 @@ def _frame(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `demo` and `frame`."""
     p = sub.add_parser("demo", help="run the demo network on the simulated bus and print a summary")
-    p.add_argument("--duration", type=float, default=1.0, help="simulated seconds (default 1)")
+    p.add_argument("--duration", type=_duration, default=1.0, help="simulated seconds (default 1)")
     p.add_argument("--bitrate", type=_bitrate, default=500_000, help="bit/s (default 500000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=_demo)
+    p.add_argument("--faults", action="store_true",
+                   help="the fault demo: a node goes error passive, bus off, and recovers")
+    p.add_argument("--plot", metavar="PNG", help="with --faults: plot TEC/REC over time (needs the plot extra)")
+    p.set_defaults(func=_demo, duration_given=False)
 
     p = sub.add_parser("frame", help="show a frame's bits on the wire: stuffing, CRC, length")
     p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")

@@ -444,6 +444,7 @@ class PeriodicTask:
         self.count = count
         self.sent = 0
         self.overflows = 0
+        self.skipped = 0
         self._stopped = False
         self._next = node.now() + max(0, int(offset))
         self._timer = node.call_at(self._next, self._fire)
@@ -456,6 +457,8 @@ class PeriodicTask:
             self.node.send(f)
         except QueueFull:
             self.overflows += 1
+        except NodeError:
+            self.skipped += 1  # bus off: a controller drops what the application writes
         self.sent += 1
         if self.count is not None and self.sent >= self.count:
             self._stopped = True

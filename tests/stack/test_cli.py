@@ -52,6 +52,7 @@ def test_frame_remote_extended(capsys):
     (["demo", "--bitrate", "5000000"], "1000..1000000"),
     (["demo", "--trace", "x.unknown"], "unknown suffix"),
     (["demo", "--duration", "-1"], "--duration"),
+    (["demo", "--plot", "x.png"], "use it with --faults"),
     (["nosuchcommand"], "invalid choice"),
 ])
 def test_bad_input_is_one_line_and_status_2(args, needle):
@@ -59,3 +60,15 @@ def test_bad_input_is_one_line_and_status_2(args, needle):
     assert p.returncode == 2
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in p.stderr
+
+
+def test_fault_demo_goes_passive_bus_off_and_recovers(capsys, tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "tec.png"
+    assert main(["demo", "--faults", "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    import re
+    assert re.search(r"ecu2 +error-warning -> error-passive", out)
+    assert re.search(r"ecu2 +error-active -> bus-off", out)
+    assert re.search(r"ecu2 +bus-off -> error-active +TEC +0 REC +0", out)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
