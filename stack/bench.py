@@ -9,6 +9,9 @@ same run (so the figures compare across machines).
   trace recording off: simulated time divided by wall time (the wire is the reference).
 - ``scale_1000_vs_10_nodes``: frames per second with 1000 such nodes (each filtering the 16
   identifiers of its group) divided by the 10-node figure.
+- ``campaign_realtime_factor_500k``: the reliability campaign (5 nodes, random traffic,
+  bit-error rate 1e-4 global and local) at 500 kbit/s, against the same traffic fault-free
+  (``campaign_vs_fault_free``).
 - ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.waveform`.
 
 ``--json`` prints one JSON object; ``--quick`` runs smaller counts.
@@ -93,6 +96,40 @@ def bench_saturated(nodes: int, n: int, group_filters: bool) -> tuple[float, flo
     return n / dt, bus.now() / 1e9 / dt
 
 
+def bench_campaign(frames: int, ber: float, seed: int = 1) -> tuple[float, int]:
+    """(real-time factor, error frames) of the reliability campaign: 5 nodes with random traffic
+    at 500 kbit/s, global and per-node local bit errors at ``ber``, trace recording off."""
+    import random
+
+    from .faults import FaultInjector
+
+    bus = SimBus(500_000, seed=seed, record=False)
+    nodes = [bus.node(f"n{i}", rx_fifo_size=256) for i in range(5)]
+    if ber:
+        fi = FaultInjector(bus)
+        fi.bit_errors(ber)
+        fi.bit_errors(ber, nodes=[n.name for n in nodes])
+    rng = random.Random(seed)
+    for i, n in enumerate(nodes):
+        count = [0]
+
+        def again(ev: Any = None, n: Any = n, i: int = i, count: list[int] = count) -> None:
+            count[0] += 1
+            n.send(Frame(0x100 * (i + 1) + rng.randrange(0x100), count[0].to_bytes(4, "big") + bytes([i])))
+
+        n.listen(TxDone, again)
+        again()
+    step = max(1, frames // 10)
+    t0 = time.perf_counter()
+    done = 0
+    while done < frames:
+        bus.run(frames=min(step, frames - done))
+        done = min(frames, done + step)
+        _progress(f"  campaign ber={ber:g}: {done:,}/{frames:,} frames")
+    dt = time.perf_counter() - t0
+    return bus.now() / 1e9 / dt, bus.error_frames
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmarks and print each figure as a ratio against its reference."""
     ap = argparse.ArgumentParser(prog="python -m stack.bench")
@@ -119,6 +156,17 @@ def main(argv: list[str] | None = None) -> int:
     fps1000, rtf1000 = bench_saturated(1000, int(300_000 * scale), True)
     res["fps_1000_nodes"] = fps1000
     res["scale_1000_vs_10_nodes"] = fps1000 / fps10
+
+    n_campaign = int(1_000_000 * scale)
+    _progress(f"reliability campaign, {n_campaign:,} frames fault-free")
+    rtf_clean, _ = bench_campaign(n_campaign, 0.0)
+    _progress(f"reliability campaign, {n_campaign:,} frames at bit-error rate 1e-4 (global + local)")
+    rtf_faulty, errors = bench_campaign(n_campaign, 1e-4)
+    res["campaign_frames"] = n_campaign
+    res["campaign_error_frames"] = errors
+    res["campaign_realtime_factor_500k"] = rtf_faulty
+    res["campaign_realtime_factor_fault_free"] = rtf_clean
+    res["campaign_vs_fault_free"] = rtf_faulty / rtf_clean
 
     if not args.no_waveform:
         try:
@@ -147,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{rtf10:.1f}x the wire (target >= 50)")
     print(f"1000 nodes: {fps1000:,.0f} frames/s = {res['scale_1000_vs_10_nodes']:.2f} of the 10-node "
           f"figure (target >= 0.5)")
+    print(f"reliability campaign, {n_campaign:,} frames, 5 nodes @ 500 kbit/s, BER 1e-4: real-time "
+          f"factor {rtf_faulty:.1f}x ({errors:,} error frames) vs {rtf_clean:.1f}x fault-free: "
+          f"{res['campaign_vs_fault_free']:.2f}")
     if res.get("decode_vs_sigrok") is not None:
         print(f"capture decode: {res['decode_s']:.2f} s vs sigrok-cli {res['sigrok_s']:.2f} s: "
               f"{res['decode_vs_sigrok']:.2f}x (target >= 1)")
