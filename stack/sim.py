@@ -307,11 +307,122 @@ class SimBus:
                 self._now = tb
                 if self._tx is not None:
                     self._complete()
+                elif self.fast and not (self._suspended or self._arb_watch or self._faults is not None
+                                        or self._ack_count < 2):
+                    if not self._fast_frames(tt, limit, stop):
+                        self._arbitrate()
                 else:
                     self._arbitrate()
         if until is not None and self._now < until and self.frames_ok < stop:
             self._now = until
         return self
+
+    fast = True  # the specialised loop below; tests turn it off to compare traces
+
+    def _fast_frames(self, tt: float, limit: float, stop: float) -> int:
+        """Arbitrate and complete clean frames back to back, in one loop with local variables,
+        while no timer, fault, tie, suspension or special receiver needs the general path.
+
+        Same results as `_arbitrate` + `_complete` (a test compares traces), about 1.4x faster:
+        it saves two method calls, the transmission tuple and a loop turn per frame. Returns the
+        number of frames it completed (0: let the general path take this one).
+        """
+        heap = self._contenders
+        heappop = heapq.heappop
+        heappush = heapq.heappush
+        timers = self._timers
+        dur = self._dur
+        ifs = self._ifs_ns
+        eager = self._eager
+        lazy = self._lazy
+        log = self._log
+        id_stats = self.id_stats
+        PASSIVE = ErrorState.PASSIVE
+        now = self._now
+        idle_at = self._idle_at
+        done = 0
+        while self.frames_ok < stop:
+            t0 = idle_at if idle_at > now else now
+            if t0 >= tt or t0 > limit or not heap:
+                break
+            req = heap[0][2]
+            node = req.node
+            if req.state != "queued" or node._head is not req or not node._on_bus or node._ready_at > t0 \
+                    or node.state is PASSIVE:
+                break
+            frame = req.frame
+            if frame.remote and self._rtr:
+                break  # automatic replies: the general path
+            heappop(heap)
+            if heap and heap[0][0] == req.key:
+                heappush(heap, (req.key, req.seq, req))
+                break
+            fb = frame._bits or frame.bits
+            end = t0 + dur[len(fb.bits)]
+            if end >= tt or end > limit:
+                heappush(heap, (req.key, req.seq, req))
+                break
+            # arbitration
+            r = self.rounds
+            self.rounds = r + 1
+            if t0 > idle_at:
+                self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
+            lost = r - req.head_since
+            if lost > 0:
+                req.losses += lost
+                node._arb_lost += lost
+            req.head_since = r + 1
+            # completion
+            now = end
+            self._now = end
+            idle_at = end + ifs
+            self._idle_at = idle_at
+            self.frames_ok += 1
+            self.busy_ns += idle_at - t0
+            self._recessive_events += 1
+            if self.record:
+                rec = TraceRecord("frame", t0, end, node.name, frame, len(fb.bits), req.losses, req.t_queued)
+                self.trace.append(rec)
+                for cb in self._bus_listeners:
+                    cb(rec)
+            if lazy:
+                log.append((end, frame, node))
+                if len(log) >= LOG_LIMIT:
+                    self._flush()
+                    log = self._log
+            for n in eager:
+                n._deliver(end, frame, node)
+            if self._rec_nonzero:
+                for n in tuple(self._rec_nonzero):
+                    if n is not node and n._on_bus:
+                        n._on_rx_success()
+            st = id_stats.get(frame.key)
+            if st is None:
+                st = id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
+            req.state = "sent"
+            req.t_done = end
+            node.tx_frames += 1
+            node.queue.remove(req)
+            lat = end - req.t_queued
+            st.count += 1
+            st.total += lat
+            st.losses += req.losses
+            if lat < st.min:
+                st.min = lat
+            if lat > st.max:
+                st.max = lat
+            if node.tec:
+                node._on_tx_success()
+            node._update_head()
+            if node._listeners:
+                for cb in node._listeners.get(TxDone, ()):
+                    cb(TxDone(end, frame, req))
+            done += 1
+            if timers:
+                tt = timers[0][0]
+            if self._arb_watch or self._faults is not None or self._suspended:
+                break
+        return done
 
     def next_event_time(self) -> float:
         """Virtual time (ns) of the next thing the engine will do: a timer, the end of the

@@ -199,3 +199,24 @@ def test_unbounded_run_with_lone_transmitter_refuses():
     bus.node("a").send(Frame(1))
     with pytest.raises(ValueError, match="never end"):
         bus.run()
+
+
+@pytest.mark.parametrize("scenario", ["demo", "saturated"])
+def test_fast_loop_gives_the_same_trace_as_the_general_path(monkeypatch, scenario):
+    from stack.events import TxDone
+
+    def run(fast):
+        monkeypatch.setattr(SimBus, "fast", fast)
+        bus = SimBus(500_000)
+        if scenario == "demo":
+            build_demo(bus)
+            bus.run(until=300_000_000)
+        else:
+            for i in range(5):
+                n = bus.node(f"n{i}", rx_fifo_size=8)
+                n.listen(TxDone, lambda ev, n=n: n.send(ev.frame))
+                n.send(Frame(0x100 + i, bytes([i]) * 8))
+            bus.run(frames=3000)
+        return [r.as_tuple() for r in bus.trace], {n.name: n.counters() for n in bus.nodes}, bus.now()
+
+    assert run(True) == run(False)
