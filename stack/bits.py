@@ -423,6 +423,14 @@ class BitDecoder:
         self._li = 0
         self._done: set[Field] = set()
 
+    def clone(self) -> "BitDecoder":
+        """An independent copy in the same state (receivers that saw the same bits so far)."""
+        new = BitDecoder.__new__(BitDecoder)
+        new.__dict__ = self.__dict__.copy()
+        new._layout = list(self._layout)
+        new._done = set(self._done)
+        return new
+
     @property
     def in_frame(self) -> bool:
         """True between SOF and the end of the frame."""

@@ -173,7 +173,16 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     first_error: tuple[str, str, int, int] | None = None
     first_flag_bit: int | None = None
     winner_view = None
-    b = 0
+    b = _common_prefix(txs, views, flips, stuck)
+    if b:
+        # every node saw the same clean bits so far: decode them once and share the state
+        dec = BitDecoder()
+        prefix = txs[0].frame.bits.bits[:b]
+        for c in prefix:
+            dec.feed(1 if c == "1" else 0)
+        for v in views:
+            v.dec = dec.clone()
+        wire_bits.append(prefix)
     while b < MAX_ATTEMPT_BITS:
         if stuck_until is not None and b == stuck_until:
             for v in views:
@@ -222,6 +231,25 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     res = AttemptResult(b, "".join(wire_bits), first_error, {v.node.name: v.out for v in views},
                         winner_view.req if winner_view else None)
     return res
+
+
+def _common_prefix(txs: list["TxRequest"], views: list[_View], flips: dict[int, Any],
+                   stuck: dict["Node", int]) -> int:
+    """Bits from SOF that every node sees exactly as the transmitters sent them: before the
+    first flip, the first difference between transmitters, the ACK slot, and only when no node
+    is stuck or listen-only-silent matters (listen-only nodes never drive, so they do not)."""
+    if not txs or stuck:
+        return 0
+    fb = txs[0].frame.bits
+    end = fb.fields[Field.ACK_SLOT][0]
+    if flips:
+        end = min(end, min(flips))
+    b0 = fb.bits
+    for q in txs[1:]:
+        b1 = q.frame.bits.bits
+        if b1 != b0:
+            end = min(end, next(i for i, (x, y) in enumerate(zip(b0, b1)) if x != y))
+    return max(0, end)
 
 
 def _bump(v: _View, amount: int, rule: str) -> None:
