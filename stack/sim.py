@@ -413,10 +413,16 @@ class SimBus:
                 st.max = lat
             if node.tec:
                 node._on_tx_success()
-            node._update_head()
-            if node._listeners:
-                for cb in node._listeners.get(TxDone, ()):
+            listeners = node._listeners.get(TxDone) if node._listeners else None
+            if listeners:
+                # confirm first, then pick the next head once (sends from the callback included)
+                node._head = None
+                for cb in listeners:
                     cb(TxDone(end, frame, req))
+                if node._head is None:
+                    node._update_head()
+            else:
+                node._update_head()
             done += 1
             if timers:
                 tt = timers[0][0]
