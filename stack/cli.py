@@ -11,11 +11,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from importlib.metadata import entry_points
 from typing import Sequence
 
 __all__ = ["CliError", "main", "parse_int"]
 
-# modules that contribute subcommands, in the order they are listed in --help
+# stack's own modules that contribute subcommands, in the order they are listed in --help;
+# packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
+# group in pyproject.toml, so that stack never imports them (DESIGN.md: imports go one way)
 SUBCOMMAND_MODULES = [
     "stack.commands",
     "stack.bittiming",
@@ -54,6 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         mod.register(sub)
+    for ep in sorted(entry_points(group="canstack.commands"), key=lambda e: e.name):
+        ep.load()(sub)
     return parser
 
 
@@ -63,13 +68,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         return int(args.func(args) or 0)
+    except BrokenPipeError:  # output piped into head: not an error
+        try:
+            sys.stdout = None  # type: ignore[assignment]
+        finally:
+            return 0
     except (CliError, ValueError, OSError) as exc:
         print(f"canstack: error: {exc}" if not str(exc).startswith("canstack") else f"{exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:  # pragma: no cover
-        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,145 @@
+"""`canstack restbus`: rest-bus simulation of a DBC, on the simulated bus or a python-can bus."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from stack.cli import CliError
+
+from .errors import load_database
+from .restbus import BusRecord, RestBus, json_value
+
+__all__ = ["register", "restbus_command"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``restbus`` subcommand."""
+    p = subparsers.add_parser(
+        "restbus", help="simulate every node of a DBC except the device under test",
+        description="Simulate every node of a DBC except --dut with initial values and the DBC's "
+                    "interaction layer; print what the DUT sends, decoded (--json: every frame).")
+    p.add_argument("dbc", metavar="DBC", help="database file (DBC, or anything cantools loads)")
+    p.add_argument("--dut", metavar="NODE", help="device under test: not simulated (default: none, simulate all)")
+    p.add_argument("--duration", type=float, default=10.0, metavar="S", help="seconds to run (default 10)")
+    p.add_argument("--bus", choices=["sim"], default=None, help="the built-in simulated bus (default)")
+    p.add_argument("--interface", metavar="NAME", help="python-can interface (socketcan, canstack, ...)")
+    p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, bus0, ...)")
+    p.add_argument("--bitrate", type=int, default=500_000, help="bit/s (default 500000)")
+    p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
+    p.add_argument("--trace", metavar="FILE", help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4)")
+    p.add_argument("--json", action="store_true", help="one JSON object per frame on the bus, per line")
+    p.set_defaults(func=restbus_command)
+
+
+def _open_driver(interface: str, channel: str | None, bitrate: int) -> Any:
+    """The python-can driver of `stack.driver` on ``interface``/``channel``: ``open_bus`` if the
+    module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node."""
+    try:
+        from stack import driver  # imported here: the simulated bus needs no python-can driver
+    except ImportError:
+        raise CliError("python-can driver not available yet (stack.driver)") from None
+    if interface == "canstack":
+        from stack import pycan  # noqa: F401  (registers the interface when not installed)
+    open_bus = getattr(driver, "open_bus", None)
+    if open_bus is not None:
+        return open_bus(interface, channel)
+    if not hasattr(driver, "PyCanDriver"):
+        raise CliError("python-can driver not available yet (stack.driver.PyCanDriver)")
+    import can
+
+    try:  # open one connection now so a bad interface or channel is one clear line
+        can.Bus(interface=interface, channel=channel).shutdown()
+    except (can.CanError, OSError, NotImplementedError, ValueError, ImportError) as exc:
+        raise CliError(f"cannot open {interface} channel {channel!r}: {' '.join(str(exc).split())}") from None
+    return driver.PyCanDriver(interface=interface, channel=channel)
+
+
+def _line(rec: BusRecord) -> str:
+    ident = f"0x{rec.frame.can_id:08X}" if rec.frame.extended else f"0x{rec.frame.can_id:03X}"
+    sigs = " ".join(f"{k}={json_value(v)}" for k, v in rec.signals.items())
+    return f"{rec.time / 1e9:12.6f}  {rec.sender:<8} {ident}  {rec.name or '?':<20} {sigs}"
+
+
+def restbus_command(args: argparse.Namespace) -> int:
+    """Run the rest-bus simulation the arguments describe; 0 on success."""
+    if args.duration <= 0:
+        raise CliError(f"--duration {args.duration}: must be > 0 seconds")
+    if args.interface is not None and args.bus is not None:
+        raise CliError("give either --bus sim or --interface/--channel, not both")
+    if args.channel is not None and args.interface is None:
+        raise CliError("--channel needs --interface")
+    if args.trace:
+        from stack.trace import _check_suffix
+
+        _check_suffix(args.trace)
+    db = load_database(args.dbc)
+    out = sys.stdout
+    shown = 0
+    stats: dict[tuple[str, str], list[Any]] = {}
+
+    def _count(rec: BusRecord) -> None:
+        st = stats.setdefault((rec.sender, rec.name or hex(rec.frame.can_id)), [0, rec.time, rec.time, rec])
+        st[0] += 1
+        st[2] = rec.time
+        st[3] = rec
+
+    def _summary(rb: RestBus, duration: float) -> str:
+        lines = [f"{'sender':<10} {'message':<22} {'frames':>6} {'period ms':>9}  last values"]
+        for (sender, name), (n, first, last, rec) in sorted(stats.items()):
+            period = f"{(last - first) / (n - 1) / 1e6:9.2f}" if n > 1 else f"{'-':>9}"
+            sigs = " ".join(f"{k}={json_value(v)}" for k, v in list(rec.signals.items())[:6])
+            lines.append(f"{sender:<10} {name:<22} {n:>6} {period}  {sigs}")
+        return "\n".join(lines)
+
+    def emit(rec: BusRecord) -> None:
+        nonlocal shown
+        if args.json:
+            out.write(json.dumps(rec.as_json()) + "\n")
+        elif args.dut is not None and rec.sender == args.dut:
+            out.write(_line(rec) + "\n")
+            shown += 1
+
+    if args.interface is None:
+        from stack.sim import SimBus
+
+        bus = SimBus(args.bitrate, seed=args.seed, record=bool(args.trace))
+        rb = RestBus(db, bus, dut=args.dut, records=False)
+        rb.on_record(_count)
+        rb.on_record(emit)
+        bus.run(until=int(args.duration * 1e9))
+        if args.trace:
+            n = bus.save_trace(args.trace)
+            if not args.json:
+                print(f"trace: {n} records written to {args.trace}", file=sys.stderr)
+    else:
+        bus = _open_driver(args.interface, args.channel, args.bitrate)
+        try:
+            rb = RestBus(db, bus, dut=args.dut, records=bool(args.trace), start=False)
+            rb.on_record(_count)
+            rb.on_record(emit)
+            if hasattr(bus, "submit"):
+                bus.submit(rb.start)  # ECU timers start on the driver's scheduler thread
+            else:
+                rb.start()
+            bus.run(args.duration)
+            rb.stop()
+        finally:
+            for name in ("close", "shutdown"):
+                fn = getattr(bus, name, None)
+                if callable(fn):
+                    fn()
+                    break
+        if args.trace:
+            from stack.trace import save_messages
+
+            save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace)
+    if not args.json:
+        print(_summary(rb, args.duration))
+        sims = ", ".join(rb.ecus)
+        total = sum(st[0] for st in stats.values())
+        dut = f", {shown} from DUT {args.dut}" if args.dut else ""
+        print(f"simulated: {sims}; {total} frames on the bus{dut} in {args.duration:g} s", file=sys.stderr)
+    return 0

@@ -1,0 +1,765 @@
+"""An ECU built from a DBC: the node's messages encoded, scheduled and decoded (sans-IO).
+
+`Ecu(db, "ECM", node)` transmits every message the DBC says node ECM sends, following the
+interaction layer (`dbc.interaction`), and decodes every frame of the database it receives.
+It acts only through the node (``send``, ``call_at``, ``now``, ``subscribe``), so the same ECU
+runs on the simulated bus and on a python-can bus.
+
+Values are physical (scaled) values, or choice names for signals with a value table. Encoding
+and decoding are cantools' ``Message.encode``/``decode``: what goes on the wire is exactly what
+cantools gives for the same values.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+import cantools
+
+from stack.events import Received
+from stack.frame import Frame
+from stack.node import QueueFull
+
+from .checks import checks_from_attributes
+from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
+from .interaction import MessageTiming, message_timing, signal_timing
+
+__all__ = [
+    "Ecu",
+    "MessageReceived",
+    "SignalChanged",
+    "CheckFailed",
+    "node_names",
+    "initial_values",
+    "frame_id_of",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class MessageReceived:
+    """A database message was received and decoded (physical values, choices as
+    `NamedSignalValue`). ``failures`` lists the checks it failed (empty if none)."""
+
+    time: int
+    message: str
+    signals: dict[str, Any]
+    frame: Frame
+    failures: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class SignalChanged:
+    """A received signal differs from its previous received value (``old`` None at first)."""
+
+    time: int
+    message: str
+    signal: str
+    old: Any
+    new: Any
+
+
+@dataclass(frozen=True, slots=True)
+class CheckFailed:
+    """A received frame failed a check (alive counter, checksum, E2E, or decoding): ``check``
+    names the hook, ``reason`` says what was wrong."""
+
+    time: int
+    message: str
+    check: str
+    reason: str
+    frame: Frame
+
+
+def node_names(db: cantools.database.can.Database) -> list[str]:
+    """Names of the nodes of a database: ``BU_`` nodes, then senders not declared there
+    (``Vector__XXX``, the "no node" placeholder, excluded)."""
+    names = [n.name for n in db.nodes]
+    for m in db.messages:
+        for s in m.senders:
+            if s not in names:
+                names.append(s)
+    return [n for n in names if n != "Vector__XXX"]
+
+
+def frame_id_of(message: Any) -> tuple[int, bool]:
+    """(identifier, extended) of a cantools message as it goes on the wire: the DBC's frame
+    id, 29-bit when the DBC marks the message extended (J1939 messages included)."""
+    return message.frame_id, bool(message.is_extended_frame)
+
+
+def _mux_ok(message: Any, values: dict[str, Any]) -> None:
+    """Make every multiplexer select a defined branch (its start value may not)."""
+    for tree in message.signal_tree:
+        if isinstance(tree, dict):
+            _fix_mux(message, tree, values)
+
+
+def _fix_mux(message: Any, tree: dict[str, Any], values: dict[str, Any]) -> None:
+    for mux_name, branches in tree.items():
+        sig = message.get_signal_by_name(mux_name)
+        raw = values.get(mux_name)
+        try:
+            rawnum = sig.conversion.choice_to_number(raw) if isinstance(raw, str) else \
+                int(round(sig.conversion.scaled_to_raw(raw)))
+        except Exception:
+            rawnum = None
+        if rawnum not in branches:
+            rawnum = min(branches)
+            values[mux_name] = sig.conversion.raw_to_scaled(rawnum, False)
+        for sub in branches[rawnum]:
+            if isinstance(sub, dict):
+                _fix_mux(message, sub, values)
+
+
+def initial_values(db: cantools.database.can.Database, message: Any) -> dict[str, Any]:
+    """Initial physical value of every signal of ``message``: ``GenSigStartValue`` (raw, through
+    the signal's scaling; cantools' ``raw_initial``), else the attribute's default, else raw 0;
+    multiplexers that would select an undefined branch select the lowest defined one."""
+    values: dict[str, Any] = {}
+    for sig in message.signals:
+        raw = signal_timing(db, sig).start_raw
+        if raw is None:
+            raw = 0
+        values[sig.name] = sig.conversion.raw_to_scaled(raw, False)
+    _mux_ok(message, values)
+    return values
+
+
+class _Limits:
+    """A signal's allowed physical range: the DBC minimum/maximum intersected with what the
+    raw bits can hold (through scale and offset)."""
+
+    __slots__ = ("lo", "hi", "dbc_lo", "dbc_hi", "raw_lo", "raw_hi")
+
+    def __init__(self, sig: Any) -> None:
+        conv = sig.conversion
+        if sig.is_float:
+            raw_lo = -math.inf
+            raw_hi = math.inf
+        elif sig.is_signed:
+            raw_lo, raw_hi = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+        else:
+            raw_lo, raw_hi = 0, (1 << sig.length) - 1
+        a = raw_lo * conv.scale + conv.offset if math.isfinite(raw_lo) else -math.inf * (1 if conv.scale > 0 else -1)
+        b = raw_hi * conv.scale + conv.offset if math.isfinite(raw_hi) else math.inf * (1 if conv.scale > 0 else -1)
+        self.raw_lo, self.raw_hi = min(a, b), max(a, b)
+        self.dbc_lo, self.dbc_hi = sig.minimum, sig.maximum
+        lo, hi = self.raw_lo, self.raw_hi
+        if self.dbc_lo is not None:
+            lo = max(lo, self.dbc_lo)
+        if self.dbc_hi is not None:
+            hi = min(hi, self.dbc_hi)
+        if lo > hi:  # DBC range disjoint from the bits: trust the bits
+            lo, hi = self.raw_lo, self.raw_hi
+        self.lo, self.hi = lo, hi
+
+
+class _TxMessage:
+    """State of one transmitted message: values, interaction layer, hooks, timers."""
+
+    def __init__(self, ecu: "Ecu", message: Any, timing: MessageTiming, hooks: list[Any]) -> None:
+        db = ecu.db
+        self.ecu = ecu
+        self.message = message
+        self.name = message.name
+        self.timing = timing
+        self.can_id, self.extended = frame_id_of(message)
+        self.length = message.length
+        self.values = initial_values(db, message)
+        self.signals = {s.name: s for s in message.signals}
+        self.sig_timing = {s.name: signal_timing(db, s) for s in message.signals}
+        self.limits: dict[str, _Limits] = {}
+        self.hooks = hooks
+        self.value_hooks = [h for h in hooks if getattr(h, "modifies_values", True)]
+        self.data_hooks = [h for h in hooks if getattr(h, "modifies_data", True)]
+        self.frame: Frame | None = None  # cached while values and hooks do not change it
+        self.encode = message.encode
+        self.default_trigger = timing.write_trigger()
+        active_sigs = [n for n, st in self.sig_timing.items() if st.send_type == "IfActive"]
+        if not active_sigs:
+            active_sigs = [s.name for s in message.signals if not s.is_multiplexer]
+        self.active_signals = active_sigs
+        # scheduling state
+        self.node = ecu.node
+        self.if_active = timing.if_active
+        self.running = False
+        self.hold_until = 0
+        self.last_tx: int | None = None
+        self.cycle_timer: Any = None
+        self.next_cycle = 0
+        self.spont_timer: Any = None
+        self.rep_timer: Any = None
+        self.reps_left = 0
+        self.active = False
+        self.sent = 0
+
+    # ------------------------------------------------------------------ frames
+    def build(self) -> Frame:
+        """Encode the current values (hooks applied) into a frame."""
+        f = self.frame
+        if f is not None:
+            return f
+        values = self.values
+        for h in self.value_hooks:  # alive counters write into the values: get() shows the last sent
+            h.tx_values(values)
+        data = self.encode(values, strict=False)
+        for h in self.data_hooks:
+            data = h.tx_data(data)
+        f = Frame(self.can_id, data, extended=self.extended)
+        if not self.hooks:
+            self.frame = f
+        return f
+
+    def transmit(self) -> Any:
+        node = self.node
+        frame = self.frame or self.build()
+        self.last_tx = node.now()
+        self.sent += 1
+        try:
+            return node.send(frame)
+        except QueueFull:
+            self.ecu.tx_overflows += 1
+            return None
+
+    # ------------------------------------------------------------------ interaction layer
+    def start(self, now: int) -> None:
+        self.running = True
+        t = self.timing
+        self.hold_until = now + t.start_delay * 1_000_000
+        if t.cyclic:
+            self._start_cycle(self.hold_until, t.period_ns)
+        elif t.if_active:
+            self.active = self._is_active()
+            if self.active:
+                self._start_cycle(self.hold_until, t.fast_period_ns)
+
+    def stop(self) -> None:
+        self.running = False
+        for tm in (self.cycle_timer, self.spont_timer, self.rep_timer):
+            if tm is not None:
+                tm.cancel()
+        self.cycle_timer = self.spont_timer = self.rep_timer = None
+
+    def _start_cycle(self, first: int, period: int) -> None:
+        self.period = period
+        self.next_cycle = first
+        self.cycle_timer = self.ecu.node.call_at(first, self._cycle)
+
+    def _cycle(self) -> None:
+        # fixed rate: the next period is counted from the schedule, not from when we ran
+        self.transmit()
+        if self.if_active and not self.active:
+            self.cycle_timer = None  # the last transmission carried the inactive values
+            return
+        self.next_cycle = t = self.next_cycle + self.period
+        self.cycle_timer = self.node.call_at(t, self._cycle)
+
+    def written(self, name: str, old: Any, new: Any) -> None:
+        """A signal was written by the application: decide whether that triggers a send."""
+        self.frame = None
+        if not self.running:
+            return
+        st = self.sig_timing[name]
+        kind = st.send_type or self.default_trigger
+        t = self.timing
+        if t.if_active and name in self.active_signals:
+            self._activity()
+        if kind == "OnWrite" or (kind == "OnChange" and self.changed(name, old, new)):
+            self.trigger(st.with_repetition or t.with_repetition)
+
+    def changed(self, name: str, old: Any, new: Any) -> bool:
+        """Whether a write changed the value ('Open' and 1 are the same value of a choice)."""
+        if old == new:
+            return False
+        conv = self.signals[name].conversion
+        try:
+            a = conv.choice_to_number(old) if isinstance(old, str) else old
+            b = conv.choice_to_number(new) if isinstance(new, str) else new
+        except Exception:
+            return True
+        return a != b
+
+    def _is_active(self) -> bool:
+        for n in self.active_signals:
+            inactive = self.sig_timing[n].inactive_raw or 0
+            sig = self.signals[n]
+            v = self.values[n]
+            try:
+                raw = sig.conversion.choice_to_number(v) if isinstance(v, str) else sig.conversion.scaled_to_raw(v)
+            except Exception:
+                return True
+            if abs(raw - inactive) > 1e-9:
+                return True
+        return False
+
+    def _activity(self) -> None:
+        was = self.active
+        self.active = self._is_active()
+        if self.active and not was and self.cycle_timer is None:
+            start = max(self.ecu.node.now(), self.hold_until)
+            self._start_cycle(start, self.timing.fast_period_ns)
+
+    def trigger(self, repeat: bool) -> None:
+        """A spontaneous transmission, delayed by the start delay and (WithDelay types) the
+        minimum gap; writes during a pending delay are coalesced."""
+        if self.spont_timer is not None:
+            return
+        node = self.ecu.node
+        now = node.now()
+        t = self.timing
+        at = max(now, self.hold_until)
+        if t.with_delay and self.last_tx is not None:
+            at = max(at, self.last_tx + t.delay_time * 1_000_000)
+        self._repeat = repeat
+        if at <= now:
+            self._spontaneous()
+        else:
+            self.spont_timer = node.call_at(at, self._spontaneous)
+
+    def _spontaneous(self) -> None:
+        self.spont_timer = None
+        self.transmit()
+        t = self.timing
+        if self._repeat and t.repetitions and t.fast_period_ns:
+            if self.rep_timer is not None:
+                self.rep_timer.cancel()
+            self.reps_left = t.repetitions
+            self.rep_timer = self.ecu.node.call_later(t.fast_period_ns, self._repetition)
+
+    def _repetition(self) -> None:
+        self.transmit()
+        self.reps_left -= 1
+        if self.reps_left > 0:
+            self.rep_timer = self.ecu.node.call_later(self.timing.fast_period_ns, self._repetition)
+        else:
+            self.rep_timer = None
+
+
+class _RxMessage:
+    __slots__ = ("message", "name", "hooks", "values", "decode", "time", "count")
+
+    def __init__(self, message: Any, hooks: list[Any]) -> None:
+        self.message = message
+        self.name = message.name
+        self.hooks = hooks
+        self.values: dict[str, Any] | None = None
+        self.decode = message.decode
+        self.time: int | None = None
+        self.count = 0
+
+
+class Ecu:
+    """A DBC node on a stack node: transmits the node's messages, decodes what it receives.
+
+    - ``db``: a cantools `Database` or a path (loaded with `load_database`);
+    - ``name``: the DBC node (``BU_``) this ECU is; unknown names raise `UnknownNameError` with
+      the closest ones;
+    - ``node``: a `stack.node.Node` (simulated or python-can driven);
+    - ``clamp``: out-of-range writes are clamped to the signal's range instead of raising
+      `SignalRangeError` (strict is the default);
+    - ``checks``: alive counter / checksum hooks (`dbc.checks`); None takes those declared in
+      the DBC (``CanstackCheck`` attribute), ``[]`` none;
+    - ``start``: start the interaction layer now (else call `start`).
+
+    Transmitted: every message whose DBC senders include ``name`` (messages longer than 8 bytes
+    — CAN FD — and container messages are listed in ``unsupported`` and skipped). Received:
+    every other message of the database, matched by identifier and format (J1939 messages
+    also by PGN, any source address). A received frame that fails a check is reported
+    (`CheckFailed` to `on_check_failed` callbacks, ``check_failures`` counter) and its values are
+    not applied unless ``accept_failed``.
+    """
+
+    def __init__(self, db: cantools.database.can.Database | str | Path, name: str, node: Any, *,
+                 clamp: bool = False, checks: Iterable[Any] | None = None, start: bool = True,
+                 accept_failed: bool = False) -> None:
+        if not isinstance(db, cantools.database.can.Database):
+            db = load_database(db)
+        self.db = db
+        names = node_names(db)
+        if name not in names:
+            raise UnknownNameError("node", name, names, "in the database" + (
+                f" (nodes: {', '.join(names)})" if len(names) <= 12 else ""))
+        self.name = name
+        self.node = node
+        self.clamp = clamp
+        self.accept_failed = accept_failed
+        self.tx_overflows = 0
+        self.check_failures: dict[tuple[str, str], int] = {}
+        self.unsupported: dict[str, str] = {}
+        hooks = list(checks_from_attributes(db) if checks is None else checks)
+        by_msg: dict[str, list[Any]] = {}
+        for h in hooks:
+            if h.message not in db._name_to_message:
+                raise UnknownNameError("message", h.message, [m.name for m in db.messages], f"in hook {h.name}")
+            by_msg.setdefault(h.message, []).append(h)
+        self._tx: dict[str, _TxMessage] = {}
+        self._rx: dict[str, _RxMessage] = {}
+        self._rx_by_id: dict[tuple[int, bool], _RxMessage] = {}
+        self._rx_by_pgn: dict[int, _RxMessage] = {}
+        for m in db.messages:
+            reason = self._unsupported(m)
+            if reason:
+                self.unsupported[m.name] = reason
+                continue
+            specs = by_msg.get(m.name, [])
+            if name in m.senders:
+                self._tx[m.name] = _TxMessage(self, m, message_timing(db, m), [s.bind(m) for s in specs])
+            else:
+                rx = _RxMessage(m, [s.bind(m) for s in specs])
+                self._rx[m.name] = rx
+                self._rx_by_id[frame_id_of(m)] = rx
+                if m.protocol == "j1939" and m.is_extended_frame:
+                    self._rx_by_pgn.setdefault(_pgn(m.frame_id), rx)
+        self._msg_cbs: dict[str, list[Callable[[MessageReceived], Any]]] = {}
+        self._sig_cbs: dict[str, dict[str, list[Callable[[SignalChanged], Any]]]] = {}
+        self._fail_cbs: list[Callable[[CheckFailed], Any]] = []
+        self._any_cbs: list[Callable[[MessageReceived], Any]] = []
+        self._sig_index: dict[str, list[str]] = {}
+        for m in db.messages:
+            for s in m.signals:
+                self._sig_index.setdefault(s.name, []).append(m.name)
+        self.running = False
+        self._sub = node.subscribe(self._on_frame) if self._rx else None
+        if start:
+            self.start()
+
+    @staticmethod
+    def _unsupported(m: Any) -> str | None:
+        if m.is_container:
+            return "container message (AUTOSAR): not a CAN 2.0 frame"
+        if m.length > 8 or m.is_fd:
+            return f"{m.length} bytes (CAN FD): a CAN 2.0 frame carries at most 8"
+        return None
+
+    # ------------------------------------------------------------------ names
+    @property
+    def tx_messages(self) -> list[str]:
+        """Names of the messages this ECU transmits."""
+        return list(self._tx)
+
+    @property
+    def rx_messages(self) -> list[str]:
+        """Names of the messages this ECU decodes."""
+        return list(self._rx)
+
+    def _message(self, name: str) -> Any:
+        try:
+            return self.db.get_message_by_name(name)
+        except KeyError:
+            raise UnknownNameError("message", name, [m.name for m in self.db.messages]) from None
+
+    def _tx_message(self, name: str) -> _TxMessage:
+        tx = self._tx.get(name)
+        if tx is not None:
+            return tx
+        m = self._message(name)
+        if m.name in self.unsupported:
+            raise DbcError(f"message {name} cannot be sent: {self.unsupported[m.name]}")
+        raise DbcError(f"ECU {self.name} does not send message {name} "
+                       f"(sent by {', '.join(m.senders) or 'no node'})")
+
+    def _resolve(self, signal: str, message: str | None, pool: Mapping[str, Any]) -> tuple[str, str]:
+        """(message, signal) for 'Signal', 'Message.Signal' or signal + message."""
+        if message is None and "." in signal and signal not in self._sig_index:
+            message, signal = signal.split(".", 1)
+        if message is not None:
+            m = self._message(message)
+            names = [s.name for s in m.signals]
+            if signal not in names:
+                raise UnknownNameError("signal", signal, names, f"in message {message}")
+            return message, signal
+        owners = self._sig_index.get(signal)
+        if not owners:
+            raise UnknownNameError("signal", signal, self._sig_index)
+        mine = [o for o in owners if o in pool]
+        cands = mine or owners
+        if len(cands) > 1:
+            raise DbcError(f"signal {signal!r} is in messages {', '.join(cands)}: "
+                           f"name one, e.g. '{cands[0]}.{signal}'")
+        return cands[0], signal
+
+    # ------------------------------------------------------------------ values
+    def check_value(self, message: str, signal: str, value: Any, *, clamp: bool | None = None) -> Any:
+        """The value ``signal`` of ``message`` would be written with: a choice name must exist
+        (`ChoiceError`, with the closest names); a number must be within the signal's range —
+        the DBC minimum/maximum and what its raw bits hold — else `SignalRangeError`, or, with
+        clamping, the nearest bound."""
+        sig = self._message(message).get_signal_by_name(signal)
+        if isinstance(value, str):
+            choices = sig.choices or {}
+            names = [str(v) for v in choices.values()]
+            if value in names:
+                return value
+            if not choices:
+                raise DbcError(f"signal {message}.{signal} has no value table: {value!r} is not a number")
+            raise ChoiceError("choice", value, names, f"for signal {message}.{signal} "
+                              f"(choices: {', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
+        if isinstance(value, bool):
+            value = int(value)
+        if not isinstance(value, (int, float)):
+            num = getattr(value, "value", None)
+            if isinstance(num, (int, float)):
+                return num  # a NamedSignalValue read back from a decoded frame
+            raise DbcError(f"signal {message}.{signal}: value {value!r} is neither a number nor a choice name")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise SignalRangeError(f"signal {message}.{signal}: {value} is not a finite number")
+        lim = self._limits(message, sig)
+        if lim.lo <= value <= lim.hi:
+            return value
+        if self.clamp if clamp is None else clamp:
+            return lim.lo if value < lim.lo else lim.hi
+        unit = f" {sig.unit}" if sig.unit else ""
+        src = "DBC range" if (lim.lo, lim.hi) != (lim.raw_lo, lim.raw_hi) else f"{sig.length}-bit raw range"
+        raise SignalRangeError(f"signal {message}.{signal}: {value}{unit} is outside its {src} "
+                               f"[{_fmt(lim.lo)} .. {_fmt(lim.hi)}]{unit}")
+
+    def _limits(self, message: str, sig: Any) -> _Limits:
+        tx = self._tx.get(message)
+        if tx is not None:
+            lim = tx.limits.get(sig.name)
+            if lim is None:
+                lim = tx.limits[sig.name] = _Limits(sig)
+            return lim
+        return _Limits(sig)
+
+    def set(self, signal: str, value: Any, *, message: str | None = None, clamp: bool | None = None) -> None:
+        """Write a signal of a transmitted message (physical value or choice name), checked
+        against its range; the interaction layer decides whether this sends the message.
+        ``signal`` is 'Signal' or 'Message.Signal'."""
+        msg, sig = self._resolve(signal, message, self._tx)
+        tx = self._tx_message(msg)
+        v = self.check_value(msg, sig, value, clamp=clamp)
+        old = tx.values.get(sig)
+        tx.values[sig] = v
+        tx.written(sig, old, v)
+
+    def update(self, message: str, values: Mapping[str, Any], *, clamp: bool | None = None) -> None:
+        """Write several signals of one transmitted message at once (all checked before any is
+        written); one write event per signal, spontaneous sends coalesce per call."""
+        tx = self._tx_message(message)
+        checked = {}
+        for k, v in values.items():
+            _, sig = self._resolve(k, message, self._tx)
+            checked[sig] = self.check_value(message, sig, v, clamp=clamp)
+        old = {k: tx.values.get(k) for k in checked}
+        tx.values.update(checked)
+        tx.frame = None
+        if not tx.running:
+            return
+        t = tx.timing
+        fired = rep = False
+        for k, v in checked.items():
+            st = tx.sig_timing[k]
+            kind = st.send_type or tx.default_trigger
+            if kind == "OnWrite" or (kind == "OnChange" and tx.changed(k, old[k], v)):
+                fired = True
+                rep = rep or st.with_repetition or t.with_repetition
+        if t.if_active:
+            tx._activity()
+        if fired:
+            tx.trigger(rep)
+
+    def values(self, message: str) -> dict[str, Any]:
+        """Current values of a transmitted message, or the last received values of a received
+        one (empty dict if nothing was received yet)."""
+        tx = self._tx.get(message)
+        if tx is not None:
+            return dict(tx.values)
+        self._message(message)
+        rx = self._rx.get(message)
+        if rx is None:
+            raise DbcError(f"message {message} is neither sent nor received by ECU {self.name}: "
+                           f"{self.unsupported.get(message, '')}")
+        return dict(rx.values or {})
+
+    def get(self, signal: str, *, message: str | None = None, default: Any = None) -> Any:
+        """Last received value of a signal ('Signal' or 'Message.Signal'); for a signal this ECU
+        transmits, its current value. ``default`` if nothing was received yet."""
+        msg, sig = self._resolve(signal, message, self._rx)
+        tx = self._tx.get(msg)
+        if tx is not None:
+            return tx.values.get(sig, default)
+        rx = self._rx.get(msg)
+        if rx is None or rx.values is None:
+            return default
+        return rx.values.get(sig, default)
+
+    def timing(self, message: str) -> MessageTiming:
+        """Interaction-layer timing of a message (`dbc.interaction.message_timing`)."""
+        return message_timing(self.db, self._message(message))
+
+    # ------------------------------------------------------------------ transmit
+    def send(self, message: str, values: Mapping[str, Any] | None = None) -> Any:
+        """Send a transmitted message now (on-request messages, or an extra copy of any other),
+        after writing ``values`` (checked) without triggering the interaction layer; returns the
+        node's transmit request."""
+        tx = self._tx_message(message)
+        if values:
+            for k, v in values.items():
+                _, sig = self._resolve(k, message, self._tx)
+                tx.values[sig] = self.check_value(message, sig, v)
+            tx.frame = None
+        return tx.transmit()
+
+    def encode_frame(self, message: str, values: Mapping[str, Any] | None = None) -> Frame:
+        """The frame the ECU path makes for ``message`` with ``values`` (default: its current or
+        initial values), hooks of transmitted messages applied, without sending it."""
+        tx = self._tx.get(message)
+        if tx is None:
+            m = self._message(message)
+            if m.name in self.unsupported:
+                raise DbcError(f"message {message} cannot be encoded: {self.unsupported[m.name]}")
+            vals = initial_values(self.db, m) if values is None else dict(values)
+            data = m.encode(vals, strict=False)
+            return Frame(m.frame_id, data, extended=bool(m.is_extended_frame))
+        if values is None:
+            return tx.build()
+        saved, frame = tx.values, tx.frame
+        try:
+            tx.values = {**saved, **values}
+            tx.frame = None
+            return tx.build()
+        finally:
+            tx.values, tx.frame = saved, frame
+
+    def decode_frame(self, frame: Frame) -> tuple[str, dict[str, Any]] | None:
+        """(message name, physical values) of a frame, as the ECU decodes it on reception; None
+        for an identifier the database does not know."""
+        m = self._lookup(frame)
+        if m is None:
+            return None
+        return m.name, m.decode(frame.data, decode_choices=True, scaling=True)
+
+    def _lookup(self, frame: Frame) -> Any:
+        rx = self._rx_by_id.get((frame.can_id, frame.extended))
+        if rx is not None:
+            return rx.message
+        for tx in self._tx.values():
+            if tx.can_id == frame.can_id and tx.extended == frame.extended:
+                return tx.message
+        if frame.extended and self._rx_by_pgn:
+            rx = self._rx_by_pgn.get(_pgn(frame.can_id))
+            if rx is not None:
+                return rx.message
+        return None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self, messages: Iterable[str] | None = None) -> None:
+        """Start the interaction layer (of ``messages`` only, if given): cyclic messages begin
+        after their start delay; messages already running are left alone."""
+        txs = list(self._tx.values()) if messages is None else [self._tx_message(m) for m in messages]
+        self.running = True
+        now = self.node.now()
+        for tx in txs:
+            if not tx.running:
+                tx.start(now)
+
+    def stop(self) -> None:
+        """Stop transmitting (timers cancelled); reception goes on."""
+        self.running = False
+        for tx in self._tx.values():
+            tx.stop()
+
+    def sent(self, message: str) -> int:
+        """How many times this ECU queued ``message``."""
+        return self._tx_message(message).sent
+
+    # ------------------------------------------------------------------ receive
+    def on_message(self, message: str | None, callback: Callable[[MessageReceived], Any]) -> None:
+        """Call ``callback(MessageReceived)`` for each reception of ``message`` (None: of every
+        received database message)."""
+        if message is None:
+            self._any_cbs.append(callback)
+            return
+        self._message(message)
+        self._msg_cbs.setdefault(message, []).append(callback)
+
+    def on_signal(self, signal: str, callback: Callable[[SignalChanged], Any], *,
+                  message: str | None = None) -> None:
+        """Call ``callback(SignalChanged)`` when a received signal ('Signal' or
+        'Message.Signal') changes value (and at its first reception)."""
+        msg, sig = self._resolve(signal, message, self._rx)
+        self._sig_cbs.setdefault(msg, {}).setdefault(sig, []).append(callback)
+
+    def on_check_failed(self, callback: Callable[[CheckFailed], Any]) -> None:
+        """Call ``callback(CheckFailed)`` for each received frame failing a check."""
+        self._fail_cbs.append(callback)
+
+    @property
+    def failed_checks(self) -> int:
+        """Total number of failed checks on reception."""
+        return sum(self.check_failures.values())
+
+    def _fail(self, t: int, rx: _RxMessage, check: str, reason: str, frame: Frame) -> None:
+        key = (rx.name, check)
+        self.check_failures[key] = self.check_failures.get(key, 0) + 1
+        ev = CheckFailed(t, rx.name, check, reason, frame)
+        for cb in self._fail_cbs:
+            cb(ev)
+
+    def _on_frame(self, ev: Received) -> None:
+        frame = ev.frame
+        rx = self._rx_by_id.get((frame.can_id, frame.extended))
+        if rx is None:
+            if not (frame.extended and self._rx_by_pgn):
+                return
+            rx = self._rx_by_pgn.get(_pgn(frame.can_id))
+            if rx is None:
+                return
+        if frame.remote:
+            return
+        try:
+            decoded = rx.decode(frame.data)
+        except Exception as exc:  # short frame, bad multiplexer value ...
+            self._fail(ev.time, rx, "decode", " ".join(str(exc).split()), frame)
+            return
+        failures: tuple[str, ...] = ()
+        if rx.hooks:
+            bad = []
+            for h in rx.hooks:
+                reason = h.rx(frame.data, decoded)
+                if reason is not None:
+                    bad.append(reason)
+                    self._fail(ev.time, rx, h.name, reason, frame)
+            failures = tuple(bad)
+            if bad and not self.accept_failed:
+                return
+        old = rx.values
+        rx.values = decoded
+        rx.time = ev.time
+        rx.count += 1
+        sig_cbs = self._sig_cbs.get(rx.name)
+        if sig_cbs:
+            for s, cbs in sig_cbs.items():
+                new = decoded.get(s)
+                prev = None if old is None else old.get(s)
+                if s in decoded and (old is None or prev != new):
+                    ch = SignalChanged(ev.time, rx.name, s, prev, new)
+                    for cb in cbs:
+                        cb(ch)
+        cbs = self._msg_cbs.get(rx.name)
+        if cbs or self._any_cbs:
+            mr = MessageReceived(ev.time, rx.name, decoded, frame, failures)
+            for cb in cbs or ():
+                cb(mr)
+            for cb in self._any_cbs:
+                cb(mr)
+
+    def __repr__(self) -> str:
+        return f"<Ecu {self.name} tx={len(self._tx)} rx={len(self._rx)}>"
+
+
+def _pgn(can_id: int) -> int:
+    """J1939 PGN of a 29-bit identifier (PDU1: destination address not part of the PGN)."""
+    pf = (can_id >> 16) & 0xFF
+    pgn = (can_id >> 8) & 0x3FFFF
+    if pf < 240:
+        pgn &= 0x3FF00
+    return pgn
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"

@@ -1,0 +1,155 @@
+"""Rest-bus simulation: every node of a DBC but the device under test, on one bus.
+
+`RestBus(db, bus, dut="IPC")` puts an `Ecu` for each other node on ``bus`` (anything with
+``.node(name)``: a `stack.sim.SimBus`, or the python-can driver's bus object), each sending its
+messages with their initial values and interaction-layer timing, plus a monitor node that
+decodes every frame on the bus into a `BusRecord`. Without a DUT every node is simulated.
+
+The monitor names the sender of a frame: the simulated ECU that sends that message, else the
+DUT if the DBC lists it as a sender, else the DBC's first sender, else ``"?"``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Mapping
+
+import cantools
+
+from stack.events import Received
+from stack.frame import Frame
+
+from .ecu import Ecu, node_names
+from .errors import UnknownNameError, load_database
+
+__all__ = ["RestBus", "BusRecord", "json_value", "MONITOR_NAME"]
+
+MONITOR_NAME = "restbus-monitor"
+
+
+def json_value(value: Any) -> Any:
+    """A decoded signal value for JSON: choice values as their names (str), numbers as they
+    are (int or float)."""
+    name = getattr(value, "name", None)
+    if name is not None and hasattr(value, "value"):
+        return str(name)
+    if isinstance(value, (bytes, bytearray)):
+        return value.hex()
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class BusRecord:
+    """One frame seen on the bus: ``time`` ns, ``sender``, message ``name`` (None if the
+    database does not know the identifier), ``frame`` and decoded ``signals``."""
+
+    time: int
+    sender: str
+    name: str | None
+    frame: Frame
+    signals: dict[str, Any]
+
+    def as_json(self) -> dict[str, Any]:
+        """The record as the JSON object `canstack restbus --json` prints: t (s), sender,
+        name, id (int), extended, data (hex), signals (choice values as names)."""
+        return {
+            "t": self.time / 1e9,
+            "sender": self.sender,
+            "name": self.name,
+            "id": self.frame.can_id,
+            "extended": self.frame.extended,
+            "data": self.frame.data.hex(),
+            "signals": {k: json_value(v) for k, v in self.signals.items()},
+        }
+
+
+class RestBus:
+    """Simulate every node of ``db`` except ``dut`` on ``bus``; decode all traffic.
+
+    ``nodes`` restricts the simulated nodes (default: all but the DUT); ``checks`` are passed
+    to each `Ecu` (None: those the DBC declares); ``monitor`` adds the decoding monitor node;
+    ``records`` keeps every `BusRecord` in ``self.records`` (callbacks from `on_record` run
+    either way).
+    """
+
+    def __init__(self, db: cantools.database.can.Database | str, bus: Any, *, dut: str | None = None,
+                 nodes: Iterable[str] | None = None, checks: Iterable[Any] | None = None,
+                 monitor: bool = True, records: bool = True, start: bool = True) -> None:
+        if not isinstance(db, cantools.database.can.Database):
+            db = load_database(db)
+        self.db = db
+        names = node_names(db)
+        if dut is not None and dut not in names:
+            raise UnknownNameError("node", dut, names, "(--dut)")
+        chosen = list(nodes) if nodes is not None else [n for n in names if n != dut]
+        for n in chosen:
+            if n not in names:
+                raise UnknownNameError("node", n, names)
+        self.dut = dut
+        self.bus = bus
+        self.ecus: dict[str, Ecu] = {}
+        for n in chosen:
+            self.ecus[n] = Ecu(db, n, bus.node(n), checks=checks, start=False)
+        self.keep = records
+        self.records: list[BusRecord] = []
+        self._callbacks: list[Callable[[BusRecord], Any]] = []
+        self._sender_of: dict[tuple[int, bool], str] = {}
+        self._messages: dict[tuple[int, bool], Any] = {}
+        for m in db.messages:
+            key = (m.frame_id, bool(m.is_extended_frame))
+            self._messages[key] = m
+            sim = [s for s in m.senders if s in self.ecus]
+            if sim:
+                self._sender_of[key] = sim[0]
+            elif dut is not None and dut in m.senders:
+                self._sender_of[key] = dut
+            elif m.senders:
+                self._sender_of[key] = m.senders[0]
+        self.monitor = None
+        if monitor:
+            self.monitor = bus.node(MONITOR_NAME)
+            self.monitor.subscribe(self._on_frame)
+        if start:
+            self.start()
+
+    def start(self) -> None:
+        """Start every simulated ECU's interaction layer."""
+        for e in self.ecus.values():
+            e.start()
+
+    def stop(self) -> None:
+        """Stop every simulated ECU."""
+        for e in self.ecus.values():
+            e.stop()
+
+    def on_record(self, callback: Callable[[BusRecord], Any]) -> None:
+        """Call ``callback(BusRecord)`` for each frame the monitor sees."""
+        self._callbacks.append(callback)
+
+    def set(self, node: str, signal: str, value: Any, *, message: str | None = None) -> None:
+        """Write a signal of a simulated node (see `Ecu.set`)."""
+        ecu = self.ecus.get(node)
+        if ecu is None:
+            raise UnknownNameError("simulated node", node, self.ecus)
+        ecu.set(signal, value, message=message)
+
+    def _on_frame(self, ev: Received) -> None:
+        f = ev.frame
+        key = (f.can_id, f.extended)
+        m = self._messages.get(key)
+        signals: Mapping[str, Any] = {}
+        if m is not None and not f.remote:
+            try:
+                signals = m.decode(f.data, decode_choices=True, scaling=True)
+            except Exception:
+                signals = {}
+        rec = BusRecord(ev.time, self._sender_of.get(key, "?"), None if m is None else m.name, f, dict(signals))
+        if self.keep:
+            self.records.append(rec)
+        for cb in self._callbacks:
+            cb(rec)
+
+    def from_dut(self) -> list[BusRecord]:
+        """Records of frames the DUT sent (messages whose DBC sender is the DUT and that no
+        simulated node sends)."""
+        return [r for r in self.records if self.dut is not None and r.sender == self.dut]

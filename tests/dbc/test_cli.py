@@ -1,0 +1,82 @@
+"""`canstack restbus`: output, JSON lines, trace file, and one-line errors with exit status 2."""
+
+import json
+from pathlib import Path
+
+import can
+import pytest
+
+import stack.cli as cli
+
+SAMPLE = str(Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc")
+
+
+def run(capsys, *argv):
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_json_lines_one_per_frame(capsys, sample_db):
+    code, out, err = run(capsys, "restbus", SAMPLE, "--dut", "IPC", "--duration", "0.1", "--json")
+    assert code == 0
+    rows = [json.loads(line) for line in out.splitlines()]
+    names = {r["name"] for r in rows}
+    assert "ClusterStatus" not in names  # the DUT is not simulated
+    eng = [r for r in rows if r["name"] == "EngineData"]
+    assert len(eng) == 10 and all(r["sender"] == "ECM" and r["id"] == 0x100 for r in eng)
+    # times in seconds, 10 ms apart (the first frame wins arbitration at t=0)
+    assert eng[1]["t"] - eng[0]["t"] == pytest.approx(0.010, abs=1e-9)
+    gear = next(r for r in rows if r["name"] == "GearboxData")
+    assert gear["signals"]["GearSelected"] == "P"  # choices as names
+    eec1 = next(r for r in rows if r["name"] == "EEC1")
+    assert eec1["id"] == 0x0CF00400 and eec1["extended"] is True
+    msg = sample_db.get_message_by_name("EngineData")
+    assert eng[0]["signals"]["EngineSpeed"] == msg.decode(bytes.fromhex(eng[0]["data"]))["EngineSpeed"]
+
+
+def test_text_summary_and_trace(capsys, tmp_path):
+    trace = tmp_path / "out.asc"
+    code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "0.2", "--trace", str(trace))
+    assert code == 0
+    assert "ClusterStatus" in out and "EngineData" in out
+    msgs = [m for m in can.LogReader(str(trace)) if not m.is_error_frame]
+    assert sum(1 for m in msgs if m.arbitration_id == 0x100) == 20
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--dut", "IPX"], "did you mean 'IPC'"),
+    (["--duration", "0"], "--duration"),
+    (["--interface", "socketcan", "--channel", "vcan0", "--bus", "sim"], "not both"),
+    (["--trace", "x.xyz"], "unknown suffix"),
+])
+def test_bad_arguments_one_line_exit_2(capsys, argv, fragment):
+    code, out, err = run(capsys, "restbus", SAMPLE, *argv)
+    assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
+
+
+def test_malformed_and_missing_dbc(capsys, tmp_path):
+    bad = tmp_path / "bad.dbc"
+    bad.write_text('VERSION ""\n\nBU_: A\n\nBO_ 1 M: 8 A\n SG_ S 0|8@1+ (1,0) [0|1] "" A\n')
+    code, out, err = run(capsys, "restbus", str(bad))
+    assert code == 2 and "line 6" in err and len(err.strip().splitlines()) == 1
+    code, out, err = run(capsys, "restbus", str(tmp_path / "none.dbc"))
+    assert code == 2 and "no such file" in err
+
+
+def test_unknown_interface_is_one_line_exit_2(capsys):
+    code, out, err = run(capsys, "restbus", SAMPLE, "--interface", "nosuchinterface", "--channel", "x",
+                         "--duration", "0.1")
+    assert code == 2 and "nosuchinterface" in err and len(err.strip().splitlines()) == 1
+
+
+def test_same_restbus_on_a_python_can_bus(capsys):
+    """The ECUs run unchanged on python-can's virtual bus through stack.driver (wall clock)."""
+    code, out, err = run(capsys, "restbus", SAMPLE, "--dut", "IPC", "--duration", "0.25",
+                         "--interface", "virtual", "--channel", "dbc-test-restbus", "--json")
+    assert code == 0
+    rows = [json.loads(line) for line in out.splitlines()]
+    eng = [r for r in rows if r["name"] == "EngineData"]
+    assert 15 <= len(eng) <= 30  # 10 ms cycle for 0.25 s of wall clock
+    counters = [r["signals"]["EngineCounter"] for r in eng]
+    assert counters == [(counters[0] + k) % 16 for k in range(len(counters))]
