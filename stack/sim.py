@@ -39,11 +39,9 @@ from .frame import Frame
 from .node import ErrorState, Node, Timer
 from .queues import TxRequest
 
-__all__ = ["SimBus", "TraceRecord", "IdStats", "ERROR_DELIMITER_BITS", "SUSPEND_BITS"]
+__all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
 INF = float("inf")
-ERROR_FLAG_BITS = 6
-ERROR_DELIMITER_BITS = 8
 SUSPEND_BITS = 8
 LOG_LIMIT = 1 << 15
 
@@ -147,7 +145,6 @@ class SimBus:
         self._lazy: list[Node] = []
         self._eager: list[Node] = []
         self._arb_watch: list[Node] = []
-        self._tx_watch = False
         self._rtr: dict[tuple[int, bool], list[Node]] = {}
         self._key_receivers: dict[int, tuple[Node, ...]] = {}
         self._ack_count = 0
@@ -158,7 +155,6 @@ class SimBus:
         self.busy_ns = 0
         self.id_stats: dict[int, IdStats] = {}
         self._bus_listeners: list[Callable[[TraceRecord], Any]] = []
-        self._first_sof: int | None = None
         self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
         self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
@@ -227,7 +223,6 @@ class SimBus:
         order = {n: i for i, n in enumerate(self.nodes)}
         for lst in (self._lazy, self._eager, self._arb_watch):
             lst.sort(key=order.__getitem__)
-        self._tx_watch = any(n._listeners for n in self.nodes)
         self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
                               and n.state is not ErrorState.BUS_OFF)
 
@@ -955,7 +950,7 @@ class SimBus:
     # ------------------------------------------------------------------ results
     @property
     def elapsed(self) -> int:
-        """Virtual time since the first SOF (or since 0 if nothing was sent), ns."""
+        """Virtual time since the start of the simulation, ns."""
         return self._now
 
     def bus_load(self) -> float:
