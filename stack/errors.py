@@ -102,7 +102,7 @@ class _View:
     __slots__ = ("node", "out", "role", "req", "bits", "arb_end", "stuff", "dec", "phase", "flag_kind",
                  "flag_n", "flag_levels", "dom_run", "first_after", "delim_n", "im_n", "overloads",
                  "passive", "listen_only", "stuck", "deaf_ack", "ack_slot", "eof_last", "frame_done",
-                 "flag_had_dominant", "tec0", "rec0")
+                 "flag_had_dominant", "tec0", "rec0", "want_overloads")
 
     def __init__(self, node: "Node", req: "TxRequest | None", stuck: int | None, deaf_ack: bool) -> None:
         self.node = node
@@ -155,13 +155,15 @@ class _View:
 
 def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips: dict[int, Any],
                      stuck: dict["Node", int] | None = None, deaf_ack: Iterable["Node"] = (),
-                     stuck_until: int | None = None) -> AttemptResult:
+                     stuck_until: int | None = None, overload: dict["Node", int] | None = None) -> AttemptResult:
     """Replay one attempt bit by bit for every node on the bus.
 
     ``flips`` maps a bit position (from SOF) to the nodes that perceive that bit inverted (a set
     of nodes, or None for every node: a global error). ``stuck`` maps nodes to the level they
     force (0: stuck dominant, 1: stuck recessive / transmitter disconnected) for the first
     ``stuck_until`` bits (all of them if None); ``deaf_ack`` nodes never acknowledge.
+    ``overload`` maps receivers that need a delay to the number of overload frames (1 or 2)
+    they send after the frame, starting at the first intermission bit.
     Counter changes are returned per node (``tec_delta``/``rec_delta``), not applied.
     """
     stuck = stuck or {}
@@ -169,6 +171,8 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     txs = list(txs)
     tx_nodes = {q.node: q for q in txs}
     views = [_View(n, tx_nodes.get(n), stuck.get(n), n in deaf) for n in nodes]
+    for v in views:
+        v.want_overloads = (overload or {}).get(v.node, 0)
     wire_bits: list[str] = []
     first_error: tuple[str, str, int, int] | None = None
     first_flag_bit: int | None = None
@@ -402,12 +406,15 @@ def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | 
             return _error_detected(v, b, "form", "ERROR_DELIM", v.delim_n, b)
         v.delim_n += 1
         if v.delim_n >= 8:
-            v.phase = INTERMISSION
-            v.im_n = 0
+            if v.flag_kind == "overload" and v.overloads < v.want_overloads:
+                _start_overload(v)  # a second requested overload frame, from the next bit
+            else:
+                v.phase = INTERMISSION
+                v.im_n = 0
         return None
     if ph == INTERMISSION:
         if p == 0 and v.im_n < 2 and v.overloads < 2:
-            _start_overload(v)
+            _start_overload(v)  # dominant in the first two intermission bits
             return None
         v.im_n += 1
         if v.im_n >= 3:
@@ -435,8 +442,10 @@ def _rx_result(v: _View, b: int, res: Any) -> tuple[str, str, int, int] | None:
         out.frame = res.frame
         out.accept_bit = b - 1  # valid at the last-but-one EOF bit
         v.frame_done = True
-        if res.overload:
-            _start_overload(v)  # dominant last EOF bit: overload frame, frame kept
+        if res.overload or v.want_overloads:
+            # dominant last EOF bit (frame kept), or a receiver that needs a delay: the overload
+            # flag starts at the first intermission bit
+            _start_overload(v)
         else:
             v.phase = INTERMISSION
             v.im_n = 0

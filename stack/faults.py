@@ -118,6 +118,7 @@ class FaultInjector:
         self._countdown: dict[Any, int] = {}
         self._stuck: list[_Stuck] = []
         self._deaf: set[Node] = set()
+        self._overload: dict[Node, int] = {}
         self.injected = 0
 
     # ------------------------------------------------------------------ configuration
@@ -188,6 +189,17 @@ class FaultInjector:
     def never_ack(self, node: Node | str) -> None:
         """The node receives but never drives the ACK slot."""
         self._deaf.add(self._node(node))
+
+    def overload(self, node: Node | str, frames: int = 1) -> None:
+        """The node needs a delay after each frame it receives: it sends ``frames`` overload
+        frames (1 or 2: the standard allows at most two in a row); 0 stops it."""
+        if isinstance(frames, bool) or not isinstance(frames, int) or not 0 <= frames <= 2:
+            raise ValueError(f"overload frames {frames!r}: a node sends 0, 1 or 2 in a row")
+        n = self._node(node)
+        if frames:
+            self._overload[n] = frames
+        else:
+            self._overload.pop(n, None)
 
     def disconnect(self, node: Node | str, at: int, reconnect_at: int | None = None) -> None:
         """Take the node off the bus at ``at`` ns, and back at ``reconnect_at`` if given."""
@@ -268,10 +280,12 @@ class FaultInjector:
                     _add_flip(flips, p, frozenset((n,)))
         stuck, until = self._stuck_now(now) if self._stuck else ({}, None)
         deaf = [n for n in self._deaf if n._on_bus]
-        if not flips and not stuck and not deaf:
+        overload = {n: k for n, k in self._overload.items() if n._on_bus and all(q.node is not n for q in txs)}
+        if not flips and not stuck and not deaf and not overload:
             return None
         self.injected += len(flips)
-        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "stuck_until": until}
+        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "stuck_until": until,
+                "overload": overload or None}
 
     def _disturb(self) -> None:
         """A stuck-dominant fault starting on an idle bus: every node sees a SOF."""

@@ -578,12 +578,13 @@ class SimBus:
 
     def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
                   stuck: dict[Node, int] | None = None, deaf: Iterable[Node] = (),
-                  stuck_until: int | None = None, collision: bool = False) -> None:
+                  stuck_until: int | None = None, collision: bool = False,
+                  overload: dict[Node, int] | None = None) -> None:
         """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
         from .errors import simulate_attempt
 
         nodes = [n for n in self.nodes if n._on_bus]
-        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, stuck_until)
+        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, stuck_until, overload)
         res.collision = collision
         self._tx = (txs, now, res)
         self._tx_end = now + self.bits_to_ns(res.bits)

@@ -315,3 +315,27 @@ def test_bad_bit_error_rate(rate):
     bus = SimBus()
     with pytest.raises(ValueError, match="outside \\[0, 1\\]"):
         FaultInjector(bus).bit_errors(rate)
+
+
+@pytest.mark.parametrize("count", [1, 2])
+def test_overload_frames_delay_the_next_frame(count):
+    # a receiver that needs a delay (c) starts an overload flag at the first intermission bit;
+    # a and b read that dominant bit in their intermission and send overload flags from the next
+    # bit: 7 dominant bits, then the 8-bit delimiter; no counter changes (an overload is no error)
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    FaultInjector(bus).overload("c", frames=count)
+    a.send(F)
+    a.send(F)
+    bus.run()
+    r0, r1 = bus.trace
+    assert (r0.end - r0.start) // 2000 == F.bits.length + count * (7 + 8)
+    assert (r1.start - r0.end) // 2000 == 3
+    assert all(n.tec == 0 and n.rec == 0 for n in (a, b, c)) and r1.kind == "frame"
+
+
+def test_overload_count_is_at_most_two():
+    bus = SimBus()
+    bus.node("a")
+    with pytest.raises(ValueError, match="0, 1 or 2"):
+        FaultInjector(bus).overload("a", frames=3)
