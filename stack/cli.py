@@ -24,6 +24,7 @@ SUBCOMMAND_MODULES = [
     "stack.bittiming",
     "stack.sync",
     "stack.waveform",
+    "stack.serve",
 ]
 
 

@@ -121,6 +121,13 @@ def format_summary(bus: SimBus) -> str:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    if args.interface:
+        if args.faults or args.plot:
+            raise CliError("--faults needs the simulated bus (fault injection is a simulation feature)")
+        from .driver import run_demo_on_bus
+
+        print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration))
+        return 0
     if args.trace:
         from .trace import _check_suffix
         _check_suffix(args.trace)
@@ -221,6 +228,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--faults", action="store_true",
                    help="the fault demo: a node goes error passive, bus off, and recovers")
     p.add_argument("--plot", metavar="PNG", help="with --faults: plot TEC/REC over time (needs the plot extra)")
+    p.add_argument("--interface", help="run the same nodes on a python-can bus instead (e.g. socketcan, "
+                                       "virtual, canstack); wall-clock time")
+    p.add_argument("--channel", help="the python-can channel (e.g. vcan0)")
     p.set_defaults(func=_demo, duration_given=False)
 
     p = sub.add_parser("frame", help="show a frame's bits on the wire: stuffing, CRC, length")
