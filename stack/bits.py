@@ -13,7 +13,7 @@ Bit level convention: 0 = dominant, 1 = recessive.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import Iterable, Iterator, Sequence
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
 
-from .bits import Field, worst_case_length, INTERMISSION_BITS
+
+from .bits import INTERMISSION_BITS, worst_case_length
 from .cli import CliError, parse_int
 from .frame import Frame
 from .sim import SimBus

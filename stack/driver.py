@@ -30,7 +30,6 @@ from typing import Any, Callable
 
 import can
 
-from .events import TxDone, TxFailed
 from .frame import Frame
 from .node import Node, Timer
 
@@ -243,11 +242,10 @@ class PyCanDriver:
         except ValueError:
             self.rx_ignored += 1
             return
-        node._deliver(t, frame, None)
-        if frame.remote and not node.listen_only:
-            reply = node._remote_replies.get((frame.can_id, frame.extended))
-            if reply is not None:
-                node.send(reply)
+        node.deliver(t, frame, None)
+        reply = node.remote_reply(frame)
+        if reply is not None:
+            node.send(reply)
 
     def _transmit(self) -> int | None:
         """Hand the heads of ready nodes to their buses, lowest arbitration key first; returns
@@ -257,10 +255,9 @@ class PyCanDriver:
         while ready and sent < _BATCH:
             nodes = {n: None for n in ready}  # dedupe, keep order
             ready.clear()
-            heads = sorted((n._head.key, n._head.seq, n) for n in nodes
-                           if n._head is not None and n._head.state == "queued")
+            heads = sorted((n.head.key, n.head.seq, n) for n in nodes if n.head is not None)
             for i, (_, _, node) in enumerate(heads):
-                req = node._head
+                req = node.head
                 if req is None or req.state != "queued" or req.on_wire:
                     continue
                 now = self.now()
@@ -273,7 +270,7 @@ class PyCanDriver:
                 self._send_one(node, req, now)
                 sent += 1
         if ready:
-            pending = [self._retry.get(n._head, 0) for n in ready if n._head is not None]
+            pending = [self._retry.get(n.head, 0) for n in ready if n.head is not None]
             return max(self.now(), min(pending)) if pending else self.now()
         return None
 
@@ -284,13 +281,7 @@ class PyCanDriver:
         except can.CanError as exc:
             if node.one_shot:
                 self._retry.pop(req, None)
-                req.state = "failed"
-                req.reason = f"send failed (one-shot): {exc}"
-                req.t_done = now
-                node.tx_failed += 1
-                node.queue.remove(req)
-                node._update_head()
-                node._emit(TxFailed(now, frame, req, req.reason))
+                node.fail(req, now, f"send failed (one-shot): {exc}")
             else:
                 req.retries += 1
                 node.retransmissions += 1
@@ -302,14 +293,7 @@ class PyCanDriver:
 
             self._busy_until = max(now, self._busy_until) + (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // self.pace_bitrate
         self._retry.pop(req, None)
-        req.state = "sent"
-        req.t_done = now
-        node.tx_frames += 1
-        node.queue.remove(req)
-        if node.tec:
-            node._on_tx_success()
-        node._update_head()
-        node._emit(TxDone(now, frame, req))
+        node.confirm(req, now)
 
 
 def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: Any) -> str:

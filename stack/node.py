@@ -12,11 +12,11 @@ frames, self-reception, listen-only and one-shot modes, and the counters a user 
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
 
 import can
 
-from .events import ArbitrationLost, ErrorStateChanged, Received, TxDone, TxFailed
+from .events import ErrorStateChanged, Received, TxDone, TxFailed
 from .filters import AcceptanceFilter
 from .frame import Frame
 from .queues import QueueFull, TxRequest, make_queue
@@ -24,7 +24,7 @@ from .queues import QueueFull, TxRequest, make_queue
 if TYPE_CHECKING:  # pragma: no cover
     from .sim import SimBus
 
-__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask"]
+__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
 
 from enum import Enum
 
@@ -39,6 +39,36 @@ class ErrorState(str, Enum):
 
     def __str__(self) -> str:
         return self.value
+
+
+class Driver(Protocol):
+    """What a node needs from the driver it is attached to (`SimBus`, `PyCanDriver`).
+
+    Clock and timers: ``now()`` and ``call_at(time, callback, args)`` (ns); ``rounds``, the
+    number of arbitration rounds so far; ``_seq`` (a counter the node bumps for each request, so
+    requests order deterministically) and ``_now`` (the current time, read directly on the hot
+    path of `Node.send`). Notifications from the node: ``_offer(node, request)`` (a new head to
+    arbitrate), ``_sync(node)`` (bring lazily buffered receptions up to date before the node is
+    read), ``_reclassify(node)`` (subscriptions, listeners or modes changed),
+    ``_filters_changed(node)``, ``_state_changed(node, old, new, time)`` (fault confinement) and
+    ``_start_recovery(node)``; ``_rec_nonzero``, the set of nodes whose REC is above 0 (rule 8).
+    A driver reports back through the node's public `head`, `confirm`, `fail`, `deliver` and
+    `remote_reply`.
+    """
+
+    rounds: int
+    _seq: int
+    _now: int
+    _rec_nonzero: set["Node"]
+
+    def now(self) -> int: ...
+    def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> "Timer": ...
+    def _offer(self, node: "Node", req: TxRequest) -> None: ...
+    def _sync(self, node: "Node") -> None: ...
+    def _reclassify(self, node: "Node") -> None: ...
+    def _filters_changed(self, node: "Node") -> None: ...
+    def _state_changed(self, node: "Node", old: "ErrorState", new: "ErrorState", t: int) -> None: ...
+    def _start_recovery(self, node: "Node") -> None: ...
 
 
 class NodeError(Exception):
@@ -243,6 +273,49 @@ class Node:
         if new is not None and self.bus is not None:
             new.head_since = self.bus.rounds
             self.bus._offer(self, new)
+
+    # ------------------------------------------------------------------ driver side
+    @property
+    def head(self) -> TxRequest | None:
+        """The request this controller offers to arbitration now (None if nothing is queued)."""
+        h = self._head
+        return h if h is not None and h.state == "queued" else None
+
+    def confirm(self, req: TxRequest, t: int) -> None:
+        """The driver's report that ``req`` went out without error at ``t``: counts it, applies
+        rule 7, picks the next head and emits `TxDone`."""
+        req.on_wire = False
+        req.state = "sent"
+        req.t_done = t
+        self.tx_frames += 1
+        self.queue.remove(req)
+        if self.tec:
+            self._on_tx_success()
+        self._update_head()
+        self._emit(TxDone(t, req.frame, req))
+
+    def fail(self, req: TxRequest, t: int, reason: str) -> None:
+        """The driver's report that ``req`` will not be sent (one-shot failure): emits
+        `TxFailed` and picks the next head."""
+        req.on_wire = False
+        req.state = "failed"
+        req.reason = reason
+        req.t_done = t
+        self.tx_failed += 1
+        self.queue.remove(req)
+        self._update_head()
+        self._emit(TxFailed(t, req.frame, req, reason))
+
+    def deliver(self, t: int, frame: Frame, sender: Any = None) -> None:
+        """The driver's report of a valid frame on the bus at ``t`` (acceptance filters, FIFO
+        or subscriptions, as in simulation)."""
+        self._deliver(t, frame, sender)
+
+    def remote_reply(self, frame: Frame) -> Frame | None:
+        """The data frame a mailbox answers this remote frame with, if one is configured."""
+        if not frame.remote or self.listen_only:
+            return None
+        return self._remote_replies.get((frame.can_id, frame.extended))
 
     # ------------------------------------------------------------------ receive
     def subscribe(self, callback: Callable[[Received], Any],

@@ -33,7 +33,7 @@ from typing import Any, Callable, Iterable, Iterator
 
 import can
 
-from .bits import Field, INTERMISSION_BITS
+from .bits import INTERMISSION_BITS
 from .events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from .frame import Frame
 from .node import ErrorState, Node, Timer
