@@ -13,6 +13,10 @@ same run (so the figures compare across machines).
   bit-error rate 1e-4 global and local) at 500 kbit/s, against the same traffic fault-free
   (``campaign_vs_fault_free``).
 - ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.waveform`.
+- ``pycan``: the python-can integration (`stack.pycan.benchmark`): 10 ms periodic jitter against
+  python-can's virtual bus, plugin and ``canstack serve`` throughput as fractions of the wire.
+- figures that packages above stack register under the ``canstack.bench`` entry point group
+  (``dbc_ecu``: DBC ECU encode + scheduling against cantools' encode).
 
 ``--json`` prints one JSON object; ``--quick`` runs smaller counts.
 """
@@ -186,6 +190,14 @@ def main(argv: list[str] | None = None) -> int:
                 res["sigrok_s"] = w.get("sigrok_s")
                 res["decode_vs_sigrok"] = w.get("vs_sigrok")
 
+    _progress("python-can integration: periodic jitter, plugin and serve throughput")
+    try:
+        from .pycan import benchmark as pycan_benchmark
+
+        res["pycan"] = pycan_benchmark(3.0 * max(scale, 0.5))
+    except Exception as exc:  # pragma: no cover - reported, not fatal
+        _progress(f"  failed: {exc}")
+
     # figures of the packages above stack (dbc, profiles), found through entry points so that
     # stack does not import them
     from importlib.metadata import entry_points
@@ -216,6 +228,18 @@ def main(argv: list[str] | None = None) -> int:
               f"{res['decode_vs_sigrok']:.2f}x (target >= 1)")
     elif "decode_s" in res:
         print(f"capture decode: {res['decode_s']:.2f} s (sigrok-cli not installed)")
+    if "pycan" in res:
+        p = res["pycan"]
+        per = p["periodic"]
+        print(f"10 ms periodic, p99 period deviation: canstack {per['canstack']['p99_timestamp_s'] * 1e6:.1f} us "
+              f"(bus timestamps; {per['canstack']['p99_arrival_s'] * 1e6:.0f} us at recv) vs python-can virtual "
+              f"{per['python_can_virtual']['p99_timestamp_s'] * 1e6:.0f} us "
+              f"({per['python_can_virtual']['p99_arrival_s'] * 1e6:.0f} us): {per['ratio_timestamp']:.3f}x / "
+              f"{per['ratio_arrival']:.2f}x (target <= 1)")
+        print(f"python-can plugin, 2 nodes @ 1 Mbit/s back to back: {p['plugin_throughput']['fps']:,.0f} frames/s = "
+              f"{p['plugin_throughput']['fraction']:.3f} of the wire (target >= 0.9)")
+        print(f"canstack serve, 3 client processes @ 500 kbit/s: {p['serve_throughput']['fps']:,.0f} frames/s = "
+              f"{p['serve_throughput']['fraction']:.3f} of the wire")
     if "dbc_ecu" in res:
         d = res["dbc_ecu"]
         print(f"DBC ECU encode + scheduling: {d['ecu_us_per_msg']:.2f} us/message vs cantools encode "
