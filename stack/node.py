@@ -41,6 +41,9 @@ class ErrorState(str, Enum):
         return self.value
 
 
+_tuple_new = tuple.__new__
+
+
 class Driver(Protocol):
     """What a node needs from the driver it is attached to (`SimBus`, `PyCanDriver`).
 
@@ -207,7 +210,14 @@ class Node:
             for m in self.queue.moved:  # aborted out of a mailbox: not offered any more
                 self._settle_losses(m)
         cur = self._head
-        if cur is None or (not cur.on_wire and req.key < cur.key):
+        if cur is None:
+            # nothing offered yet: the new head is the queue's (this request, unless others wait)
+            new = self.queue.head()
+            self._head = new
+            if new is not None:
+                new.head_since = bus.rounds
+                bus._offer(self, new)
+        elif not cur.on_wire and req.key < cur.key:
             self._update_head()
         return req
 
@@ -393,7 +403,7 @@ class Node:
             return
         if self._subs:
             self._rx_frames += 1
-            ev = Received(t, frame)
+            ev = _tuple_new(Received, (t, frame))  # Received(t, frame), 2x cheaper on this hot path
             for sub in tuple(self._subs):
                 if sub.filter is None or sub.filter.accepts(frame):
                     sub.callback(ev)

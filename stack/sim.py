@@ -42,6 +42,7 @@ from .queues import TxRequest
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
 INF = float("inf")
+_tuple_new = tuple.__new__
 SUSPEND_BITS = 8
 LOG_LIMIT = 1 << 15
 
@@ -158,6 +159,7 @@ class SimBus:
         self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
         self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
+        self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
         self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
 
     # ------------------------------------------------------------------ nodes
@@ -360,7 +362,7 @@ class SimBus:
             # arbitration
             r = self.rounds
             self.rounds = r + 1
-            if t0 > idle_at:
+            if t0 > idle_at and self._busoff:
                 self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
             lost = r - req.head_since
             if lost > 0:
@@ -374,7 +376,8 @@ class SimBus:
             self._idle_at = idle_at
             self.frames_ok += 1
             self.busy_ns += idle_at - t0
-            self._recessive_events += 1
+            if self._busoff:
+                self._recessive_events += 1
             if self.record:
                 rec = TraceRecord("frame", t0, end, node.name, frame, len(fb.bits), req.losses, req.t_queued)
                 self.trace.append(rec)
@@ -397,7 +400,13 @@ class SimBus:
             req.state = "sent"
             req.t_done = end
             node.tx_frames += 1
-            node.queue.remove(req)
+            q = node.queue
+            qh = getattr(q, "_heap", None)
+            if qh and qh[0][2] is req:  # priority queue, request at the top: pop it here
+                heappop(qh)
+                q._n -= 1
+            else:
+                q.remove(req)
             lat = end - req.t_queued
             st.count += 1
             st.total += lat
@@ -412,8 +421,9 @@ class SimBus:
             if listeners:
                 # confirm first, then pick the next head once (sends from the callback included)
                 node._head = None
+                ev = _tuple_new(TxDone, (end, frame, req))  # TxDone(...) without its Python __new__
                 for cb in listeners:
-                    cb(TxDone(end, frame, req))
+                    cb(ev)
                 if node._head is None:
                     node._update_head()
             else:
@@ -484,7 +494,7 @@ class SimBus:
             return
         r = self.rounds
         self.rounds = r + 1
-        if now > self._idle_at:  # rule 12 counts 11-bit recessive runs on an idle bus too
+        if now > self._idle_at and self._busoff:  # rule 12 counts 11-bit recessive runs on an idle bus too
             self._recessive_events += (now - self._idle_at) * self.bitrate // 11_000_000_000
         if heap and heap[0][0] == winner.key:
             txs = self._tied(winner, now)
@@ -618,7 +628,8 @@ class SimBus:
                 self._flush()
         for n in self._eager:
             n._deliver(end, frame, sender)
-        self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
+        if self._busoff:
+            self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
         if self._rec_nonzero:
             for n in tuple(self._rec_nonzero):
                 if n is not sender and n._on_bus:
@@ -787,6 +798,7 @@ class SimBus:
     # ------------------------------------------------------------------ fault confinement
     def _state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
         if new is ErrorState.BUS_OFF:
+            self._busoff.add(node)
             self._sync(node)
             node.bus_off_count += 1
             self._reclassify(node)
@@ -815,6 +827,7 @@ class SimBus:
             old = node.state
             node.tec = node.rec = 0
             node.state = ErrorState.ACTIVE
+            self._busoff.discard(node)
             node._ready_at = 0
             node._cursor = self._log_base + len(self._log)
             self._reclassify(node)
