@@ -77,6 +77,7 @@ class TxQueue:
     """Interface of a transmit queue policy."""
 
     capacity: int
+    _heap: list[tuple[int, int, TxRequest]] | None = None  # set by PriorityQueue (the engine pops it)
 
     moved: list[TxRequest] = []
 

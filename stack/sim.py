@@ -335,6 +335,10 @@ class SimBus:
         log = self._log
         id_stats = self.id_stats
         PASSIVE = ErrorState.PASSIVE
+        record = self.record
+        rtr = self._rtr
+        busoff = self._busoff  # sets: their identity is stable, their content is read live
+        rec_nonzero = self._rec_nonzero
         now = self._now
         idle_at = self._idle_at
         done = 0
@@ -348,7 +352,7 @@ class SimBus:
                     or node.state is PASSIVE:
                 break
             frame = req.frame
-            if frame.remote and self._rtr:
+            if frame.remote and rtr:
                 break  # automatic replies: the general path
             heappop(heap)
             if heap and heap[0][0] == req.key:
@@ -362,7 +366,7 @@ class SimBus:
             # arbitration
             r = self.rounds
             self.rounds = r + 1
-            if t0 > idle_at and self._busoff:
+            if t0 > idle_at and busoff:
                 self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
             lost = r - req.head_since
             if lost > 0:
@@ -376,9 +380,9 @@ class SimBus:
             self._idle_at = idle_at
             self.frames_ok += 1
             self.busy_ns += idle_at - t0
-            if self._busoff:
+            if busoff:
                 self._recessive_events += 1
-            if self.record:
+            if record:
                 rec = TraceRecord("frame", t0, end, node.name, frame, len(fb.bits), req.losses, req.t_queued)
                 self.trace.append(rec)
                 for cb in self._bus_listeners:
@@ -390,8 +394,8 @@ class SimBus:
                     log = self._log
             for n in eager:
                 n._deliver(end, frame, node)
-            if self._rec_nonzero:
-                for n in tuple(self._rec_nonzero):
+            if rec_nonzero:
+                for n in tuple(rec_nonzero):
                     if n is not node and n._on_bus:
                         n._on_rx_success()
             st = id_stats.get(frame.key)
@@ -401,7 +405,7 @@ class SimBus:
             req.t_done = end
             node.tx_frames += 1
             q = node.queue
-            qh = getattr(q, "_heap", None)
+            qh = q._heap
             if qh and qh[0][2] is req:  # priority queue, request at the top: pop it here
                 heappop(qh)
                 q._n -= 1
