@@ -89,6 +89,8 @@ class FlipRule:
     fired: int = 0
 
     def position(self, frame: Frame) -> int | None:
+        """The stuffed position (from SOF) this rule flips in ``frame``, or None if the frame
+        has no such bit (a data bit beyond its length, say)."""
         if self.fields is None:
             return self.bit if self.bit < frame.bits.length else None
         pos = _group_positions(frame, self.fields, self.group)
