@@ -61,7 +61,9 @@ class PyCanDriver:
         self.buses: dict[Node, can.BusABC] = {}
         self._owned: set[can.BusABC] = set()
         self.rounds = 0  # no arbitration rounds are visible from here (Node reads it)
-        self._rec_nonzero: set[Node] = set()  # Node's fault-confinement bookkeeping
+        self._rec_nonzero: set[Node] = set()
+        self._log: tuple[()] = ()  # no lazy delivery log here: receptions go straight to the node
+        self._log_base = 0  # Node's fault-confinement bookkeeping
         self.lock = threading.RLock()
         self._t0 = time.monotonic_ns()
         self._timers: list[tuple[int, int, Timer]] = []

@@ -12,6 +12,7 @@ frames, self-reception, listen-only and one-shot modes, and the counters a user 
 from __future__ import annotations
 
 from collections import deque
+from heapq import heappush
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
 
 import can
@@ -54,7 +55,9 @@ class Driver(Protocol):
     arbitrate), ``_sync(node)`` (bring lazily buffered receptions up to date before the node is
     read), ``_reclassify(node)`` (subscriptions, listeners or modes changed),
     ``_filters_changed(node)``, ``_state_changed(node, old, new, time)`` (fault confinement) and
-    ``_start_recovery(node)``; ``_rec_nonzero``, the set of nodes whose REC is above 0 (rule 8).
+    ``_start_recovery(node)``; ``_rec_nonzero``, the set of nodes whose REC is above 0 (rule 8);
+    ``_log`` and ``_log_base``, the delivery log lazily read receivers catch up from (a driver
+    that delivers at once keeps an empty log).
     A driver reports back through the node's public `head`, `confirm`, `fail`, `deliver` and
     `remote_reply`.
     """
@@ -63,6 +66,8 @@ class Driver(Protocol):
     _seq: int
     _now: int
     _rec_nonzero: set["Node"]
+    _log: Any
+    _log_base: int
 
     def now(self) -> int: ...
     def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> "Timer": ...
@@ -204,15 +209,23 @@ class Node:
         bus = self.bus
         if bus is None or self.listen_only or self.state is ErrorState.BUS_OFF:
             self._refuse()
-        bus._seq += 1
-        req = TxRequest(self, frame, bus._seq, bus._now)
-        if self.queue.push(req):
-            for m in self.queue.moved:  # aborted out of a mailbox: not offered any more
+        seq = bus._seq = bus._seq + 1
+        req = TxRequest(self, frame, seq, bus._now)
+        q = self.queue
+        heap = q._heap
+        if heap is not None:
+            # priority queue, inlined: this runs once per frame sent (see stack.bench)
+            if q._n >= q.capacity:
+                raise QueueFull(f"transmit queue full ({q.capacity} frames)")
+            heappush(heap, (req.key, seq, req))
+            q._n += 1
+        elif q.push(req):
+            for m in q.moved:  # aborted out of a mailbox: not offered any more
                 self._settle_losses(m)
         cur = self._head
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
-            new = self.queue.head()
+            new = q.head()
             self._head = new
             if new is not None:
                 new.head_since = bus.rounds
@@ -362,8 +375,9 @@ class Node:
 
     def recv(self) -> tuple[int, Frame] | None:
         """Pop the oldest frame from the receive FIFO as (time_ns, frame), or None if empty."""
-        if self.bus is not None:
-            self.bus._sync(self)
+        bus = self.bus
+        if bus is not None and self._cursor != bus._log_base + len(bus._log):
+            bus._sync(self)  # frames delivered since the last read are still in the bus log
         if self.rx_fifo:
             t, frame, _ = self.rx_fifo.popleft()
             return t, frame
