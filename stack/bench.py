@@ -2,8 +2,9 @@
 same run (so the figures compare across machines).
 
 - ``vs_python_can_virtual``: frames delivered per second from one sender to one receiver on a
-  canstack `SimBus`, divided by the same on python-can's ``virtual`` interface (send + recv in one
-  process). canstack does arbitration and exact timing; the virtual bus does neither.
+  canstack `SimBus` (bursts of 64 queued, carried, read from the receive FIFO), divided by the
+  same on python-can's ``virtual`` interface (send + recv in one process, the better of one at a
+  time and bursts of 64). canstack does arbitration and exact timing; the virtual bus neither.
 - ``realtime_factor_10_nodes``: 10 nodes at 1 Mbit/s sending 8-byte frames back to back (100 %
   bus load), every node receiving everything through its filters into its FIFO, counters on,
   trace recording off: simulated time divided by wall time (the wire is the reference).
@@ -31,7 +32,7 @@ from typing import Any, Callable
 
 import can
 
-from .events import Received, TxDone
+from .events import TxDone
 from .frame import Frame
 from .sim import SimBus
 
@@ -42,45 +43,59 @@ def _progress(msg: str) -> None:
     print(f"[bench] {msg}", file=sys.stderr, flush=True)
 
 
+BURST = 64  # frames the sender queues at a time in the 1 -> 1 figures
+
+
 def bench_python_can_virtual(n: int) -> float:
-    """Frames per second through python-can's virtual interface, one sender, one receiver."""
+    """Frames per second through python-can's virtual interface, one sender, one receiver in one
+    process: the better of sending and receiving one frame at a time and in bursts of 64 (the
+    reference gets its best case)."""
     tx = can.Bus(interface="virtual", channel="bench", receive_own_messages=False)
     rx = can.Bus(interface="virtual", channel="bench", receive_own_messages=False)
     msg = can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False)
+    best = 0.0
+    try:
+        for burst in (1, BURST):
+            got = 0
+            t0 = time.perf_counter()
+            for _ in range(n // burst):
+                for _ in range(burst):
+                    tx.send(msg)
+                for _ in range(burst):
+                    if rx.recv(timeout=1.0) is not None:
+                        got += 1
+            best = max(best, got / (time.perf_counter() - t0))
+    finally:
+        tx.shutdown()
+        rx.shutdown()
+    return best
+
+
+def bench_canstack_pair(n: int) -> float:
+    """Frames per second delivered from one sender to one receiver on a SimBus at 1 Mbit/s: the
+    sender queues 64 frames, the bus carries them (arbitration, exact stuffed lengths, ACK,
+    counters, per-ID statistics), the receiver reads them from its FIFO; repeated."""
+    bus = SimBus(1_000_000, record=False)
+    tx = bus.node("tx")
+    rx = bus.node("rx", rx_fifo_size=BURST)
+    frame = Frame(0x123, bytes(8))
+    send, recv, run = tx.send, rx.recv, bus.run
     got = 0
     t0 = time.perf_counter()
-    for _ in range(n):
-        tx.send(msg)
-        if rx.recv(timeout=1.0) is not None:
+    for _ in range(n // BURST):
+        for _ in range(BURST):
+            send(frame)
+        run(frames=BURST)
+        while recv() is not None:
             got += 1
     dt = time.perf_counter() - t0
-    tx.shutdown()
-    rx.shutdown()
+    assert rx.rx_overruns == 0 and got == (n // BURST) * BURST
     return got / dt
 
 
 def _resend(node: Any) -> Callable[[TxDone], None]:
     send = node.send
     return lambda ev: send(ev.frame)
-
-
-def bench_canstack_pair(n: int) -> float:
-    """Frames per second delivered from one sender to one subscribed receiver on a SimBus."""
-    bus = SimBus(1_000_000, record=False)
-    tx = bus.node("tx")
-    rx = bus.node("rx")
-    got = [0]
-
-    def on_rx(ev: Received) -> None:
-        got[0] += 1
-
-    rx.subscribe(on_rx)
-    tx.listen(TxDone, _resend(tx))
-    tx.send(Frame(0x123, bytes(8)))
-    t0 = time.perf_counter()
-    bus.run(frames=n)
-    dt = time.perf_counter() - t0
-    return got[0] / dt
 
 
 def bench_saturated(nodes: int, n: int, group_filters: bool) -> tuple[float, float]:

@@ -51,7 +51,7 @@ class Frame:
     ``dlc`` defaults to ``len(data)`` for a data frame and 0 for a remote frame.
     """
 
-    __slots__ = ("can_id", "extended", "remote", "dlc", "data", "key", "_bits")
+    __slots__ = ("can_id", "extended", "remote", "dlc", "data", "key", "_bits", "_nbits")
 
     can_id: int
     extended: bool
@@ -104,6 +104,7 @@ class Frame:
         sa(self, "data", payload)
         sa(self, "key", arbitration_key(can_id, extended, remote))
         sa(self, "_bits", None)
+        sa(self, "_nbits", 0)
 
     # -- immutability -------------------------------------------------------------------------
     def __setattr__(self, name: str, value: Any) -> None:
@@ -156,6 +157,7 @@ class Frame:
 
             b = encode(self)
             object.__setattr__(self, "_bits", b)
+            object.__setattr__(self, "_nbits", len(b.bits))
         return b
 
     @property

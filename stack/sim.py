@@ -341,8 +341,10 @@ class SimBus:
         rec_nonzero = self._rec_nonzero
         now = self._now
         idle_at = self._idle_at
+        frames_ok = self.frames_ok
+        rounds = self.rounds
         done = 0
-        while self.frames_ok < stop:
+        while frames_ok < stop:
             t0 = idle_at if idle_at > now else now
             if t0 >= tt or t0 > limit or not heap:
                 break
@@ -358,14 +360,16 @@ class SimBus:
             if heap and heap[0][0] == req.key:
                 heappush(heap, (req.key, req.seq, req))
                 break
-            fb = frame._bits or frame.bits
-            end = t0 + dur[len(fb.bits)]
+            nbits = frame._nbits or frame.wire_bits
+            end = t0 + dur[nbits]
             if end >= tt or end > limit:
                 heappush(heap, (req.key, req.seq, req))
                 break
-            # arbitration
-            r = self.rounds
-            self.rounds = r + 1
+            # arbitration (rounds and frames_ok live in locals, stored back at once: callbacks
+            # that send read bus.rounds)
+            r = rounds
+            rounds = r + 1
+            self.rounds = rounds
             if t0 > idle_at and busoff:
                 self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
             lost = r - req.head_since
@@ -378,12 +382,13 @@ class SimBus:
             self._now = end
             idle_at = end + ifs
             self._idle_at = idle_at
-            self.frames_ok += 1
+            frames_ok += 1
+            self.frames_ok = frames_ok
             self.busy_ns += idle_at - t0
             if busoff:
                 self._recessive_events += 1
             if record:
-                rec = TraceRecord("frame", t0, end, node.name, frame, len(fb.bits), req.losses, req.t_queued)
+                rec = TraceRecord("frame", t0, end, node.name, frame, nbits, req.losses, req.t_queued)
                 self.trace.append(rec)
                 for cb in self._bus_listeners:
                     cb(rec)
@@ -394,6 +399,7 @@ class SimBus:
                     log = self._log
             for n in eager:
                 n._deliver(end, frame, node)
+            called = eager or rec_nonzero  # user code may run (callbacks, state-change listeners)
             if rec_nonzero:
                 for n in tuple(rec_nonzero):
                     if n is not node and n._on_bus:
@@ -420,6 +426,7 @@ class SimBus:
             if lat > st.max:
                 st.max = lat
             if node.tec:
+                called = True
                 node._on_tx_success()
             listeners = node._listeners.get(TxDone) if node._listeners else None
             if listeners:
@@ -430,13 +437,25 @@ class SimBus:
                     cb(ev)
                 if node._head is None:
                     node._update_head()
+            elif qh is not None:
+                # priority queue, inlined _update_head: the next head is the heap's top
+                while qh and qh[0][2].state != "queued":
+                    heappop(qh)
+                if qh:
+                    nxt = qh[0][2]
+                    node._head = nxt
+                    nxt.head_since = r + 1
+                    heappush(heap, (nxt.key, nxt.seq, nxt))
+                else:
+                    node._head = None
             else:
                 node._update_head()
             done += 1
-            if timers:
-                tt = timers[0][0]
-            if self._arb_watch or self._faults is not None or self._suspended:
-                break
+            if called or listeners:  # user code ran: it may have changed what the loop relies on
+                if timers:
+                    tt = timers[0][0]
+                if self._arb_watch or self._faults is not None or self._suspended:
+                    break
         return done
 
     def next_event_time(self) -> float:
