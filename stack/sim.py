@@ -873,13 +873,13 @@ class SimBus:
             return
         entries = log[i:] if i > 0 else log
         node._cursor = self._log_base + len(log)
-        self._absorb(node, entries, None)
+        self._absorb(node, entries)
 
-    def _absorb(self, node: Node, entries: list[tuple[int, Frame, Node]],
-                senders: Counter[Node] | None) -> None:
+    def _absorb(self, node: Node, entries: list[tuple[int, Frame, Node]]) -> None:
         fifo = node.rx_fifo
         cap = node.rx_fifo_size
         acc = node.acceptance
+        cache = acc._cache
         own = node.receive_own_messages
         n = len(entries)
         i = 0
@@ -887,10 +887,14 @@ class SimBus:
         while len(fifo) < cap and i < n:
             e = entries[i]
             i += 1
-            if (e[2] is node and not own) or not acc.accepts(e[1]):
+            if e[2] is node and not own:
                 continue
-            fifo.append(e)
-            got += 1
+            ok = cache.get(e[1].key)
+            if ok is None:
+                ok = acc.accepts(e[1])
+            if ok:
+                fifo.append(e)
+                got += 1
         node._rx_frames += got
         if i >= n:
             return
@@ -898,10 +902,7 @@ class SimBus:
         if acc.accepts_all:
             rest = n - i
             if not own:
-                if i == 0 and senders is not None:
-                    rest -= senders.get(node, 0)
-                else:
-                    rest -= sum(1 for e in entries[i:] if e[2] is node)
+                rest -= sum(1 for e in entries[i:] if e[2] is node)
             node._rx_overruns += rest
             return
         accepts = acc.accepts
@@ -925,7 +926,14 @@ class SimBus:
         """
         log = self._log
         base = self._log_base
-        lazy = set(self._lazy)
+        end = base + len(log)
+        lazy = {n for n in self._lazy if n._cursor < end}
+        if not lazy:  # every buffering node read it already
+            self._log_base = end
+            self._log = []
+            for node in self._lazy:
+                node._cursor = end
+            return
         by_key: dict[int, list[int]] = {}
         by_sender: dict[Node, list[int]] = {}
         first: dict[int, Frame] = {}
