@@ -12,7 +12,7 @@ frames, self-reception, listen-only and one-shot modes, and the counters a user 
 from __future__ import annotations
 
 from collections import deque
-from heapq import heappush
+from heapq import heappop, heappush
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
 
 import can
@@ -225,7 +225,12 @@ class Node:
         cur = self._head
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
-            new = q.head()
+            if heap is not None:
+                while heap[0][2].state != "queued":  # the request just pushed is queued: ends
+                    heappop(heap)
+                new = heap[0][2]
+            else:
+                new = q.head()
             self._head = new
             if new is not None:
                 new.head_since = bus.rounds

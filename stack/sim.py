@@ -29,6 +29,7 @@ import heapq
 from bisect import bisect_left
 import random
 from collections import Counter
+from operator import attrgetter, itemgetter
 from typing import Any, Callable, Iterable, Iterator
 
 import can
@@ -43,6 +44,9 @@ __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
 INF = float("inf")
 _tuple_new = tuple.__new__
+_second = itemgetter(1)
+_third = itemgetter(2)
+_key_of = attrgetter("key")
 SUSPEND_BITS = 8
 LOG_LIMIT = 1 << 15
 
@@ -928,7 +932,23 @@ class SimBus:
         base = self._log_base
         end = base + len(log)
         lazy = {n for n in self._lazy if n._cursor < end}
-        if not lazy:  # every buffering node read it already
+        # nodes that read nothing since the last flush and whose FIFO is full only count
+        # overruns: tallied per (identifier, sender) pair with C-level counting
+        full = {n for n in lazy if n._cursor == base and len(n.rx_fifo) >= n.rx_fifo_size}
+        if full:
+            frames = list(map(_second, log))
+            keys = list(map(_key_of, frames))
+            pairs = Counter(zip(keys, map(_third, log)))
+            sample = dict(zip(keys, frames))
+            tally: dict[Node, int] = {}
+            for (k, sender), c in pairs.items():
+                for node in self._receivers_of(sample[k]):
+                    if node in full and (node is not sender or node.receive_own_messages):
+                        tally[node] = tally.get(node, 0) + c
+            for node, c in tally.items():
+                node._rx_overruns += c
+            lazy -= full
+        if not lazy:  # nobody else needs the entries one by one
             self._log_base = end
             self._log = []
             for node in self._lazy:
