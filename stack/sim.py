@@ -43,6 +43,7 @@ from .queues import TxRequest
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
 INF = float("inf")
+NEVER = 1 << 62  # a time no simulation reaches (ns: 146 years)
 _tuple_new = tuple.__new__
 _second = itemgetter(1)
 _third = itemgetter(2)
@@ -347,6 +348,12 @@ class SimBus:
         idle_at = self._idle_at
         frames_ok = self.frames_ok
         rounds = self.rounds
+        log_limit = LOG_LIMIT
+        # int bounds: int-to-int comparisons are cheaper than against float('inf')
+        if tt == INF:
+            tt = NEVER
+        if limit == INF:
+            limit = NEVER
         done = 0
         while frames_ok < stop:
             t0 = idle_at if idle_at > now else now
@@ -398,7 +405,7 @@ class SimBus:
                     cb(rec)
             if lazy:
                 log.append((end, frame, node))
-                if len(log) >= LOG_LIMIT:
+                if len(log) >= log_limit:
                     self._flush()
                     log = self._log
             for n in eager:
