@@ -280,13 +280,9 @@ class _LocalPort:
 
     def _attach(self, node_name: str | None, config: dict[str, Any]) -> Node:
         sim = self.runner.sim
-        names = {n.name for n in sim.nodes}
         if node_name is None:
-            i = len(sim.nodes)
-            while f"node{i}" in names:
-                i += 1
-            node_name = f"node{i}"
-        elif node_name in names:
+            node_name = sim.free_name("node")
+        elif node_name in {n.name for n in sim.nodes}:
             raise can.CanInitializationError(f"a node named {node_name!r} is already on bus {sim.name!r}")
         try:
             node = sim.node(node_name, **config)

@@ -417,13 +417,9 @@ class BusServer:
 
     def _attach(self, session: _Session, name: str | None, config: dict[str, Any]) -> Node:
         sim = self.runner.sim
-        names = {n.name for n in sim.nodes}
         if name is None:
-            i = len(sim.nodes)
-            while f"client{i}" in names:
-                i += 1
-            name = f"client{i}"
-        elif name in names:
+            name = sim.free_name("client")
+        elif name in {n.name for n in sim.nodes}:
             raise ValueError(f"a node named {name!r} is already on bus {self.name!r}")
         node = sim.node(name, receive_own_messages=False, rx_fifo_size=1, **config)
         session.node = node

@@ -186,6 +186,14 @@ class SimBus:
         """Create a `Node` with ``config`` (see Node) and attach it."""
         return self.add(Node(name, **config))
 
+    def free_name(self, prefix: str = "node") -> str:
+        """A node name not yet used on this bus: ``prefix`` followed by a number."""
+        names = {n.name for n in self.nodes}
+        i = len(self.nodes)
+        while f"{prefix}{i}" in names:
+            i += 1
+        return f"{prefix}{i}"
+
     def __getitem__(self, name: str) -> Node:
         for n in self.nodes:
             if n.name == name:
