@@ -676,33 +676,9 @@ class SimBus:
             for n in tuple(self._rec_nonzero):
                 if n is not sender and n._on_bus:
                     n._on_rx_success()
-        st = self.id_stats.get(frame.key)
-        if st is None:
-            st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
-        PASSIVE = ErrorState.PASSIVE
         for q in txs:
-            node = q.node
             q.on_wire = False
-            q.state = "sent"
-            q.t_done = end
-            node.tx_frames += 1
-            node.queue.remove(q)
-            lat = end - q.t_queued
-            st.count += 1
-            st.total += lat
-            st.losses += q.losses
-            if lat < st.min:
-                st.min = lat
-            if lat > st.max:
-                st.max = lat
-            if node.state is PASSIVE:
-                node._ready_at = idle + self._suspend_ns
-            if node.tec:
-                node._on_tx_success()
-            node._update_head()
-            if node._listeners:
-                for cb in node._listeners.get(TxDone, ()):
-                    cb(TxDone(end, frame, q))
+            self._tx_success(q, end, idle, passive=q.node.state is ErrorState.PASSIVE, rule7=True)
         if frame.remote and self._rtr:
             for n in self._rtr.get((frame.can_id, frame.extended), ()):
                 if n is not sender and n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only:
@@ -746,7 +722,7 @@ class SimBus:
             o = outcomes.get(node.name)
             q.on_wire = False
             if o is not None and o.success:
-                self._tx_success(q, end, idle)
+                self._tx_success(q, end, idle, passive=before[node.name] is ErrorState.PASSIVE, rule7=False)
                 continue
             if o is not None and o.lost_arbitration and o.detected is None:
                 q.losses += 1
@@ -772,13 +748,16 @@ class SimBus:
                     self._offer(node, q)
                 else:
                     node._update_head()
-            if node.state is ErrorState.PASSIVE:
-                node._ready_at = idle + self._suspend_ns
+            if before.get(node.name) is ErrorState.PASSIVE or node.state is ErrorState.PASSIVE:
+                node._ready_at = idle + self._suspend_ns  # it transmitted as (or is now) error passive
         if self.record:
             changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
             self._record_bitlevel(txs, start, end, res, changes)
 
-    def _tx_success(self, q: TxRequest, end: int, idle: int) -> None:
+    def _tx_success(self, q: TxRequest, end: int, idle: int, *, passive: bool, rule7: bool) -> None:
+        """A transmission that went through: counters, per-ID latency, rule 7 (unless the
+        caller applied the counters already), suspend transmission if it was sent error
+        passive, the next head, and `TxDone`."""
         node = q.node
         frame = q.frame
         q.state = "sent"
@@ -794,8 +773,10 @@ class SimBus:
         st.losses += q.losses
         st.min = min(st.min, lat)
         st.max = max(st.max, lat)
-        if node.state is ErrorState.PASSIVE:
+        if passive:
             node._ready_at = idle + self._suspend_ns
+        if rule7 and node.tec:
+            node._on_tx_success()
         node._update_head()
         if node._listeners:
             for cb in node._listeners.get(TxDone, ()):
