@@ -61,7 +61,7 @@ class PyCanDriver:
         self.buses: dict[Node, can.BusABC] = {}
         self._owned: set[can.BusABC] = set()
         self.rounds = 0  # no arbitration rounds are visible from here (Node reads it)
-        self._rec_nonzero: set[Node] = set()
+        self._rec_nonzero: dict[Node, None] = {}
         self._log: tuple[()] = ()  # no lazy delivery log here: receptions go straight to the node
         self._log_base = 0  # Node's fault-confinement bookkeeping
         self.lock = threading.RLock()

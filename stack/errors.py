@@ -58,8 +58,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["AttemptResult", "NodeOutcome", "simulate_attempt", "ACTIVE_FLAG_DOMINANT_LIMIT"]
 
-ACTIVE_FLAG_DOMINANT_LIMIT = 14  # rule 6: 14th consecutive dominant bit after an active/overload flag
-PASSIVE_FLAG_DOMINANT_LIMIT = 8  # rule 6: 8th after a passive flag
+# rule 6: the 14th consecutive dominant bit counted from the start of an active error flag or an
+# overload flag (6 flag bits + 8), or the 8th after a passive flag: the 8th after either flag
+ACTIVE_FLAG_DOMINANT_LIMIT = 8
+PASSIVE_FLAG_DOMINANT_LIMIT = 8
 MAX_ATTEMPT_BITS = 1 << 20
 
 # node phases
@@ -145,7 +147,8 @@ class _View:
                     return 1
                 return 0 if self.bits[b] == "0" else 1
             dec = self.dec
-            if dec.in_frame and dec.field == Field.ACK_SLOT and dec.crc_matches and not self.deaf_ack:
+            if dec.in_frame and dec.field == Field.ACK_SLOT and dec.crc_matches and not self.deaf_ack \
+                    and not self.listen_only:
                 return 0
             return 1
         if ph == FLAG:
@@ -154,14 +157,15 @@ class _View:
 
 
 def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips: dict[int, Any],
-                     stuck: dict["Node", int] | None = None, deaf_ack: Iterable["Node"] = (),
-                     stuck_until: int | None = None, overload: dict["Node", int] | None = None) -> AttemptResult:
+                     stuck: dict["Node", tuple[int, int | None]] | None = None, deaf_ack: Iterable["Node"] = (),
+                     overload: dict["Node", int] | None = None) -> AttemptResult:
     """Replay one attempt bit by bit for every node on the bus.
 
     ``flips`` maps a bit position (from SOF) to the nodes that perceive that bit inverted (a set
-    of nodes, or None for every node: a global error). ``stuck`` maps nodes to the level they
-    force (0: stuck dominant, 1: stuck recessive / transmitter disconnected) for the first
-    ``stuck_until`` bits (all of them if None); ``deaf_ack`` nodes never acknowledge.
+    of nodes, or None for every node: a global error). ``stuck`` maps nodes to (level, release):
+    the level they force (0: stuck dominant, 1: stuck recessive / transmitter disconnected) until
+    bit ``release`` of the attempt (for good if None; an attempt then ends after
+    MAX_ATTEMPT_BITS); ``deaf_ack`` nodes never acknowledge.
     ``overload`` maps receivers that need a delay to the number of overload frames (1 or 2)
     they send after the frame, starting at the first intermission bit.
     Counter changes are returned per node (``tec_delta``/``rec_delta``), not applied.
@@ -170,7 +174,8 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     deaf = set(deaf_ack)
     txs = list(txs)
     tx_nodes = {q.node: q for q in txs}
-    views = [_View(n, tx_nodes.get(n), stuck.get(n), n in deaf) for n in nodes]
+    views = [_View(n, tx_nodes.get(n), stuck[n][0] if n in stuck else None, n in deaf) for n in nodes]
+    release = {v: stuck[v.node][1] for v in views if v.node in stuck}
     for v in views:
         v.want_overloads = (overload or {}).get(v.node, 0)
     wire_bits: list[str] = []
@@ -188,9 +193,11 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
             v.dec = dec.clone()
         wire_bits.append(prefix)
     while b < MAX_ATTEMPT_BITS:
-        if stuck_until is not None and b == stuck_until:
-            for v in views:
-                v.stuck = None
+        if release:
+            for v, end_bit in list(release.items()):
+                if end_bit is not None and b >= end_bit:
+                    v.stuck = None  # this node's fault is over
+                    del release[v]
         intended = [v.intended(b) for v in views]
         wire = 1
         for v, d in zip(views, intended):
@@ -198,10 +205,12 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
             if a == 0:
                 wire = 0
         wire_bits.append(str(wire))
-        if wire == 0 and stuck_until is not None and b < stuck_until and any(v.stuck == 0 for v in views) \
-                and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
-            # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits
-            skip = stuck_until - b
+        holders = [release[v] for v in views if v.stuck == 0]
+        if wire == 0 and holders and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
+            # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits, to
+            # the first release (or to the end of the attempt for a fault that never ends)
+            horizon = min((h for h in holders if h is not None), default=MAX_ATTEMPT_BITS)
+            skip = max(1, min(horizon, MAX_ATTEMPT_BITS) - b)
             for v in views:
                 if v.phase == AFTER_FLAG:
                     _fast_dominant(v, skip)
@@ -219,8 +228,7 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
         if first_error is not None and first_flag_bit is None:
             first_flag_bit = b + 1
         if all(v.phase in (IDLE, OFF) or (v.phase == FRAME and v.role == "rx" and not v.dec.in_frame)
-               for v in views) and (stuck_until is None or b + 1 >= stuck_until
-                                                           or not any(v.stuck == 0 for v in views)):
+               for v in views) and not any(v.stuck == 0 for v in views):
             b += 1
             break
         b += 1
@@ -361,6 +369,10 @@ def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | 
         if not dec.in_frame:
             if p == 1:
                 return None  # still idle: nothing started
+        if driven == 0 and p == 1:
+            # a receiver sending its dominant ACK reads recessive: a bit error (only a recessive
+            # bit read dominant in the ACK slot is exempt)
+            return _error_detected(v, b, "bit", Field.ACK_SLOT, 0, dec.position)
         res = dec.feed(p)
         if res is None:
             return None
@@ -413,8 +425,10 @@ def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | 
                 v.im_n = 0
         return None
     if ph == INTERMISSION:
-        if p == 0 and v.im_n < 2 and v.overloads < 2:
-            _start_overload(v)  # dominant in the first two intermission bits
+        if p == 0 and v.im_n < 2:
+            # dominant in the first two intermission bits: an overload frame (the limit of two
+            # applies to the ones a receiver asks for, not to these)
+            _start_overload(v)
             return None
         v.im_n += 1
         if v.im_n >= 3:

@@ -247,16 +247,14 @@ class FaultInjector:
         self._countdown[key] = c - length
         return out
 
-    def _stuck_now(self, now: int) -> tuple[dict[Node, int], int | None]:
-        stuck: dict[Node, int] = {}
-        until: int | None = None
+    def _stuck_now(self, now: int) -> dict[Node, tuple[int, int | None]]:
+        """Nodes stuck at ``now``: level and the bit (from now) where each fault ends."""
+        stuck: dict[Node, tuple[int, int | None]] = {}
         for s in self._stuck:
             if s.start <= now and (s.end is None or now < s.end) and s.node.connected:
-                stuck[s.node] = s.level
-                if s.end is not None:
-                    bits = -(-(s.end - now) * self.bus.bitrate // 1_000_000_000)
-                    until = bits if until is None else max(until, bits)
-        return stuck, until
+                end = None if s.end is None else -(-(s.end - now) * self.bus.bitrate // 1_000_000_000)
+                stuck[s.node] = (s.level, end)
+        return stuck
 
     def attempt(self, bus: "SimBus", now: int, txs: Sequence["TxRequest"]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
@@ -280,24 +278,22 @@ class FaultInjector:
             if n._on_bus:
                 for p in self._random_positions(n, rate, length):
                     _add_flip(flips, p, frozenset((n,)))
-        stuck, until = self._stuck_now(now) if self._stuck else ({}, None)
+        stuck = self._stuck_now(now) if self._stuck else {}
         deaf = [n for n in self._deaf if n._on_bus]
         overload = {n: k for n, k in self._overload.items() if n._on_bus and all(q.node is not n for q in txs)}
         if not flips and not stuck and not deaf and not overload:
             return None
         self.injected += len(flips)
-        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "stuck_until": until,
-                "overload": overload or None}
+        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "overload": overload or None}
 
     def _disturb(self) -> None:
         """A stuck-dominant fault starting on an idle bus: every node sees a SOF."""
         bus = self.bus
         if bus._tx is not None:
             return  # the next attempt will carry it
-        stuck, until = self._stuck_now(bus.now())
-        if stuck:
-            bus._bitlevel(bus.now(), (), stuck=stuck, stuck_until=until,
-                          deaf=[n for n in self._deaf if n._on_bus])
+        stuck = self._stuck_now(bus.now())
+        if any(level == 0 for level, _ in stuck.values()):
+            bus._bitlevel(bus.now(), (), stuck=stuck, deaf=[n for n in self._deaf if n._on_bus])
 
 
 def _add_flip(flips: dict[int, Any], pos: int, nodes: frozenset[Node] | None) -> None:

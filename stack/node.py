@@ -55,7 +55,8 @@ class Driver(Protocol):
     arbitrate), ``_sync(node)`` (bring lazily buffered receptions up to date before the node is
     read), ``_reclassify(node)`` (subscriptions, listeners or modes changed),
     ``_filters_changed(node)``, ``_state_changed(node, old, new, time)`` (fault confinement) and
-    ``_start_recovery(node)``; ``_rec_nonzero``, the set of nodes whose REC is above 0 (rule 8);
+    ``_start_recovery(node)``; ``_rec_nonzero``, the nodes whose REC is above 0 (rule 8), a dict
+    used as an ordered set so that their updates run in a deterministic order;
     ``_log`` and ``_log_base``, the delivery log lazily read receivers catch up from (a driver
     that delivers at once keeps an empty log).
     A driver reports back through the node's public `head`, `confirm`, `fail`, `deliver` and
@@ -65,7 +66,7 @@ class Driver(Protocol):
     rounds: int
     _seq: int
     _now: int
-    _rec_nonzero: set["Node"]
+    _rec_nonzero: dict["Node", None]
     _log: Any
     _log_base: int
 
@@ -147,7 +148,7 @@ class Node:
         self.name = str(name)
         self.queue = make_queue(queue, capacity=tx_queue_size, mailboxes=mailboxes, abort=abort)
         self.acceptance = AcceptanceFilter(filters)
-        self.rx_fifo: deque[tuple[int, Frame, Any]] = deque()
+        self._fifo: deque[tuple[int, Frame, Any]] = deque()
         self.rx_fifo_size = rx_fifo_size
         self.receive_own_messages = bool(receive_own_messages)
         self.listen_only = bool(listen_only)
@@ -383,8 +384,8 @@ class Node:
         bus = self.bus
         if bus is not None and self._cursor != bus._log_base + len(bus._log):
             bus._sync(self)  # frames delivered since the last read are still in the bus log
-        if self.rx_fifo:
-            t, frame, _ = self.rx_fifo.popleft()
+        if self._fifo:
+            t, frame, _ = self._fifo.popleft()
             return t, frame
         return None
 
@@ -426,11 +427,19 @@ class Node:
             for sub in tuple(self._subs):
                 if sub.filter is None or sub.filter.accepts(frame):
                     sub.callback(ev)
-        elif len(self.rx_fifo) < self.rx_fifo_size:
+        elif len(self._fifo) < self.rx_fifo_size:
             self._rx_frames += 1
-            self.rx_fifo.append((t, frame, sender))
+            self._fifo.append((t, frame, sender))
         else:
             self._rx_overruns += 1
+
+    @property
+    def rx_fifo(self) -> deque[tuple[int, Frame, Any]]:
+        """The receive FIFO as (time, frame, sender) entries, oldest first, brought up to date
+        (the simulated bus fills buffering nodes lazily); `recv` pops from it."""
+        if self.bus is not None:
+            self.bus._sync(self)
+        return self._fifo
 
     # ------------------------------------------------------------------ counters
     @property
@@ -499,9 +508,9 @@ class Node:
         bus = self.bus
         if bus is not None:
             if rec > 0:
-                bus._rec_nonzero.add(self)
+                bus._rec_nonzero[self] = None
             else:
-                bus._rec_nonzero.discard(self)
+                bus._rec_nonzero.pop(self, None)
         old = self.state
         if old is ErrorState.BUS_OFF:
             return  # only rule 12 leaves bus off

@@ -161,7 +161,9 @@ class SimBus:
         self.busy_ns = 0
         self.id_stats: dict[int, IdStats] = {}
         self._bus_listeners: list[Callable[[TraceRecord], Any]] = []
-        self._rec_nonzero: set[Node] = set()  # receivers whose REC rule 8 must decrement
+        # receivers whose REC rule 8 must decrement; a dict as an ordered set (insertion order)
+        # so that state changes and what their listeners do happen in a deterministic order
+        self._rec_nonzero: dict[Node, None] = {}
         self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
         self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
@@ -629,14 +631,14 @@ class SimBus:
         node._emit(TxFailed(now, req.frame, req, reason))
 
     def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
-                  stuck: dict[Node, int] | None = None, deaf: Iterable[Node] = (),
-                  stuck_until: int | None = None, collision: bool = False,
+                  stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
+                  collision: bool = False,
                   overload: dict[Node, int] | None = None) -> None:
         """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
         from .errors import simulate_attempt
 
         nodes = [n for n in self.nodes if n._on_bus]
-        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, stuck_until, overload)
+        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload)
         res.collision = collision
         self._tx = (txs, now, res)
         self._tx_end = now + self.bits_to_ns(res.bits)
@@ -825,7 +827,7 @@ class SimBus:
             self._sync(node)
             node.bus_off_count += 1
             self._reclassify(node)
-            self._rec_nonzero.discard(node)
+            self._rec_nonzero.pop(node, None)
             if node.auto_recovery:
                 self._start_recovery(node)
         elif old is ErrorState.PASSIVE and new is not ErrorState.PASSIVE:
@@ -876,7 +878,7 @@ class SimBus:
         self._absorb(node, entries)
 
     def _absorb(self, node: Node, entries: list[tuple[int, Frame, Node]]) -> None:
-        fifo = node.rx_fifo
+        fifo = node._fifo
         cap = node.rx_fifo_size
         acc = node.acceptance
         cache = acc._cache
@@ -930,7 +932,7 @@ class SimBus:
         lazy = {n for n in self._lazy if n._cursor < end}
         # nodes that read nothing since the last flush and whose FIFO is full only count
         # overruns: tallied per (identifier, sender) pair with C-level counting
-        full = {n for n in lazy if n._cursor == base and len(n.rx_fifo) >= n.rx_fifo_size}
+        full = {n for n in lazy if n._cursor == base and len(n._fifo) >= n.rx_fifo_size}
         if full:
             frames = list(map(_second, log))
             keys = list(map(_key_of, frames))
@@ -982,7 +984,7 @@ class SimBus:
 
     def _absorb_indexed(self, node: Node, log: list[tuple[int, Frame, Node]], lists: list[list[int]],
                         start: int, own_positions: Iterable[int]) -> None:
-        fifo = node.rx_fifo
+        fifo = node._fifo
         cap = node.rx_fifo_size
         own = node.receive_own_messages
         merged = lists[0] if len(lists) == 1 else heapq.merge(*lists)

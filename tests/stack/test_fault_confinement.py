@@ -127,12 +127,13 @@ def test_rule_6_dominant_bits_after_the_flag():
     fi.stuck("b", "dominant", start=1_000_000, end=1_000_000 + 100 * 2000)
     bus.run(until=5_000_000)
     # stuff error at bit 5 (SOF + 5 dominant): rule 1 (+1); flag at bits 6..11; bit 12 is
-    # dominant: rule 2 (+8); dominant bits 12..99 are 88: the 14th, 22nd, ..., 86th add 8 each
-    rule6 = (88 - 14) // 8 + 1
-    assert rule6 == 10
-    assert a.rec == c.rec == 1 + 8 + 8 * rule6 == 89
+    # dominant: rule 2 (+8); dominant bits 12..99 are 88 after the flag: the 8th after it (the
+    # 14th counted from the flag's first bit), 16th, ..., 88th add 8 each (rule 6)
+    rule6 = 88 // 8
+    assert rule6 == 11
+    assert a.rec == c.rec == 1 + 8 + 8 * rule6 == 97
     # the stuck node's own controller reads the same dominant bus
-    assert b.rec == 89
+    assert b.rec == 97
 
 
 def test_rule_7_success_decrements_tec():
