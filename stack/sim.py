@@ -220,26 +220,30 @@ class SimBus:
             node._update_head()
 
     def _reclassify(self, node: Node) -> None:
+        """Put the node in the lists the engine walks (buffering, callbacks, arbitration
+        watchers). The lists are replaced, never changed in place: a loop delivering a frame
+        keeps the list it started with even if a callback subscribes or unsubscribes."""
         was_lazy = node in self._lazy
-        for lst in (self._lazy, self._eager, self._arb_watch):
-            if node in lst:
-                lst.remove(node)
+        lazy = [n for n in self._lazy if n is not node]
+        eager = [n for n in self._eager if n is not node]
+        watch = [n for n in self._arb_watch if n is not node]
         on = node.connected and node.state is not ErrorState.BUS_OFF
         node._on_bus = on
         if on:
             if node._subs:
                 self._sync(node)
-                self._eager.append(node)
+                eager.append(node)
             else:
                 if not was_lazy:  # frames delivered while it was eager or off the bus are not its
                     node._cursor = self._log_base + len(self._log)
-                self._lazy.append(node)
+                lazy.append(node)
             if node.one_shot or node._listeners.get(ArbitrationLost):
-                self._arb_watch.append(node)
+                watch.append(node)
         # keep the delivery order deterministic: attach order
         order = {n: i for i, n in enumerate(self.nodes)}
-        for lst in (self._lazy, self._eager, self._arb_watch):
-            lst.sort(key=order.__getitem__)
+        self._lazy = sorted(lazy, key=order.__getitem__)
+        self._eager = sorted(eager, key=order.__getitem__)
+        self._arb_watch = sorted(watch, key=order.__getitem__)
         self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
                               and n.state is not ErrorState.BUS_OFF)
 
@@ -278,7 +282,7 @@ class SimBus:
 
     # ------------------------------------------------------------------ engine
     def _offer(self, node: Node, req: TxRequest) -> None:
-        if node._on_bus:
+        if node._on_bus and not node._suspended:  # a suspended node joins again in _wake
             heapq.heappush(self._contenders, (req.key, req.seq, req))
 
     def run(self, until: int | None = None, *, duration: int | None = None,
@@ -290,9 +294,9 @@ class SimBus:
             until = self._now + int(duration)
         limit = INF if until is None else until
         stop = INF if frames is None else self.frames_ok + frames
-        if until is None and frames is None and self._unbounded_risk():
-            raise ValueError("run() without until/duration/frames would never end: a node keeps "
-                             "retransmitting without acknowledgement; give a bound")
+        if until is None and self._unbounded_risk():
+            raise ValueError("run() without until/duration would never end: a node keeps "
+                             "retransmitting without acknowledgement; give a time bound")
         timers = self._timers
         heappop = heapq.heappop
         while self.frames_ok < stop:
@@ -475,7 +479,9 @@ class SimBus:
             if called or listeners:  # user code ran: it may have changed what the loop relies on
                 if timers:
                     tt = timers[0][0]
-                if self._arb_watch or self._faults is not None or self._suspended:
+                eager = self._eager
+                lazy = self._lazy
+                if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
                     break
         return done
 
@@ -495,7 +501,14 @@ class SimBus:
         return min(tt, tb)
 
     def _unbounded_risk(self) -> bool:
-        return any(n._head is not None for n in self.nodes) and self._ack_count <= 1
+        """True when a node on the bus has a frame nobody can acknowledge: a run without a time
+        bound would retransmit for ever (exception 1 of rule 3 keeps TEC at 128)."""
+        pending = [n for n in self.nodes if n._on_bus and n.head is not None]
+        if not pending:
+            return False
+        deaf = self._faults._deaf if self._faults is not None else ()
+        ackers = [n for n in self.nodes if n._on_bus and not n.listen_only and n not in deaf]
+        return all(not any(a is not p for a in ackers) for p in pending)
 
     def _wake(self, now: int) -> None:
         still = []
@@ -555,20 +568,18 @@ class SimBus:
             self._notify_losers(now, r, txs)
         frame = winner.frame
         fb = frame._bits or frame.bits
+        spec = self._faults.attempt(self, now, txs) if self._faults is not None else None
         if len(txs) > 1:
-            if self._first_difference(txs) is not None:
-                self.collisions += 1
-                self._bitlevel(now, txs, collision=True)
-                return
-            ackers = self._ack_count - len(txs)
-        else:
-            ackers = self._ack_count - 1  # a transmitter is never listen-only
-        if self._faults is not None:
-            spec = self._faults.attempt(self, now, txs)
-            if spec is not None:
-                self._bitlevel(now, txs, **spec)
-                return
-        if ackers <= 0:
+            # several nodes send the same arbitration field: replayed bit by bit, a collision if
+            # their frames differ, else each is a transmitter and none receives the frame
+            collision = self._first_difference(txs) is not None
+            self.collisions += collision
+            self._bitlevel(now, txs, collision=collision, **(spec or {}))
+            return
+        if spec is not None:
+            self._bitlevel(now, txs, **spec)
+            return
+        if self._ack_count <= 1:  # nobody but the transmitter (never listen-only) to acknowledge
             self._bitlevel(now, txs)  # ACK error
             return
         self._tx = (txs, now, None)
@@ -682,9 +693,7 @@ class SimBus:
             q.on_wire = False
             self._tx_success(q, end, idle, passive=q.node.state is ErrorState.PASSIVE, rule7=True)
         if frame.remote and self._rtr:
-            for n in self._rtr.get((frame.can_id, frame.extended), ()):
-                if n is not sender and n.connected and n.state is not ErrorState.BUS_OFF and not n.listen_only:
-                    n.send(n._remote_replies[(frame.can_id, frame.extended)])
+            self._auto_reply(frame, sender, self._rtr.get((frame.can_id, frame.extended), ()))
 
     def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
         """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,
@@ -697,13 +706,16 @@ class SimBus:
         winner = res.winner
         # receivers that accepted (at the last-but-one EOF bit) keep the frame whatever happens next
         accepted = [(by_name[name], o) for name, o in outcomes.items() if o.accepted]
-        if accepted:
+        sender = (winner or txs[0]).node if txs else None
+        if accepted or winner is not None:
             self._flush_for_direct()
-            sender_req = winner or txs[0]
-            sender = sender_req.node
-            for node, o in accepted:
-                t_acc = start + self.bits_to_ns(o.accept_bit + 2)
-                node._deliver(t_acc, o.frame, sender)
+        for node, o in accepted:
+            t_acc = start + self.bits_to_ns(o.accept_bit + 2)
+            node._deliver(t_acc, o.frame, sender)
+        for q in txs:  # self-reception: each transmitter that succeeded gets its own copy
+            o = outcomes.get(q.node.name)
+            if o is not None and o.success and q.node.receive_own_messages:
+                q.node._deliver(end, q.frame, q.node)
         if winner is not None:
             self.frames_ok += 1
         else:
@@ -726,7 +738,7 @@ class SimBus:
             if o is not None and o.success:
                 self._tx_success(q, end, idle, passive=before[node.name] is ErrorState.PASSIVE, rule7=False)
                 continue
-            if o is not None and o.lost_arbitration and o.detected is None:
+            if o is not None and o.lost_arbitration:  # a flipped bit made it lose: not an error of its own
                 q.losses += 1
                 node._arb_lost += 1
                 q.head_since = self.rounds
@@ -737,6 +749,8 @@ class SimBus:
                 continue
             if q.state != "queued":
                 continue
+            if before.get(node.name) is ErrorState.PASSIVE or node.state is ErrorState.PASSIVE:
+                self._suspend(node, idle)  # it transmitted as (or is now) error passive
             if node.one_shot:
                 kind = o.detected[0] if o is not None and o.detected else "error"
                 self._fail_request(q, end, f"{kind} error (one-shot)")
@@ -750,11 +764,27 @@ class SimBus:
                     self._offer(node, q)
                 else:
                     node._update_head()
-            if before.get(node.name) is ErrorState.PASSIVE or node.state is ErrorState.PASSIVE:
-                node._ready_at = idle + self._suspend_ns  # it transmitted as (or is now) error passive
+        if winner is not None and winner.frame.remote and self._rtr:
+            self._auto_reply(winner.frame, sender, [n for n, o in accepted])
         if self.record:
             changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
             self._record_bitlevel(txs, start, end, res, changes)
+
+    def _auto_reply(self, frame: Frame, sender: Node | None, receivers: Iterable[Node]) -> None:
+        """Mailboxes configured for automatic replies answer a remote frame they received."""
+        key = (frame.can_id, frame.extended)
+        holders = self._rtr.get(key, ())
+        for n in receivers:
+            if n in holders and n is not sender and n._on_bus and not n.listen_only:
+                n.send(n._remote_replies[key])
+
+    def _suspend(self, node: Node, idle: int) -> None:
+        """Suspend transmission: an error-passive node that transmitted waits 8 more bits after
+        the intermission; until then it is out of arbitration (not counted as losing)."""
+        node._ready_at = idle + self._suspend_ns
+        if not node._suspended:
+            node._suspended = True
+            self._suspended.append(node)
 
     def _tx_success(self, q: TxRequest, end: int, idle: int, *, passive: bool, rule7: bool) -> None:
         """A transmission that went through: counters, per-ID latency, rule 7 (unless the
@@ -776,7 +806,7 @@ class SimBus:
         st.min = min(st.min, lat)
         st.max = max(st.max, lat)
         if passive:
-            node._ready_at = idle + self._suspend_ns
+            self._suspend(node, idle)
         if rule7 and node.tec:
             node._on_tx_success()
         node._update_head()

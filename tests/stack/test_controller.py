@@ -262,3 +262,41 @@ def test_periodic_task_timing():
     assert starts == [500_000 + i * 1_000_000 for i in range(5)] and task.sent == 5
     with pytest.raises(ValueError, match="period 0"):
         a.send_periodic(Frame(1), 0)
+
+
+def test_subscribing_and_unsubscribing_inside_a_callback():
+    bus = SimBus()
+    tx = bus.node("tx")
+    b, c, d = bus.node("b"), bus.node("c"), bus.node("d")
+    got = {"b": [], "c": [], "d": []}
+    subs = {}
+
+    def on_b(ev):
+        got["b"].append(ev.frame)
+        subs["b"].unsubscribe()  # b stops listening; c must still get this frame
+        if "d" not in subs:
+            subs["d"] = d.subscribe(lambda e: got["d"].append(e.frame))
+
+    subs["b"] = b.subscribe(on_b)
+    c.subscribe(lambda ev: got["c"].append(ev.frame))
+    tx.send(Frame(0x1))
+    tx.send(Frame(0x2))
+    bus.run()
+    assert got["b"] == [Frame(0x1)] and got["c"] == [Frame(0x1), Frame(0x2)]
+    # d was buffering when 0x1 arrived: 0x1 stays in its FIFO, and is not delivered twice
+    assert got["d"] == [Frame(0x2)] and d.rx_frames == 2 and [f for _, f in iter(d.recv, None)] == [Frame(0x1)]
+    assert [f for _, f in iter(b.recv, None)] == [Frame(0x2)]
+
+
+def test_callback_that_disconnects_the_only_acknowledger(monkeypatch):
+    def run(fast):
+        monkeypatch.setattr(SimBus, "fast", fast)
+        bus = SimBus()
+        a, b = bus.node("a"), bus.node("b")
+        b.subscribe(lambda ev: bus.disconnect(b))
+        for i in range(5):
+            a.send(Frame(0x100, bytes([i])))
+        bus.run(until=3_000_000)
+        return bus.frames_ok, bus.error_frames, a.tec
+    assert run(True) == run(False)
+    assert run(True)[0] == 1

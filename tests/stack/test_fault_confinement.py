@@ -340,3 +340,86 @@ def test_overload_count_is_at_most_two():
     bus.node("a")
     with pytest.raises(ValueError, match="0, 1 or 2"):
         FaultInjector(bus).overload("a", frames=3)
+
+
+# --- behaviours found in review -------------------------------------------------------------
+
+def test_receiver_reading_its_dominant_ack_as_recessive_has_a_bit_error():
+    bus, a, b, c, fi = three()
+    fi.flip(can_id=0x123, field="ack", bit=0, nodes=["b"])
+    a.send(F)
+    bus.run(frames=1)
+    rec = first_error(bus)
+    assert rec.detail["error"] == "bit" and rec.detail["field"] == "ACK_SLOT" and rec.detail["seen_by"] == "b"
+
+
+def test_arbitration_lost_through_a_flip_is_not_a_retransmission():
+    # a sends 0x123; b sees nothing odd; a alone reads a recessive ID bit as dominant: it has
+    # lost arbitration (to nobody), becomes a receiver, and retries as after any lost round
+    bus, a, b, c, fi = three()
+    ones = [i for i in range(11) if F.bits.bits[F.bits.position("ID", i)] == "1"]
+    fi.flip(can_id=0x123, field="ID", bit=ones[0], nodes=["a"])
+    a.send(F)
+    bus.run()
+    assert a.arbitration_lost == 1 and a.retransmissions == 0 and a.tx_frames == 1
+
+
+def test_suspended_passive_node_does_not_lose_arbitration():
+    bus = SimBus(500_000)
+    a, b = bus.node("a", one_shot=True), bus.node("b")
+    bus.node("c")
+    a._set_counters(130, 0, 0)
+    a.send(Frame(0x300, b"\x01"))
+    a.send(Frame(0x301, b"\x02"))  # a is suspended when b's frame goes: not a loss
+    b.send_periodic(Frame(0x400, b"\x03"), 10_000_000, offset=0, count=1)
+    bus.run(until=5_000_000)
+    assert a.tx_frames == 2 and a.tx_failed == 0 and a.arbitration_lost == 0
+
+
+def test_identical_frames_from_two_senders_are_not_received_by_either():
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    b._set_counters(0, 5, 0)
+    a.send(F)
+    b.send(F)
+    bus.run()
+    assert a.tx_frames == b.tx_frames == 1 and b.rx_frames == 0 and b.rec == 5
+    assert c.rx_frames == 1 and c.rec == 0
+
+
+def test_faulty_bus_keeps_remote_replies_and_self_reception():
+    bus = SimBus(500_000)
+    a = bus.node("a", receive_own_messages=True)
+    b, deaf = bus.node("b"), bus.node("deaf")
+    FaultInjector(bus).never_ack("deaf")  # every attempt is replayed bit by bit now
+    b.set_remote_reply(Frame(0x700, b"\x5a"))
+    a.send(Frame(0x700, remote=True, dlc=1))
+    bus.run()
+    assert [r.frame for r in bus.trace] == [Frame(0x700, remote=True, dlc=1), Frame(0x700, b"\x5a")]
+    assert [f for _, f in iter(a.recv, None)] == [Frame(0x700, remote=True, dlc=1), Frame(0x700, b"\x5a")]
+
+
+def test_each_stuck_fault_ends_on_its_own():
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    fi = FaultInjector(bus)
+    fi.stuck("b", "dominant", start=1_000_000, end=1_000_000 + 40 * 2000)
+    fi.stuck("a", "recessive", start=0)  # for good: a can never transmit
+    bus.run(until=3_000_000)
+    # the dominant fault ended after 40 bits, although a's fault never ends
+    assert c.rec == 1 + 8 + 8 * ((40 - 12) // 8)
+
+
+def test_run_guards_against_endless_retransmission():
+    bus = SimBus()
+    a, deaf = bus.node("a"), bus.node("deaf")
+    FaultInjector(bus).never_ack("deaf")
+    a.send(F)
+    with pytest.raises(ValueError, match="never end"):
+        bus.run(frames=1)
+    bus2 = SimBus()
+    x = bus2.node("x")
+    x.send(F)
+    bus2.disconnect(x)
+    bus2.run()  # nothing on the bus can happen: returns
+    assert bus2.trace == []
