@@ -300,3 +300,29 @@ def test_callback_that_disconnects_the_only_acknowledger(monkeypatch):
         return bus.frames_ok, bus.error_frames, a.tec
     assert run(True) == run(False)
     assert run(True)[0] == 1
+
+
+@pytest.mark.parametrize("kw,msg", [
+    ({"queue": "lifo"}, "unknown queue policy 'lifo'"),
+    ({"queue": "mailbox", "mailboxes": 0}, "mailboxes 0"),
+    ({"tx_queue_size": 0}, "transmit queue capacity 0"),
+    ({"rx_fifo_size": -1}, "rx_fifo_size -1"),
+    ({"filters": [{"can_id": 1}]}, "lacks 'can_mask'"),
+])
+def test_bad_node_configuration_is_named(kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        SimBus().node("n", **kw)
+
+
+def test_bad_controller_requests_are_named():
+    bus = SimBus()
+    n = bus.node("n")
+    with pytest.raises(NodeError, match="not bus off"):
+        n.recover()
+    with pytest.raises(ValueError, match="give the frame to reply with"):
+        n.set_remote_reply(None)
+    with pytest.raises(TypeError, match="takes a Frame or can.Message"):
+        n.send(b"\x01")
+    from stack.node import Node
+    with pytest.raises(NodeError, match="not attached"):
+        Node("loose").send(Frame(1))

@@ -423,3 +423,19 @@ def test_run_guards_against_endless_retransmission():
     bus2.disconnect(x)
     bus2.run()  # nothing on the bus can happen: returns
     assert bus2.trace == []
+
+
+def test_bad_node_fault_specifications():
+    bus = SimBus()
+    bus.node("a")
+    fi = FaultInjector(bus)
+    with pytest.raises(ValueError, match="stuck level 'sideways'"):
+        fi.stuck("a", "sideways")
+    with pytest.raises(ValueError, match="end 5 ns is not after its start 10 ns"):
+        fi.stuck("a", "dominant", start=10, end=5)
+    with pytest.raises(ValueError, match="reconnect at 5 ns is not after disconnect at 10 ns"):
+        fi.disconnect("a", at=10, reconnect_at=5)
+    with pytest.raises(ValueError, match="occurrence 0"):
+        fi.flip(occurrence=0)
+    with pytest.raises(ValueError, match="already has a fault injector"):
+        FaultInjector(bus)
