@@ -163,7 +163,26 @@ def _demo(args: argparse.Namespace) -> int:
         n = bus.save_trace(args.trace)
         if not args.json:
             print(f"\ntrace: {n} records written to {args.trace}")
+    if args.vcd:
+        n = write_trace_vcd(bus, args.vcd)
+        if not args.json:
+            print(f"waveform: CAN_RX of {n} frames written to {args.vcd} (GTKWave, PulseView)")
     return 0
+
+
+def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
+    """Render the frames of a simulated trace, at their SOF times, as a CAN_RX waveform in VCD
+    (error attempts are left out: the waveform shows the frames that went through). The
+    waveform starts with 11 recessive bits of bus idle, so its time 0 is 11 bit times before the
+    simulation's: a receiver needs them to join the bus."""
+    from .waveform import IDLE_BITS, render_edges, write_vcd
+
+    recs = [r for r in bus.trace if r.kind == "frame"]
+    lead = IDLE_BITS / bus.bitrate
+    runs, _, _ = render_edges([r.frame for r in recs], bus.bitrate, bus.bitrate * samples_per_bit,
+                              times=[lead + r.start / 1e9 for r in recs])
+    write_vcd(path, runs, bus.bitrate * samples_per_bit, comment=f"canstack demo, bus {bus.name}")
+    return len(recs)
 
 
 def _duration(text: str) -> float:
@@ -224,6 +243,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bitrate", type=_bitrate, default=500_000, help="bit/s (default 500000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
+    p.add_argument("--vcd", metavar="FILE", help="write the bus as a CAN_RX waveform (VCD, 16 samples a bit)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--faults", action="store_true",
                    help="the fault demo: a node goes error passive, bus off, and recovers")

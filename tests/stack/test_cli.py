@@ -72,3 +72,20 @@ def test_fault_demo_goes_passive_bus_off_and_recovers(capsys, tmp_path):
     assert re.search(r"ecu2 +error-active -> bus-off", out)
     assert re.search(r"ecu2 +bus-off -> error-active +TEC +0 REC +0", out)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_demo_waveform_decodes_back_to_the_trace(tmp_path, capsys):
+    from stack.commands import build_demo, write_trace_vcd
+    from stack.sim import SimBus
+    from stack.waveform import decode_file
+
+    bus = SimBus(500_000)
+    build_demo(bus)
+    bus.run(until=30_000_000)
+    path = tmp_path / "demo.vcd"
+    n = write_trace_vcd(bus, str(path))
+    recs = decode_file(str(path), 500_000)
+    frames = [r.to_frame() for r in recs if r.ok]
+    assert n == len(bus.trace) == len(frames) and frames == [r.frame for r in bus.trace]
+    lead = 11 * 2000  # the waveform starts with 11 idle bits
+    assert [round(r.t * 1e9) - lead for r in recs] == [r.start for r in bus.trace]
