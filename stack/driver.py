@@ -136,6 +136,8 @@ class PyCanDriver:
     def _state_changed(self, node: Node, old: Any, new: Any, t: int) -> None:
         pass  # the bus's controller does fault confinement; nothing to reschedule here
 
+    _contenders = None  # Node.send calls _offer (SimBus lets it push onto its heap directly)
+
     def _offer(self, node: Node, req: Any) -> None:
         self._ready.append(node)
         self._wake.set()

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Iterable
 
 from .bits import BitDecoder, Field
-from .node import ErrorState
+from .node import _PASSIVE
 
 if TYPE_CHECKING:  # pragma: no cover
     from .node import Node
@@ -129,7 +129,7 @@ class _View:
         self.delim_n = 0
         self.im_n = 0
         self.overloads = 0
-        self.passive = node.state is ErrorState.PASSIVE
+        self.passive = node.state is _PASSIVE
         self.listen_only = node.listen_only
         self.stuck = stuck
         self.deaf_ack = deaf_ack

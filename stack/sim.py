@@ -37,7 +37,7 @@ import can
 from .bits import INTERMISSION_BITS
 from .events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from .frame import Frame
-from .node import ErrorState, Node, Timer
+from .node import _ACTIVE, _BUS_OFF, _PASSIVE, ErrorState, Node, Timer  # noqa: F401
 from .queues import TxRequest
 
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
@@ -227,7 +227,7 @@ class SimBus:
         lazy = [n for n in self._lazy if n is not node]
         eager = [n for n in self._eager if n is not node]
         watch = [n for n in self._arb_watch if n is not node]
-        on = node.connected and node.state is not ErrorState.BUS_OFF
+        on = node.connected and node.state is not _BUS_OFF
         node._on_bus = on
         if on:
             if node._subs:
@@ -245,7 +245,7 @@ class SimBus:
         self._eager = sorted(eager, key=order.__getitem__)
         self._arb_watch = sorted(watch, key=order.__getitem__)
         self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
-                              and n.state is not ErrorState.BUS_OFF)
+                              and n.state is not _BUS_OFF)
 
     def _filters_changed(self, node: Node) -> None:
         self._key_receivers = {}
@@ -339,8 +339,9 @@ class SimBus:
         """Arbitrate and complete clean frames back to back, in one loop with local variables,
         while no timer, fault, tie, suspension or special receiver needs the general path.
 
-        Same results as `_arbitrate` + `_complete` (a test compares traces), about 1.4x faster:
-        it saves two method calls, the transmission tuple and a loop turn per frame. Returns the
+        Same results as `_arbitrate` + `_complete` (a test compares traces), about 1.5x faster:
+        it saves two method calls, the transmission tuple, a loop turn and the stores of the
+        bus's clock and counters per frame (they live in locals until user code may run). Returns the
         number of frames it completed (0: let the general path take this one).
         """
         heap = self._contenders
@@ -353,7 +354,7 @@ class SimBus:
         lazy = self._lazy
         log = self._log
         id_stats = self.id_stats
-        PASSIVE = ErrorState.PASSIVE
+        PASSIVE = _PASSIVE
         record = self.record
         rtr = self._rtr
         busoff = self._busoff  # sets: their identity is stable, their content is read live
@@ -369,120 +370,130 @@ class SimBus:
         if limit == INF:
             limit = NEVER
         done = 0
-        while frames_ok < stop:
-            t0 = idle_at if idle_at > now else now
-            if t0 >= tt or t0 > limit or not heap:
-                break
-            req = heap[0][2]
-            node = req.node
-            if req.state != "queued" or node._head is not req or not node._on_bus or node._ready_at > t0 \
-                    or node.state is PASSIVE:
-                break
-            frame = req.frame
-            if frame.remote and rtr:
-                break  # automatic replies: the general path
-            heappop(heap)
-            if heap and heap[0][0] == req.key:
-                heappush(heap, (req.key, req.seq, req))
-                break
-            nbits = frame._nbits or frame.wire_bits
-            end = t0 + dur[nbits]
-            if end >= tt or end > limit:
-                heappush(heap, (req.key, req.seq, req))
-                break
-            # arbitration (rounds and frames_ok live in locals, stored back at once: callbacks
-            # that send read bus.rounds)
-            r = rounds
-            rounds = r + 1
-            self.rounds = rounds
-            if t0 > idle_at and busoff:
-                self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
-            lost = r - req.head_since
-            if lost > 0:
-                req.losses += lost
-                node._arb_lost += lost
-            req.head_since = r + 1
-            # completion
-            now = end
-            self._now = end
-            idle_at = end + ifs
-            self._idle_at = idle_at
-            frames_ok += 1
-            self.frames_ok = frames_ok
-            self.busy_ns += idle_at - t0
-            if busoff:
-                self._recessive_events += 1
-            if record:
-                rec = TraceRecord("frame", t0, end, node.name, frame, nbits, req.losses, req.t_queued)
-                self.trace.append(rec)
-                for cb in self._bus_listeners:
-                    cb(rec)
-            if lazy:
-                log.append((end, frame, node))
-                if len(log) >= log_limit:
-                    self._flush()
-                    log = self._log
-            for n in eager:
-                n._deliver(end, frame, node)
-            called = eager or rec_nonzero  # user code may run (callbacks, state-change listeners)
-            if rec_nonzero:
-                for n in tuple(rec_nonzero):
-                    if n is not node and n._on_bus:
-                        n._on_rx_success()
-            st = id_stats.get(frame.key)
-            if st is None:
-                st = id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
-            req.state = "sent"
-            req.t_done = end
-            node.tx_frames += 1
-            q = node.queue
-            qh = q._heap
-            if qh and qh[0][2] is req:  # priority queue, request at the top: pop it here
-                heappop(qh)
-                q._n -= 1
-            else:
-                q.remove(req)
-            lat = end - req.t_queued
-            st.count += 1
-            st.total += lat
-            st.losses += req.losses
-            if lat < st.min:
-                st.min = lat
-            if lat > st.max:
-                st.max = lat
-            if node.tec:
-                called = True
-                node._on_tx_success()
-            listeners = node._listeners.get(TxDone) if node._listeners else None
-            if listeners:
-                # confirm first, then pick the next head once (sends from the callback included)
-                node._head = None
-                ev = _tuple_new(TxDone, (end, frame, req))  # TxDone(...) without its Python __new__
-                for cb in listeners:
-                    cb(ev)
-                if node._head is None:
-                    node._update_head()
-            elif qh is not None:
-                # priority queue, inlined _update_head: the next head is the heap's top
-                while qh and qh[0][2].state != "queued":
-                    heappop(qh)
-                if qh:
-                    nxt = qh[0][2]
-                    node._head = nxt
-                    nxt.head_since = r + 1
-                    heappush(heap, (nxt.key, nxt.seq, nxt))
-                else:
-                    node._head = None
-            else:
-                node._update_head()
-            done += 1
-            if called or listeners:  # user code ran: it may have changed what the loop relies on
-                if timers:
-                    tt = timers[0][0]
-                eager = self._eager
-                lazy = self._lazy
-                if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
+        busy = self.busy_ns
+        try:
+            while frames_ok < stop:
+                t0 = idle_at if idle_at > now else now
+                if t0 >= tt or t0 > limit or not heap:
                     break
+                req = heap[0][2]
+                node = req.node
+                if req.state != "queued" or node._head is not req or not node._on_bus or node._ready_at > t0 \
+                        or node.state is PASSIVE:
+                    break
+                frame = req.frame
+                if frame.remote and rtr:
+                    break  # automatic replies: the general path
+                heappop(heap)
+                if heap and heap[0][0] == req.key:
+                    heappush(heap, (req.key, req.seq, req))
+                    break
+                nbits = frame._nbits or frame.wire_bits
+                end = t0 + dur[nbits]
+                if end >= tt or end > limit:
+                    heappush(heap, (req.key, req.seq, req))
+                    break
+                # arbitration; the bus's clock and counters live in locals and are stored back
+                # before any user code can run (and when the loop ends)
+                r = rounds
+                rounds = r + 1
+                if t0 > idle_at and busoff:
+                    self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
+                lost = r - req.head_since
+                if lost > 0:
+                    req.losses += lost
+                    node._arb_lost += lost
+                req.head_since = rounds
+                # completion
+                now = end
+                idle_at = end + ifs
+                frames_ok += 1
+                busy += idle_at - t0
+                if busoff:
+                    self._recessive_events += 1
+                listeners = node._listeners.get(TxDone) if node._listeners else None
+                called = eager or rec_nonzero or node.tec or listeners or record
+                if called:  # user code may run (callbacks, state-change listeners): bus state first
+                    self.rounds = rounds
+                    self._now = end
+                    self._idle_at = idle_at
+                    self.frames_ok = frames_ok
+                    self.busy_ns = busy
+                if record:
+                    rec = TraceRecord("frame", t0, end, node.name, frame, nbits, req.losses, req.t_queued)
+                    self.trace.append(rec)
+                    for cb in self._bus_listeners:
+                        cb(rec)
+                if lazy:
+                    log.append((end, frame, node))
+                    if len(log) >= log_limit:
+                        self._flush()
+                        log = self._log
+                for n in eager:
+                    n._deliver(end, frame, node)
+                if rec_nonzero:
+                    for n in tuple(rec_nonzero):
+                        if n is not node and n._on_bus:
+                            n._on_rx_success()
+                st = id_stats.get(frame.key)
+                if st is None:
+                    st = id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
+                req.state = "sent"
+                req.t_done = end
+                node.tx_frames += 1
+                q = node.queue
+                qh = q._heap
+                if qh and qh[0][2] is req:  # priority queue, request at the top: pop it here
+                    heappop(qh)
+                    q._n -= 1
+                else:
+                    q.remove(req)
+                lat = end - req.t_queued
+                st.count += 1
+                st.total += lat
+                st.losses += req.losses
+                if lat < st.min:
+                    st.min = lat
+                if lat > st.max:
+                    st.max = lat
+                if node.tec:
+                    node._on_tx_success()
+                if listeners:
+                    # confirm first, then pick the next head once (sends from the callback included)
+                    node._head = None
+                    ev = _tuple_new(TxDone, (end, frame, req))  # TxDone(...) without its Python __new__
+                    for cb in listeners:
+                        cb(ev)
+                    if node._head is None:
+                        node._update_head()
+                elif qh is not None:
+                    # priority queue, inlined _update_head: the next head is the heap's top
+                    while qh and qh[0][2].state != "queued":
+                        heappop(qh)
+                    if qh:
+                        nxt = qh[0][2]
+                        node._head = nxt
+                        nxt.head_since = rounds
+                        heappush(heap, (nxt.key, nxt.seq, nxt))
+                    else:
+                        node._head = None
+                else:
+                    self.rounds = rounds  # read by _update_head for the new head's rounds
+                    node._update_head()
+                done += 1
+                if called:  # user code ran: it may have changed what the loop relies on
+                    if timers:
+                        tt = timers[0][0]
+                    eager = self._eager
+                    lazy = self._lazy
+                    if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
+                        break
+        finally:
+            self.rounds = rounds
+            self._now = now
+            self._idle_at = idle_at
+            self.frames_ok = frames_ok
+            self.busy_ns = busy
         return done
 
     def next_event_time(self) -> float:
@@ -620,7 +631,7 @@ class SimBus:
             h = n._head
             if n in winners or h is None or h.state != "queued" or h.on_wire or n._suspended:
                 continue
-            if not (n.connected and n.state is not ErrorState.BUS_OFF) or h.head_since > r:
+            if not (n.connected and n.state is not _BUS_OFF) or h.head_since > r:
                 continue
             n._emit(ArbitrationLost(now, h.frame, wframe))
             if n.one_shot and h.state == "queued":
@@ -691,7 +702,7 @@ class SimBus:
                     n._on_rx_success()
         for q in txs:
             q.on_wire = False
-            self._tx_success(q, end, idle, passive=q.node.state is ErrorState.PASSIVE, rule7=True)
+            self._tx_success(q, end, idle, passive=q.node.state is _PASSIVE, rule7=True)
         if frame.remote and self._rtr:
             self._auto_reply(frame, sender, self._rtr.get((frame.can_id, frame.extended), ()))
 
@@ -736,7 +747,7 @@ class SimBus:
             o = outcomes.get(node.name)
             q.on_wire = False
             if o is not None and o.success:
-                self._tx_success(q, end, idle, passive=before[node.name] is ErrorState.PASSIVE, rule7=False)
+                self._tx_success(q, end, idle, passive=before[node.name] is _PASSIVE, rule7=False)
                 continue
             if o is not None and o.lost_arbitration:  # a flipped bit made it lose: not an error of its own
                 q.losses += 1
@@ -749,12 +760,12 @@ class SimBus:
                 continue
             if q.state != "queued":
                 continue
-            if before.get(node.name) is ErrorState.PASSIVE or node.state is ErrorState.PASSIVE:
+            if before.get(node.name) is _PASSIVE or node.state is _PASSIVE:
                 self._suspend(node, idle)  # it transmitted as (or is now) error passive
             if node.one_shot:
                 kind = o.detected[0] if o is not None and o.detected else "error"
                 self._fail_request(q, end, f"{kind} error (one-shot)")
-            elif node.state is ErrorState.BUS_OFF:
+            elif node.state is _BUS_OFF:
                 pass  # stays queued; offered again after recovery
             else:
                 q.retries += 1
@@ -852,7 +863,7 @@ class SimBus:
 
     # ------------------------------------------------------------------ fault confinement
     def _state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
-        if new is ErrorState.BUS_OFF:
+        if new is _BUS_OFF:
             self._busoff.add(node)
             self._sync(node)
             node.bus_off_count += 1
@@ -860,7 +871,7 @@ class SimBus:
             self._rec_nonzero.pop(node, None)
             if node.auto_recovery:
                 self._start_recovery(node)
-        elif old is ErrorState.PASSIVE and new is not ErrorState.PASSIVE:
+        elif old is _PASSIVE and new is not _PASSIVE:
             node._ready_at = 0
 
     def _recessive_count(self, now: int) -> int:
@@ -875,13 +886,13 @@ class SimBus:
         self.call_at(self._now + self.bits_to_ns(128 * 11), self._check_recovery, (node,))
 
     def _check_recovery(self, node: Node) -> None:
-        if node.state is not ErrorState.BUS_OFF:
+        if node.state is not _BUS_OFF:
             return
         done = self._recessive_count(self._now) - node._busoff_mark
         if done >= 128:
             old = node.state
             node.tec = node.rec = 0
-            node.state = ErrorState.ACTIVE
+            node.state = _ACTIVE
             self._busoff.discard(node)
             node._ready_at = 0
             node._cursor = self._log_base + len(self._log)
@@ -963,19 +974,35 @@ class SimBus:
         # nodes that read nothing since the last flush and whose FIFO is full only count
         # overruns: tallied per (identifier, sender) pair with C-level counting
         full = {n for n in lazy if n._cursor == base and len(n._fifo) >= n.rx_fifo_size}
+        total = len(log)
+        per_sender: Counter[Node] | None = None
         if full:
-            frames = list(map(_second, log))
-            keys = list(map(_key_of, frames))
-            pairs = Counter(zip(keys, map(_third, log)))
-            sample = dict(zip(keys, frames))
-            tally: dict[Node, int] = {}
-            for (k, sender), c in pairs.items():
-                for node in self._receivers_of(sample[k]):
-                    if node in full and (node is not sender or node.receive_own_messages):
-                        tally[node] = tally.get(node, 0) + c
-            for node, c in tally.items():
-                node._rx_overruns += c
+            # nodes that accept every identifier need only the count per sender (one C pass);
+            # filtered ones the count per (identifier, sender)
+            everything = [n for n in full if n.acceptance.accepts_all]
+            if everything:
+                per_sender = Counter(map(_third, log))
+                for node in everything:
+                    node._rx_overruns += total if node.receive_own_messages else total - per_sender.get(node, 0)
+            filtered = full.difference(everything)
+            if filtered:
+                frames = list(map(_second, log))
+                keys = list(map(_key_of, frames))
+                pairs = Counter(zip(keys, map(_third, log)))
+                sample = dict(zip(keys, frames))
+                tally: dict[Node, int] = {}
+                for (k, sender), c in pairs.items():
+                    for node in self._receivers_of(sample[k]):
+                        if node in filtered and (node is not sender or node.receive_own_messages):
+                            tally[node] = tally.get(node, 0) + c
+                for node, c in tally.items():
+                    node._rx_overruns += c
             lazy -= full
+        if lazy and any(not n.receive_own_messages for n in lazy):
+            # a node that only sent (and does not receive its own frames) has nothing to take
+            if per_sender is None:
+                per_sender = Counter(map(_third, log))
+            lazy = {n for n in lazy if n.receive_own_messages or per_sender.get(n, 0) != total}
         if not lazy:  # nobody else needs the entries one by one
             self._log_base = end
             self._log = []
