@@ -86,6 +86,12 @@ class NodeOutcome:
     rec_delta: int = 0
     rules: list[str] = field(default_factory=list)
     overload_flags: int = 0
+    tec0: int = 0  # the counters at the start of the attempt (the deltas apply to these)
+    rec0: int = 0
+    # (bit, tec_delta, rec_delta) wherever the counters cross a state boundary (warning 96,
+    # passive 128, bus off 256) inside the attempt: the engine applies them at their bit times,
+    # so a long episode (a stuck-dominant node) changes states when it should, not at its end
+    trail: list[tuple[int, int, int]] = field(default_factory=list)
 
 
 @dataclass
@@ -104,7 +110,7 @@ class _View:
     __slots__ = ("node", "out", "role", "req", "bits", "arb_end", "stuff", "dec", "phase", "flag_kind",
                  "flag_n", "flag_levels", "dom_run", "first_after", "delim_n", "im_n", "overloads",
                  "passive", "listen_only", "stuck", "deaf_ack", "ack_slot", "eof_last", "frame_done",
-                 "flag_had_dominant", "tec0", "rec0", "want_overloads")
+                 "flag_had_dominant", "tec0", "rec0", "want_overloads", "bit")
 
     def __init__(self, node: "Node", req: "TxRequest | None", stuck: int | None, deaf_ack: bool) -> None:
         self.node = node
@@ -137,6 +143,9 @@ class _View:
         self.flag_had_dominant = False
         self.tec0 = node.tec
         self.rec0 = node.rec
+        self.out.tec0 = node.tec
+        self.out.rec0 = node.rec
+        self.bit = 0  # the bit being processed (for the trail of state changes)
 
     def intended(self, b: int) -> int:
         """The level this node means to send (its transmitter may be stuck)."""
@@ -213,12 +222,14 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
             skip = max(1, min(horizon, MAX_ATTEMPT_BITS) - b)
             for v in views:
                 if v.phase == AFTER_FLAG:
+                    v.bit = b
                     _fast_dominant(v, skip)
             wire_bits.append("0" * (skip - 1))
             b += skip
             continue
         fl = flips.get(b, ())
         for v, d in zip(views, intended):
+            v.bit = b
             p = wire
             if fl is None or (fl and v.node in fl):
                 p ^= 1
@@ -268,6 +279,7 @@ def _bump(v: _View, amount: int, rule: str) -> None:
     """Add to TEC (transmitter) or REC (receiver); error passive and bus off take effect at once
     for the rest of the attempt (rules 9 and 10)."""
     out = v.out
+    before = _level(v.tec0 + out.tec_delta, v.rec0 + out.rec_delta)
     if v.role == "tx":
         out.tec_delta += amount
     else:
@@ -275,10 +287,21 @@ def _bump(v: _View, amount: int, rule: str) -> None:
     out.rules.append(rule)
     tec = v.tec0 + out.tec_delta
     rec = v.rec0 + out.rec_delta
+    if _level(tec, rec) != before:
+        out.trail.append((v.bit, out.tec_delta, out.rec_delta))
     if tec >= 256:
         v.phase = OFF
     elif tec >= 128 or rec >= 128:
         v.passive = True
+
+
+def _level(tec: int, rec: int) -> int:
+    """0 error active, 1 warning (>= 96), 2 error passive (>= 128), 3 bus off (TEC >= 256)."""
+    if tec >= 256:
+        return 3
+    if tec >= 128 or rec >= 128:
+        return 2
+    return 1 if tec >= 96 or rec >= 96 else 0
 
 
 def _fast_dominant(v: _View, skip: int) -> None:
@@ -293,7 +316,9 @@ def _fast_dominant(v: _View, skip: int) -> None:
         n = limit
     else:
         n = limit + -(-(n - limit) // 8) * 8
+    b0 = v.bit - start - 1  # the bit at which the dominant run would have been 0 long
     while n <= end and v.phase != OFF:
+        v.bit = b0 + n
         _bump(v, 8, "rule 6")
         n += 8
     v.dom_run = end
@@ -388,9 +413,15 @@ def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | 
                 _flag_done(v)
             return None
         if p == 1 and driven == 0:
-            # bit error while sending an active error flag or overload flag: rules 4 and 5
+            # bit error while sending an active error flag or overload flag: rules 4 and 5, and
+            # a new error flag from the next bit — a passive one once the counters reached 128
+            # (rule 9), so a node whose transmitter cannot drive the bus stops after 16 of them
             _bump(v, 8, "rule 4" if v.role == "tx" else "rule 5")
-            v.flag_n = 0
+            if v.phase == FLAG:
+                v.flag_kind = "passive" if (v.passive or v.listen_only) else "active"
+                v.flag_n = 0
+                v.flag_levels = []
+                v.flag_had_dominant = False
             return None
         v.flag_n += 1
         if v.flag_n >= 6:

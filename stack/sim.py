@@ -662,8 +662,21 @@ class SimBus:
         nodes = [n for n in self.nodes if n._on_bus]
         res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload)
         res.collision = collision
+        res.before = {n.name: n.state for n in nodes}  # the states the attempt was sent in
         self._tx = (txs, now, res)
         self._tx_end = now + self.bits_to_ns(res.bits)
+        # state changes inside the attempt happen at their bit times (rules 9 and 10 take effect
+        # at once); the counters' final values are applied when it completes
+        by_name = {n.name: n for n in nodes}
+        for name, o in res.outcomes.items():
+            for bit, dt, dr in o.trail:
+                if bit + 1 < res.bits:
+                    self.call_at(now + self.bits_to_ns(bit + 1), self._interim_counters,
+                                 (by_name[name], o.tec0 + dt, o.rec0 + dr))
+
+    def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
+        """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
+        node._set_counters(tec, rec, self._now)
 
     def _complete(self) -> None:
         txs, start, detail = self._tx
@@ -732,11 +745,11 @@ class SimBus:
         else:
             self.error_frames += 1
         # counters: error increments first, then rules 7 and 8 for successes
-        before = {name: by_name[name].state for name in outcomes}
+        before = getattr(res, "before", None) or {name: by_name[name].state for name in outcomes}
         for name, o in outcomes.items():
             node = by_name[name]
-            tec = node.tec + o.tec_delta
-            rec = node.rec + o.rec_delta
+            tec = o.tec0 + o.tec_delta
+            rec = o.rec0 + o.rec_delta
             if o.success:
                 tec = max(0, tec - 1)  # rule 7
             if o.accepted and o.detected is None:

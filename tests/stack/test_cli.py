@@ -69,7 +69,10 @@ def test_fault_demo_goes_passive_bus_off_and_recovers(capsys, tmp_path):
     out = capsys.readouterr().out
     import re
     assert re.search(r"ecu2 +error-warning -> error-passive", out)
-    assert re.search(r"ecu2 +error-active -> bus-off", out)
+    # the disconnected transmitter: warning at TEC 96 and passive at 128 within its first
+    # attempt (rules 3, 4, 9), then bus off at 256 (rule 10) after 16 passive attempts
+    assert re.search(r"ecu2 +error-active -> error-warning TEC +96.*\n.*ecu2 +error-warning -> error-passive TEC 128"
+                     r".*\n.*ecu2 +error-passive -> bus-off +TEC 256", out)
     assert re.search(r"ecu2 +bus-off -> error-active +TEC +0 REC +0", out)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -167,20 +167,55 @@ def test_rule_9_and_11_passive_at_128_and_back_to_active():
     assert a.tec == 127 and a.state is ErrorState.WARNING  # rule 11: active again (warning >= 96)
 
 
-def test_rule_10_stuck_recessive_transmitter_goes_bus_off():
-    # a's transmitter is disconnected: its SOF never reaches the wire; it reads recessive:
-    # bit error (rule 3), and again in every bit of its own error flag (rule 4) -> TEC >= 256
+def test_rule_10_stuck_recessive_transmitter_goes_passive_then_bus_off():
+    # a's transmitter is disconnected: its SOF never reaches the wire, it reads recessive: a bit
+    # error (rule 3: TEC 8), then one in every bit of its active error flag (rule 4: +8 each).
+    # At 96 it is error warning, at 128 error passive (rule 9): from then on its flag is a
+    # passive one, which completes (6 recessive bits), so the first attempt ends at TEC 128
+    # after 1 + 15 bit errors. Each later attempt is one SOF bit error, +8 (rule 3): 16 more
+    # attempts reach 256, bus off (rule 10) — 17 attempts in all.
     bus = SimBus(500_000)
     a, b = bus.node("a"), bus.node("b", auto_recovery=False)
     a.auto_recovery = False
     fi = FaultInjector(bus)
     fi.stuck("a", "recessive")
-    failed = []
-    a.listen(ErrorStateChanged, failed.append)
+    changes = []
+    a.listen(ErrorStateChanged, changes.append)
     a.send(F)
     bus.run(duration=2_000_000)
-    assert a.state is ErrorState.BUS_OFF and a.tec >= 256
-    assert failed[-1].new == "bus-off" and b.rec == 0 and bus.frames_ok == 0
+    assert [(c.old, c.new, c.tec) for c in changes] == [
+        ("error-active", "error-warning", 96), ("error-warning", "error-passive", 128),
+        ("error-passive", "bus-off", 256)]
+    bit = 2000  # ns at 500 kbit/s
+    # TEC 96 after the SOF error (bit 0) and 11 flag-bit errors (bits 1..11): at the end of bit 11
+    assert changes[0].time == 12 * bit and changes[1].time == 16 * bit
+    assert a.state is ErrorState.BUS_OFF and a.tec == 256 and bus.error_frames == 17
+    assert b.rec == 0 and bus.frames_ok == 0
+
+
+def test_state_changes_inside_a_long_episode_happen_at_their_bit_times():
+    # c is stuck dominant from 300 us for 100 ms: every node sees SOF then dominant bits — a
+    # stuff error at the 6th (bit 5 of the episode, rule 1: REC 1), its active flag (6 bits),
+    # then the first dominant bit after its flag (rule 2: +8 = 9) and rule 6 at the 8th one
+    # after the flag and each 8 more (+8 each). REC reaches 96 at 9 + 11 * 8 = 97: the 11th
+    # rule-6 increment, 8 * 10 bits after the first at the 8th dominant bit after the flag.
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    fi = FaultInjector(bus)
+    fi.stuck("c", "dominant", start=300_000, end=100_300_000)
+    changes = []
+    b.listen(ErrorStateChanged, changes.append)
+    bus.run(until=50_000_000)
+    # bits from the episode's SOF: stuff error at bit 5, flag bits 6..11, dominant run from 12;
+    # the 8th dominant bit after the flag is bit 19, the 11th increment bit 19 + 80 = 99
+    assert changes and changes[0].new == "error-warning" and changes[0].rec == 97
+    assert changes[0].time == 300_000 + 100 * 2000
+    assert changes[1].new == "error-passive" and changes[1].time == 300_000 + (99 + 32 + 1) * 2000
+    assert b.state is ErrorState.PASSIVE  # long before the episode ends at 100.3 ms
+    bus.run(until=200_000_000)
+    # the episode is 50,000 bits; the dominant run after the flag lasts bits 12..49,999 (49,988
+    # bits): rule 6 at runs 8, 16, ..., 49,984 = 6,248 increments. REC = 1 + 8 + 6,248 * 8
+    assert b.rec == 1 + 8 + 6248 * 8 and b.state is ErrorState.PASSIVE
 
 
 def test_rule_12_recovery_after_128_times_11_recessive_bits():
