@@ -86,8 +86,8 @@ class NodeOutcome:
     rec_delta: int = 0
     rules: list[str] = field(default_factory=list)
     overload_flags: int = 0
-    tec0: int = 0  # the counters at the start of the attempt (the deltas apply to these)
-    rec0: int = 0
+    tec0: int = 0  # the counters the deltas apply to: at the start of the attempt, with rule 7
+    rec0: int = 0  # (transmitter's success) or rule 8 (reception) applied when they happened
     # (bit, tec_delta, rec_delta) wherever the counters cross a state boundary (warning 96,
     # passive 128, bus off 256) inside the attempt: the engine applies them at their bit times,
     # so a long episode (a stuck-dominant node) changes states when it should, not at its end
@@ -166,15 +166,19 @@ class _View:
 
 
 def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips: dict[int, Any],
-                     stuck: dict["Node", tuple[int, int | None]] | None = None, deaf_ack: Iterable["Node"] = (),
-                     overload: dict["Node", int] | None = None) -> AttemptResult:
+                     stuck: dict["Node", tuple[int, ...]] | None = None, deaf_ack: Iterable["Node"] = (),
+                     overload: dict["Node", int] | None = None,
+                     leave: dict["Node", int] | None = None) -> AttemptResult:
     """Replay one attempt bit by bit for every node on the bus.
 
     ``flips`` maps a bit position (from SOF) to the nodes that perceive that bit inverted (a set
     of nodes, or None for every node: a global error). ``stuck`` maps nodes to (level, release):
     the level they force (0: stuck dominant, 1: stuck recessive / transmitter disconnected) until
     bit ``release`` of the attempt (for good if None; an attempt then ends after
-    MAX_ATTEMPT_BITS); ``deaf_ack`` nodes never acknowledge.
+    MAX_ATTEMPT_BITS), optionally (level, release, onset) for a fault that starts at bit
+    ``onset`` of the attempt; ``deaf_ack`` nodes never acknowledge; ``leave`` maps nodes to the
+    bit at which they are disconnected from the bus (they neither drive nor receive from then
+    on: a transmitter's frame is cut off there).
     ``overload`` maps receivers that need a delay to the number of overload frames (1 or 2)
     they send after the frame, starting at the first intermission bit.
     Counter changes are returned per node (``tec_delta``/``rec_delta``), not applied.
@@ -183,8 +187,14 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     deaf = set(deaf_ack)
     txs = list(txs)
     tx_nodes = {q.node: q for q in txs}
-    views = [_View(n, tx_nodes.get(n), stuck[n][0] if n in stuck else None, n in deaf) for n in nodes]
+    onset_of = {n: (spec[2] if len(spec) > 2 else 0) for n, spec in stuck.items()}
+    views = [_View(n, tx_nodes.get(n), stuck[n][0] if n in stuck and onset_of[n] <= 0 else None, n in deaf)
+             for n in nodes]
     release = {v: stuck[v.node][1] for v in views if v.node in stuck}
+    # faults that begin inside the attempt: (bit, view, what)
+    pending = sorted([(onset_of[v.node], i, "stuck") for i, v in enumerate(views)
+                      if v.node in stuck and onset_of[v.node] > 0]
+                     + [(leave[v.node], i, "leave") for i, v in enumerate(views) if leave and v.node in leave])
     for v in views:
         v.want_overloads = (overload or {}).get(v.node, 0)
     wire_bits: list[str] = []
@@ -192,6 +202,8 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     first_flag_bit: int | None = None
     winner_view = None
     b = _common_prefix(txs, views, flips, stuck)
+    if pending:
+        b = min(b, pending[0][0])  # the views part from the bit a fault begins
     if b:
         # every node saw the same clean bits so far: decode them once and share the state
         dec = BitDecoder()
@@ -202,6 +214,15 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
             v.dec = dec.clone()
         wire_bits.append(prefix)
     while b < MAX_ATTEMPT_BITS:
+        while pending and pending[0][0] <= b:
+            _, i, what = pending.pop(0)
+            v = views[i]
+            if what == "stuck":
+                v.stuck = stuck[v.node][0]
+            else:  # disconnected: off the wire from this bit, its frame unfinished
+                v.phase = OFF
+                v.stuck = None
+                release.pop(v, None)
         if release:
             for v, end_bit in list(release.items()):
                 if end_bit is not None and b >= end_bit:
@@ -218,7 +239,8 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
         if wire == 0 and holders and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
             # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits, to
             # the first release (or to the end of the attempt for a fault that never ends)
-            horizon = min((h for h in holders if h is not None), default=MAX_ATTEMPT_BITS)
+            horizon = min([h for h in holders if h is not None] + [p[0] for p in pending[:1]],
+                          default=MAX_ATTEMPT_BITS)
             skip = max(1, min(horizon, MAX_ATTEMPT_BITS) - b)
             for v in views:
                 if v.phase == AFTER_FLAG:
@@ -388,6 +410,9 @@ def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | 
                 return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)
             if b == v.eof_last:
                 out.success = True
+                # rule 7 at this bit: later increments (an overload episode) add to it
+                tec = max(0, v.tec0 + out.tec_delta - 1)
+                v.tec0 = out.tec0 = tec - out.tec_delta
                 v.phase = INTERMISSION
                 v.im_n = 0
             return None
@@ -484,6 +509,10 @@ def _rx_result(v: _View, b: int, res: Any) -> tuple[str, str, int, int] | None:
     out = v.out
     if res.error is None:
         out.accepted = True
+        # rule 8 at acceptance: later increments (an overload episode) add to it
+        rec = v.rec0 + out.rec_delta
+        rec = rec - 1 if 1 <= rec <= 127 else (127 if rec > 127 else rec)
+        v.rec0 = out.rec0 = rec - out.rec_delta
         out.frame = res.frame
         out.accept_bit = b - 1  # valid at the last-but-one EOF bit
         v.frame_done = True

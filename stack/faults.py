@@ -6,9 +6,10 @@ dominant, stuck recessive (a disconnected transmitter), disconnect/reconnect, a 
 acknowledges, and a babbling idiot. Any attempt a fault touches is replayed bit by bit by
 `stack.errors`, so detection, error frames and fault confinement follow from each node's view.
 
-Random bit errors hit the bits of frames (SOF..EOF), not idle time or error frames; a stuck
-dominant fault that starts while the bus is idle starts an attempt of its own (every node sees
-a SOF followed by dominant bits).
+Random bit errors hit the bits of frames (SOF..EOF), not idle time or error frames. A stuck
+fault or a disconnect that begins while a frame is on the wire takes effect at its bit of that
+frame; a stuck-dominant fault on an idle bus starts an attempt of its own (every node sees a
+SOF followed by dominant bits), at once or when the bus goes idle.
 """
 
 from __future__ import annotations
@@ -27,6 +28,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from .sim import SimBus
 
 __all__ = ["FaultInjector", "FIELD_GROUPS", "FlipRule"]
+
+# bits after a frame that an attempt can still take: an error flag with superposition (12),
+# the error delimiter (8) and intermission (3), with room to spare
+ATTEMPT_MARGIN_BITS = 32
 
 # field groups a user names, in wire order; exact field names are accepted too
 FIELD_GROUPS: dict[str, tuple[Field, ...]] = {
@@ -121,6 +126,7 @@ class FaultInjector:
         self._stuck: list[_Stuck] = []
         self._deaf: set[Node] = set()
         self._overload: dict[Node, int] = {}
+        self._leaves: list[tuple[Node, int]] = []  # (node, time) of scheduled disconnects
         self.injected = 0
 
     # ------------------------------------------------------------------ configuration
@@ -206,6 +212,8 @@ class FaultInjector:
     def disconnect(self, node: Node | str, at: int, reconnect_at: int | None = None) -> None:
         """Take the node off the bus at ``at`` ns, and back at ``reconnect_at`` if given."""
         n = self._node(node)
+        # an attempt on the wire at ``at`` sees the node vanish at that bit (see attempt)
+        self._leaves.append((n, int(at)))
         self.bus.call_at(int(at), self.bus.disconnect, (n,))
         if reconnect_at is not None:
             if reconnect_at <= at:
@@ -247,14 +255,27 @@ class FaultInjector:
         self._countdown[key] = c - length
         return out
 
-    def _stuck_now(self, now: int) -> dict[Node, tuple[int, int | None]]:
-        """Nodes stuck at ``now``: level and the bit (from now) where each fault ends."""
-        stuck: dict[Node, tuple[int, int | None]] = {}
+    def _bits_after(self, now: int, t: int) -> int:
+        """The bit of an attempt starting at ``now`` during which time ``t`` falls (rounded up)."""
+        return -(-(t - now) * self.bus.bitrate // 1_000_000_000)
+
+    def _stuck_now(self, now: int, horizon: int = 0) -> dict[Node, tuple[int, ...]]:
+        """Nodes stuck at ``now``, or from a bit of the attempt starting now within ``horizon``
+        ns: (level, the bit where the fault ends or None[, the bit where it starts])."""
+        stuck: dict[Node, tuple[int, ...]] = {}
         for s in self._stuck:
-            if s.start <= now and (s.end is None or now < s.end) and s.node.connected:
-                end = None if s.end is None else -(-(s.end - now) * self.bus.bitrate // 1_000_000_000)
-                stuck[s.node] = (s.level, end)
+            if s.start < now + horizon + 1 and (s.end is None or now < s.end) and s.node.connected:
+                end = None if s.end is None else self._bits_after(now, s.end)
+                if s.start <= now:
+                    stuck[s.node] = (s.level, end)
+                elif s.node not in stuck:
+                    stuck[s.node] = (s.level, end, self._bits_after(now, s.start))
         return stuck
+
+    def _leaving(self, now: int, horizon: int) -> dict[Node, int]:
+        """Nodes `disconnect` takes off the bus during the attempt starting now: the bit."""
+        return {n: self._bits_after(now, at) for n, at in self._leaves
+                if now < at <= now + horizon and n.connected}
 
     def attempt(self, bus: "SimBus", now: int, txs: Sequence["TxRequest"]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
@@ -278,22 +299,37 @@ class FaultInjector:
             if n._on_bus:
                 for p in self._random_positions(n, rate, length):
                     _add_flip(flips, p, frozenset((n,)))
-        stuck = self._stuck_now(now) if self._stuck else {}
+        # faults that begin while this attempt is on the wire are part of it: the frame, its
+        # error signalling and intermission (a longer attempt misses only faults starting later)
+        horizon = bus.bits_to_ns(length + ATTEMPT_MARGIN_BITS)
+        stuck = self._stuck_now(now, horizon) if self._stuck else {}
+        leave = self._leaving(now, horizon) if self._leaves else {}
         deaf = [n for n in self._deaf if n._on_bus]
         overload = {n: k for n, k in self._overload.items() if n._on_bus and all(q.node is not n for q in txs)}
-        if not flips and not stuck and not deaf and not overload:
+        if not flips and not stuck and not deaf and not overload and not leave:
             return None
         self.injected += len(flips)
-        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "overload": overload or None}
+        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "overload": overload or None,
+                "leave": leave or None}
 
     def _disturb(self) -> None:
-        """A stuck-dominant fault starting on an idle bus: every node sees a SOF."""
+        """A stuck-dominant fault starting on an idle bus: every node sees a SOF. On a busy bus
+        the attempt on the wire carries it; if it is still on when the bus is idle again (and
+        no frame starts then, which would carry it too), it starts an attempt of its own."""
         bus = self.bus
+        now = bus.now()
         if bus._tx is not None:
-            return  # the next attempt will carry it
-        stuck = self._stuck_now(bus.now())
-        if any(level == 0 for level, _ in stuck.values()):
-            bus._bitlevel(bus.now(), (), stuck=stuck, deaf=[n for n in self._deaf if n._on_bus])
+            bus.call_at(max(bus._tx_end + bus._ifs_ns, now + 1), self._disturb, ())
+            return
+        stuck = self._stuck_now(now)
+        if not any(spec[0] == 0 for spec in stuck.values()):
+            return
+        if now < bus._idle_at:
+            bus.call_at(bus._idle_at, self._disturb, ())  # in the intermission
+            return
+        if any(bus._valid(e[2]) and e[2].node._ready_at <= now for e in bus._contenders):
+            return  # arbitration starts now and carries the fault
+        bus._bitlevel(now, (), stuck=stuck, deaf=[n for n in self._deaf if n._on_bus])
 
 
 def _add_flip(flips: dict[int, Any], pos: int, nodes: frozenset[Node] | None) -> None:

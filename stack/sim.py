@@ -517,7 +517,11 @@ class SimBus:
         pending = [n for n in self.nodes if n._on_bus and n.head is not None]
         if not pending:
             return False
-        deaf = self._faults._deaf if self._faults is not None else ()
+        deaf: set[Node] = set()
+        if self._faults is not None:
+            deaf |= self._faults._deaf
+            # a transmitter stuck recessive for good cannot drive the ACK slot either
+            deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None}
         ackers = [n for n in self.nodes if n._on_bus and not n.listen_only and n not in deaf]
         return all(not any(a is not p for a in ackers) for p in pending)
 
@@ -655,12 +659,12 @@ class SimBus:
     def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
                   stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
                   collision: bool = False,
-                  overload: dict[Node, int] | None = None) -> None:
+                  overload: dict[Node, int] | None = None, leave: dict[Node, int] | None = None) -> None:
         """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
         from .errors import simulate_attempt
 
         nodes = [n for n in self.nodes if n._on_bus]
-        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload)
+        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
         res.collision = collision
         res.before = {n.name: n.state for n in nodes}  # the states the attempt was sent in
         self._tx = (txs, now, res)
@@ -744,17 +748,12 @@ class SimBus:
             self.frames_ok += 1
         else:
             self.error_frames += 1
-        # counters: error increments first, then rules 7 and 8 for successes
+        # counters: the error increments (rules 1-6) on the bases of rules 7 and 8
         before = getattr(res, "before", None) or {name: by_name[name].state for name in outcomes}
         for name, o in outcomes.items():
             node = by_name[name]
-            tec = o.tec0 + o.tec_delta
-            rec = o.rec0 + o.rec_delta
-            if o.success:
-                tec = max(0, tec - 1)  # rule 7
-            if o.accepted and o.detected is None:
-                rec = rec - 1 if 1 <= rec <= 127 else (127 if rec > 127 else rec)  # rule 8
-            node._set_counters(tec, rec, end)
+            # the bases carry rules 7 and 8 applied at the bit where they happened
+            node._set_counters(o.tec0 + o.tec_delta, o.rec0 + o.rec_delta, end)
         for q in txs:
             node = q.node
             o = outcomes.get(node.name)

@@ -460,6 +460,89 @@ def test_run_guards_against_endless_retransmission():
     assert bus2.trace == []
 
 
+def test_run_guard_counts_a_stuck_recessive_node_as_unable_to_ack():
+    bus = SimBus()
+    a, b = bus.node("a"), bus.node("b")
+    FaultInjector(bus).stuck("b", "recessive")
+    a.send(F)
+    with pytest.raises(ValueError, match="never end"):
+        bus.run()
+
+
+def test_transmitter_disconnected_mid_frame_loses_its_frame():
+    # a leaves the bus at bit 25 of its frame: from there the wire is recessive, so b finds a
+    # stuff error at the sixth recessive bit in a row (worked out from the frame's bits), and
+    # nobody receives the frame; a sends it again after it reconnects
+    f = Frame(0x100, b"\x01" * 8)
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    FaultInjector(bus).disconnect("a", at=25 * 2000, reconnect_at=5_000_000)
+    a.send(f)
+    bus.run(until=2_000_000)
+    wire = f.bits.bits[:25] + "1" * 20
+    expect = next(i for i in range(5, len(wire)) if wire[i - 5:i + 1] == "111111")
+    err = bus.trace[0]
+    assert err.kind == "error" and err.detail["error"] == "stuff" and err.detail["seen_by"] == "b"
+    assert err.detail["bit"] == expect and b.recv() is None and a.tx_frames == 0
+    bus.run(until=10_000_000)
+    assert b.recv() == (bus.trace[-1].end, f) and bus.trace[-1].start == 5_000_000
+
+
+def test_stuck_dominant_starting_mid_frame_is_a_bit_error_at_its_bit():
+    # a one-bit stuck-dominant pulse on a recessive data bit after bit 35 that is not a stuff
+    # bit and makes no run of six dominant bits: the transmitter reads dominant where it sent
+    # recessive (a bit error there, rule 3); the receivers see a valid-looking bit and then the
+    # transmitter's error flag
+    f = Frame(0x100, b"\x01" * 8)
+    bits = f.bits.bits
+    r = next(i for i in range(35, len(bits)) if bits[i] == "1"
+             and "000000" not in bits[i - 5:i] + "0" + bits[i + 1:i + 6])
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    FaultInjector(bus).stuck("c", "dominant", start=r * 2000, end=(r + 1) * 2000)
+    a.send(f)
+    bus.run(until=2_000_000)
+    err = bus.trace[0]
+    assert err.kind == "error" and err.detail["error"] == "bit" and err.detail["bit"] == r
+    assert err.detail["seen_by"] == "a" and a.tec == 8 - 1  # rule 3, then rule 7 on the resend
+    assert bus.trace[1].kind == "frame" and b.recv()[1] == f
+
+
+def test_stuck_dominant_starting_on_an_idle_bus_after_a_frame():
+    # the fault begins 5 bits after the frame's EOF (intermission done, nothing queued): an
+    # episode of its own from that bit — every node sees a SOF and then dominant bits
+    f = Frame(0x100, b"\x01" * 8)
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    eof_end = f.bits.length * 2000
+    FaultInjector(bus).stuck("c", "dominant", start=eof_end + 5 * 2000, end=eof_end + 2_000_000)
+    a.send(f)
+    bus.run(until=10_000_000)
+    assert [r.kind for r in bus.trace] == ["frame", "error"]
+    assert bus.trace[1].start == eof_end + 5 * 2000 and bus.trace[1].detail["error"] == "stuff"
+
+
+def test_stuck_dominant_in_the_intermission_is_an_overload_then_rule_6():
+    # dominant at the 2nd intermission bit: an overload flag (no error, so no rule 1 or 2),
+    # then the dominant run after the flag counts rule 6. The frame was received before it:
+    # rule 8 applies to REC 0 (stays 0), then each rule-6 increment adds 8
+    f = Frame(0x100, b"\x01" * 8)
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    eof_end = f.bits.length * 2000
+    hold = 1000  # bits of dominant from the 2nd intermission bit
+    FaultInjector(bus).stuck("c", "dominant", start=eof_end + 2000, end=eof_end + 2000 + hold * 2000)
+    a.send(f)
+    bus.run(until=10_000_000)
+    assert b.recv()[1] == f and bus.frames_ok == 1
+    # overload flag: 6 bits of the 1000; dominant run after it: 994 bits, rule 6 at runs 8, 16,
+    # ..., 992 = 124 increments
+    assert b.rec == c.rec == 124 * 8
+    # the transmitter (TEC 0 after rule 7) counts them too: the 32nd increment is TEC 256, bus
+    # off (rule 10) inside the episode; it recovers after it (rule 12: counters back to 0)
+    assert a.bus_off_count == 1 and a.state is ErrorState.ACTIVE and a.tec == 0
+
+
 def test_bad_node_fault_specifications():
     bus = SimBus()
     bus.node("a")
