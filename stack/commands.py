@@ -120,20 +120,44 @@ def format_summary(bus: SimBus) -> str:
     return "\n".join(lines)
 
 
+def _check_output(path: str, option: str) -> None:
+    """An output file named on the command line: checked before a run, so that a long
+    simulation does not end in an error with nothing written."""
+    import os
+
+    if not path:
+        raise CliError(f"{option} needs a file name")
+    if os.path.isdir(path):
+        raise CliError(f"{option} {path!r} is a directory, not a file")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise CliError(f"{option} {path!r}: directory {parent!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise CliError(f"{option} {path!r}: directory {parent!r} is not writable")
+
+
 def _demo(args: argparse.Namespace) -> int:
     if args.interface:
         if args.faults or args.plot:
             raise CliError("--faults needs the simulated bus (fault injection is a simulation feature)")
+        for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--json", args.json or None)):
+            if val is not None:
+                raise CliError(f"{opt} needs the simulated bus (the trace is the simulation's); "
+                               "on a python-can bus record with python -m can.logger")
         from .driver import run_demo_on_bus
 
-        print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration))
+        kw = {} if args.bitrate is None else {"bitrate": args.bitrate}
+        print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration, **kw))
         return 0
+    for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--plot", args.plot)):
+        if val is not None:
+            _check_output(val, opt)
     if args.trace:
         from .trace import _check_suffix
         _check_suffix(args.trace)
     if args.plot and not args.faults:
         raise CliError("--plot draws the fault demo's counters: use it with --faults")
-    bus = SimBus(args.bitrate, seed=args.seed, record=True)
+    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=True)
     if args.faults:
         from .events import ErrorStateChanged
 
@@ -240,7 +264,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add `demo` and `frame`."""
     p = sub.add_parser("demo", help="run the demo network on the simulated bus and print a summary")
     p.add_argument("--duration", type=_duration, default=1.0, help="simulated seconds (default 1)")
-    p.add_argument("--bitrate", type=_bitrate, default=500_000, help="bit/s (default 500000)")
+    p.add_argument("--bitrate", type=_bitrate, default=None,
+                   help="bit/s (default 500000; on --interface, passed to the bus when given)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
     p.add_argument("--vcd", metavar="FILE", help="write the bus as a CAN_RX waveform (VCD, 16 samples a bit)")

@@ -15,6 +15,7 @@ SOF followed by dominant bits), at once or when the bus goes idle.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
@@ -80,7 +81,8 @@ def _group_positions(frame: Frame, fields: tuple[Field, ...], group: str) -> lis
 @dataclass
 class FlipRule:
     """Flip one bit of the ``occurrence``-th attempt (1-based) of frames matching ``can_id``
-    (any frame if None); ``every`` flips every matching attempt from then on."""
+    (any frame if None) that have that bit; ``every`` flips every such attempt from then on.
+    Matching frames without the bit are counted in ``skipped`` and warned about once."""
 
     can_id: int | None
     extended: bool | None
@@ -92,6 +94,13 @@ class FlipRule:
     every: bool = False
     seen: int = 0
     fired: int = 0
+    skipped: int = 0  # matching frames that have no such bit (not counted as occurrences)
+
+    def width(self, frame: Frame) -> int:
+        """How many bits of this rule's field ``frame`` has."""
+        if self.fields is None:
+            return frame.bits.length
+        return len(_group_positions(frame, self.fields, self.group))
 
     def position(self, frame: Frame) -> int | None:
         """The stuffed position (from SOF) this rule flips in ``frame``, or None if the frame
@@ -285,12 +294,20 @@ class FaultInjector:
             if rule.can_id is not None and (frame.can_id != rule.can_id or
                                             (rule.extended is not None and frame.extended != rule.extended)):
                 continue
+            pos = rule.position(frame)
+            if pos is None:
+                # this frame has no such bit (a data bit beyond its length, an ID_EXT bit of a
+                # standard frame): not an occurrence; said once per rule, not silently dropped
+                rule.skipped += 1
+                if rule.skipped == 1:
+                    warnings.warn(f"flip of bit {rule.bit} of {rule.group}: frame {frame!r} has only "
+                                  f"{rule.width(frame)} such bits; frames without it are skipped and do "
+                                  "not count as occurrences", RuntimeWarning, stacklevel=2)
+                continue
             rule.seen += 1
             if rule.seen == rule.occurrence or (rule.every and rule.seen >= rule.occurrence):
-                pos = rule.position(frame)
-                if pos is not None:
-                    rule.fired += 1
-                    _add_flip(flips, pos, rule.nodes)
+                rule.fired += 1
+                _add_flip(flips, pos, rule.nodes)
         length = frame.bits.length
         if self._ber_global:
             for p in self._random_positions(None, self._ber_global, length):

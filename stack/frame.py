@@ -40,6 +40,11 @@ def arbitration_key(can_id: int, extended: bool, remote: bool) -> int:
     return (can_id << 21) | (int(remote) << 20)
 
 
+def _hex(v: int) -> str:
+    """0x-hex for a value in an error message (a negative one as -0x..)."""
+    return f"0x{v:X}" if v >= 0 else f"-0x{-v:X}"
+
+
 class Frame:
     """A CAN 2.0 data or remote frame: identifier, format, DLC 0..15 and data.
 
@@ -75,7 +80,7 @@ class Frame:
         if not 0 <= can_id <= limit:
             fmt = "extended (29-bit)" if extended else "standard (11-bit)"
             raise ValueError(
-                f"identifier 0x{can_id:X} out of range for a {fmt} frame: must be 0..0x{limit:X}"
+                f"identifier {_hex(can_id)} out of range for a {fmt} frame: must be 0..0x{limit:X}"
             )
         try:
             payload = bytes(data)

@@ -862,7 +862,11 @@ class SimBus:
             from .frame import Frame as _F
             rec = TraceRecord(kind, start, end, "", _F(0), res.bits, 0, start, detail)
         else:
-            rec = TraceRecord(kind, start, end, "+".join(q.node.name for q in txs), w.frame, res.bits,
+            # the sender: every transmitter that got its frame through (identical frames from
+            # several nodes), else every one that tried
+            ok = [q.node.name for q in txs if getattr(res.outcomes.get(q.node.name), "success", False)]
+            names = ok if res.winner is not None and ok else [q.node.name for q in txs]
+            rec = TraceRecord(kind, start, end, "+".join(names), w.frame, res.bits,
                               w.losses, w.t_queued, detail if (first or kind != "frame") else None)
         self.trace.append(rec)
         for cb in self._bus_listeners:

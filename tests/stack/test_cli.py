@@ -54,6 +54,12 @@ def test_frame_remote_extended(capsys):
     (["demo", "--duration", "-1"], "--duration"),
     (["demo", "--plot", "x.png"], "use it with --faults"),
     (["nosuchcommand"], "invalid choice"),
+    (["frame", "--id", "-1"], "identifier -0x1 out of range"),
+    (["demo", "--trace", "/nonexistent-dir/x.asc"], "'/nonexistent-dir' does not exist"),
+    (["demo", "--trace", ""], "--trace needs a file name"),
+    (["demo", "--vcd", "/"], "is a directory"),
+    (["demo", "--interface", "virtual", "--trace", "x.asc"], "--trace needs the simulated bus"),
+    (["demo", "--interface", "virtual", "--json"], "--json needs the simulated bus"),
 ])
 def test_bad_input_is_one_line_and_status_2(args, needle):
     p = run_cli(*args)

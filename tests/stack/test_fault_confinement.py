@@ -557,3 +557,19 @@ def test_bad_node_fault_specifications():
         fi.flip(occurrence=0)
     with pytest.raises(ValueError, match="already has a fault injector"):
         FaultInjector(bus)
+
+
+def test_flip_of_a_bit_the_frame_does_not_have_is_reported_and_not_an_occurrence():
+    # data bit 40 needs 6 data bytes: the 2-byte frame has 16 data bits; the 8-byte one has it
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    fi = FaultInjector(bus)
+    rule = fi.flip(can_id=0x123, field="data", bit=40)
+    a.send(F)
+    with pytest.warns(RuntimeWarning, match=r"bit 40 of data: frame .* has only 16 such bits"):
+        bus.run(frames=1)
+    assert rule.skipped == 1 and rule.seen == 0 and rule.fired == 0 and bus.error_frames == 0
+    a.send(Frame(0x123, bytes(8)))
+    bus.run(frames=1)
+    # the flipped attempt and its clean retransmission are occurrences 1 and 2
+    assert rule.seen == 2 and rule.fired == 1 and bus.error_frames == 1

@@ -11,7 +11,7 @@ def test_identifier_out_of_range_names_value_and_limit(can_id, extended):
     with pytest.raises(ValueError) as exc:
         Frame(can_id, extended=extended)
     msg = str(exc.value)
-    assert f"0x{can_id:X}" in msg or str(can_id) in msg
+    assert (f"0x{can_id:X}" if can_id >= 0 else f"-0x{-can_id:X}") in msg
     assert ("0x7FF" if not extended else "0x1FFFFFFF") in msg
 
 

@@ -109,6 +109,12 @@ def test_remote_frames_same_id_different_dlc_collide_and_are_reported():
     assert rec.kind == "collision" and rec.detail["field"] == "DLC"
     # DLC 0001 vs 0010: b sends recessive first (bit 2 of DLC) and sees the bit error
     assert rec.detail["seen_by"] == "b" and rec.detail["bit"] == Frame(0x55, remote=True, dlc=1).bits.position(Field.DLC, 2)
+    # both count +8 per collision (rule 3); at 128 b is error passive, its passive flag no
+    # longer destroys a's frame: that attempt is a's frame alone, recorded with a as sender
+    bus.run(duration=5_000_000)
+    first = next(r for r in bus.trace if r.kind == "frame")
+    assert first.sender == "a" and first.frame == Frame(0x55, remote=True, dlc=1)
+    assert first.detail["states"] == "b:error-warning->error-passive"
 
 
 def test_identical_frames_from_two_nodes_both_succeed():
