@@ -66,6 +66,7 @@ class PyCanDriver:
         self._log_base = 0  # Node's fault-confinement bookkeeping
         self.lock = threading.RLock()
         self._t0 = time.monotonic_ns()
+        self._epoch0 = time.time()  # the wall-clock time of _t0, to read the buses' timestamps
         self._timers: list[tuple[int, int, Timer]] = []
         self._seq = 0
         self._ready: deque[Node] = deque()
@@ -207,8 +208,20 @@ class PyCanDriver:
                 time.sleep(0.05)
                 continue
             if msg is not None:
-                inbox.append((self.now(), node, msg))
+                inbox.append((self._stamp(msg), node, msg))
                 self._wake.set()
+
+    def _stamp(self, msg: can.Message) -> int:
+        """A received frame's time on this driver's clock: the bus's own timestamp (the kernel's
+        for SocketCAN, the wire time for canstack) when it is a wall-clock time near now, else
+        the time it reached this thread."""
+        now = self.now()
+        ts = msg.timestamp
+        if ts:
+            t = int((ts - self._epoch0) * 1e9)
+            if now - 2_000_000_000 < t <= now + 1_000_000:
+                return t
+        return now
 
     def _loop(self) -> None:
         timers = self._timers

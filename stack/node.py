@@ -153,7 +153,15 @@ class Node:
     ) -> None:
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
-        self.name = str(name)
+        if not isinstance(name, str) or not name or not name.isprintable() or any(c.isspace() for c in name):
+            raise ValueError(f"node name {name!r}: a non-empty name without spaces or control characters")
+        for opt, val in (("abort", abort), ("receive_own_messages", receive_own_messages),
+                         ("listen_only", listen_only), ("one_shot", one_shot), ("auto_recovery", auto_recovery)):
+            if not isinstance(val, bool):
+                raise ValueError(f"{opt} {val!r} must be True or False")
+        if mailboxes is not None and (isinstance(mailboxes, bool) or not isinstance(mailboxes, int) or mailboxes < 1):
+            raise ValueError(f"mailboxes {mailboxes!r}: a controller has at least 1 transmit mailbox")
+        self.name = name
         self.queue = make_queue(queue, capacity=tx_queue_size, mailboxes=mailboxes, abort=abort)
         self.acceptance = AcceptanceFilter(filters)
         self._fifo: deque[tuple[int, Frame, Any]] = deque()

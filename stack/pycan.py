@@ -64,6 +64,8 @@ _STATE_MAP = {
     ErrorState.BUS_OFF: can.BusState.ERROR,
 }
 _NODE_OPTIONS = ("queue", "mailboxes", "abort", "tx_queue_size", "listen_only", "one_shot")
+_BOOL_OPTIONS = ("abort", "listen_only", "one_shot")
+_BOOL_WORDS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
 
 
 class InvalidFrame(can.CanOperationError):
@@ -438,7 +440,15 @@ class CanstackBus(can.BusABC):
             raise can.CanInitializationError("fd=True: a canstack bus is CAN 2.0 (classic) only")
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise can.CanInitializationError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
+        if kwargs.get("data_bitrate") is not None:
+            raise can.CanInitializationError(
+                f"data_bitrate {kwargs['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase")
         config = {k: kwargs.pop(k) for k in _NODE_OPTIONS if k in kwargs}
+        for k, v in list(config.items()):  # python-can config files give every option as a string
+            if isinstance(v, str) and k in _BOOL_OPTIONS and v.lower() in _BOOL_WORDS:
+                config[k] = _BOOL_WORDS[v.lower()]
+            elif isinstance(v, str) and k in ("mailboxes", "tx_queue_size") and v.strip().isdigit():
+                config[k] = int(v)
         for k in list(kwargs):  # options python-can's config files pass to every interface
             if k in ("data_bitrate", "app_name", "serial", "poll_interval", "single_handle"):
                 kwargs.pop(k)
@@ -525,6 +535,8 @@ class CanstackBus(can.BusABC):
         self._port.send(frame)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        # after shutdown recv returns None (a Notifier thread still polling while its bus is
+        # shut down, as cantools' Tester does at teardown, must not die with an exception)
         try:
             item = self._rxq.get(timeout=timeout) if timeout is None or timeout > 0 else self._rxq.get_nowait()
         except queue.Empty:

@@ -346,6 +346,30 @@ class _Session:
         self.server._detach(self)
 
 
+def _claim_unix_path(path: str) -> None:
+    """Make ``path`` free for a new unix socket: a stale socket (nobody listening) is removed;
+    anything else — a regular file, a directory, a socket a running server listens on — is an
+    error, never deleted."""
+    import stat
+
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise ValueError(f"unix socket path {path!r} exists and is not a socket: not replacing it")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(0.5)
+        probe.connect(path)
+    except OSError:
+        os.unlink(path)  # stale: left by a server that did not close
+        return
+    finally:
+        probe.close()
+    raise ValueError(f"unix socket path {path!r} is in use by a running server")
+
+
 class BusServer:
     """A simulated bus in real time served to python-can clients over TCP or a unix socket.
 
@@ -378,10 +402,10 @@ class BusServer:
                 raise ValueError("unix sockets are not available on this system")
             if not os.path.isabs(unix):
                 raise ValueError(f"unix socket path {unix!r} must be absolute")
-            if os.path.exists(unix):
-                os.unlink(unix)
+            _claim_unix_path(unix)
             self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             self.sock.bind(unix)
+            self._socket_ino = os.stat(unix).st_ino  # close() removes only its own socket
             self.url = f"unix://{unix}/{name}"
             self.address = unix
         self.sock.listen(64)
@@ -461,7 +485,8 @@ class BusServer:
         self.sock.close()
         if isinstance(self.address, str):
             try:
-                os.unlink(self.address)
+                if os.stat(self.address).st_ino == self._socket_ino:
+                    os.unlink(self.address)
             except OSError:
                 pass
         self.runner.stop()

@@ -168,3 +168,26 @@ def _has_vcan0() -> bool:
 def test_demo_runs_on_vcan0():
     text = run_demo_on_bus("socketcan", "vcan0", 0.3)
     assert "0x0A0" in text and "callback error" not in text
+
+
+def test_received_times_are_the_buses_timestamps():
+    # on a canstack python-can bus every frame is stamped with its wire end time: two
+    # back-to-back 8-byte frames at 500 kbit/s arrive one frame time apart (stuffed length +
+    # 3 bits of intermission), whatever the reader thread's wake-ups
+    import stack.pycan  # noqa: F401  (registers interface="canstack")
+
+    ch = f"drvts{os.getpid()}"
+    frame = Frame(0x123, bytes(8))
+    got = []
+    with can.Bus(interface="canstack", channel=ch, bitrate=500_000) as tx, \
+            PyCanDriver(interface="canstack", channel=ch, bitrate=500_000) as drv:
+        node = drv.node("n")
+        node.subscribe(got.append)
+        tx.send(frame.to_message())
+        tx.send(frame.to_message())
+        end = time.monotonic() + 2.0
+        while len(got) < 2 and time.monotonic() < end:
+            time.sleep(0.01)
+    assert len(got) == 2
+    wire_ns = (frame.bits.length + INTERMISSION_BITS) * 2000
+    assert abs((got[1].time - got[0].time) - wire_ns) < 2_000

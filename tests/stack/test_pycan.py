@@ -3,6 +3,7 @@ and interop with the real libraries (canopen, cantools, python-can's Notifier/Lo
 
 import itertools
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -421,3 +422,25 @@ def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
     gaps = [y - x for x, y in zip(heartbeats, heartbeats[1:])]
     # the heartbeat period is exact except when the Command/Status exchange delayed one frame
     assert sum(1 for g in gaps if abs(g - 0.020) < 1e-3) >= len(gaps) - 2
+
+
+@pytest.mark.parametrize("kw,needle", [
+    ({"queue": "mailbox", "mailboxes": "x"}, "mailboxes 'x'"),
+    ({"listen_only": "maybe"}, "listen_only 'maybe' must be True or False"),
+    ({"node_name": "a b"}, "node name 'a b'"),
+    ({"node_name": "\x01\x02"}, "node name"),
+    ({"data_bitrate": 2_000_000}, "no FD data phase"),
+])
+def test_bad_node_options_are_refused(kw, needle):
+    with pytest.raises(can.CanInitializationError, match=re.escape(needle)):
+        can.Bus(interface="canstack", channel=f"opt{os.getpid()}", **kw)
+
+
+def test_config_file_strings_for_flags_are_read():
+    bus = can.Bus(interface="canstack", channel=f"optstr{os.getpid()}", listen_only="yes", mailboxes="2",
+                  queue="mailbox")
+    try:
+        with pytest.raises(can.CanOperationError, match="listen-only"):
+            bus.send(can.Message(arbitration_id=1, is_extended_id=False))
+    finally:
+        bus.shutdown()

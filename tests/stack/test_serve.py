@@ -255,3 +255,24 @@ def test_serve_command_runs_a_bus_other_processes_join():
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(10) == 0
+
+
+def test_unix_path_that_is_not_a_stale_socket_is_never_replaced(tmp_path):
+    path = tmp_path / "bus.sock"
+    path.write_text("precious")
+    with pytest.raises(ValueError, match="exists and is not a socket"):
+        BusServer(500_000, unix=str(path))
+    assert path.read_text() == "precious"
+    path.unlink()
+    with BusServer(500_000, unix=str(path)) as srv:
+        with pytest.raises(ValueError, match="in use by a running server"):
+            BusServer(500_000, unix=str(path))
+        assert srv.url.startswith("unix://")
+    assert not path.exists()  # the server removed its own socket
+    # a stale socket (its server gone without closing) is taken over
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(str(path))
+    stale.close()
+    with BusServer(500_000, unix=str(path)) as srv:
+        c = can.Bus(interface="canstack", channel=srv.url)
+        c.shutdown()
