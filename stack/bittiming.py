@@ -13,7 +13,8 @@ use a subclass that checks the controller's own limits instead.
 
 The solver follows the Linux kernel's can_calc_bittiming: scan the bit lengths from long to short,
 take the prescaler that comes closest to the bitrate, keep the candidate with the least bitrate
-error, then the least sample-point error with the sample point not above the requested one.
+error, then the least sample-point error with the sample point not above the requested one, and
+on a tie the first found — the smallest prescaler (Linux >= 5.19; ``legacy`` for the older rule).
 """
 
 from __future__ import annotations
@@ -503,6 +504,23 @@ def _sjw_for(sjw: int | None, lim: ControllerLimits, tseg1: int, tseg2: int) -> 
     return max(1, min(phase_seg1, tseg2 // 2, SJW_MAX, lim.sjw_max))
 
 
+def _checked(clock: int, brp: int, tseg1: int, tseg2: int, sjw: int | None, lim: ControllerLimits,
+             delays: BusDelays | None, min_tolerance: float | None, bitrate: int, sp: float) -> Solution:
+    """`check_timing` of one split. With the default SJW, a Prop_Seg lengthened for the bus
+    length can leave Phase_Seg1 shorter than that SJW: the SJW is lowered to fit (down to 1)
+    rather than the timing refused."""
+    width = _sjw_for(sjw, lim, tseg1, tseg2)
+    while True:
+        try:
+            return check_timing(make_timing(clock, brp, tseg1, tseg2, width), lim, delays, None, min_tolerance,
+                                bitrate, sp)
+        except BitTimingError as exc:
+            if sjw is not None or width <= 1 or f"SJW={width} does not fit" not in str(exc) \
+                    and exc.rule != RULE_SJW_PHASE_SEG1:
+                raise
+            width -= 1
+
+
 @dataclass
 class _Candidate:
     order: int
@@ -532,6 +550,7 @@ def _candidates(
     sjw: int | None,
     delays: BusDelays | None,
     min_tolerance: float | None,
+    legacy: bool = False,
 ) -> tuple[list[_Candidate], Solution | None, dict[str, str]]:
     """Walk the kernel's search: every bit length from long to short with the prescaler rounded
     down (even step) and up (odd step). Returns the candidates passing every rule (in visit
@@ -568,8 +587,7 @@ def _candidates(
             continue
         tseg1, tseg2, sp_real = split
         try:
-            timing = make_timing(clock, brp, tseg1, tseg2, _sjw_for(sjw, lim, tseg1, tseg2))
-            sol = check_timing(timing, lim, delays, None, min_tolerance, bitrate, sp)
+            sol = _checked(clock, brp, tseg1, tseg2, sjw, lim, delays, min_tolerance, bitrate, sp)
         except BitTimingError as exc:
             rejected.setdefault(exc.rule, str(exc))
             continue
@@ -582,10 +600,14 @@ def _candidates(
         # the kernel stops at the first exact hit; the scan goes on only to list the others
         if exact:
             continue
-        # kernel rule: a worse bitrate never wins; an equal one wins on sample point error <=
+        # kernel rule: a worse bitrate never wins; an equal one needs a smaller sample point
+        # error (Linux >= 5.19: on a tie the first, smaller prescaler stays) — before 5.19 an
+        # equal error won too, so the last, larger prescaler was kept (legacy=True)
         if best is not None and br_err > best.bitrate_error:
             continue
-        if best is not None and br_err == best.bitrate_error and cand.sample_point_error > best.sample_point_error:
+        if best is not None and br_err == best.bitrate_error and (
+                cand.sample_point_error > best.sample_point_error
+                or (cand.sample_point_error == best.sample_point_error and not legacy)):
             continue
         best = cand
         exact = br_err == 0 and cand.sample_point_error == 0
@@ -612,13 +634,16 @@ def solve(
     sjw: int | None = None,
     delays: BusDelays | None = None,
     min_tolerance: float | None = None,
+    legacy: bool = False,
 ) -> Solution:
     """The timing the Linux kernel's can_calc_bittiming picks, restricted to timings passing
     `check_timing`: least bitrate error, then least sample point error with the sample point not
-    above the requested one (default: `cia_sample_point`). ``sjw`` None takes the kernel default
-    (Linux >= 6.3: max(1, min(Phase_Seg1, Phase_Seg2 / 2))). Raises `BitTimingError` naming the
-    rule when no timing passes."""
-    _, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance)
+    above the requested one (default: `cia_sample_point`), then (Linux >= 5.19) the smallest
+    prescaler; ``legacy`` keeps the largest instead, as kernels before 5.19 and can-utils'
+    can-calc-bit-timing until 2022 did. ``sjw`` None takes the kernel default (Linux >= 6.3:
+    max(1, min(Phase_Seg1, Phase_Seg2 / 2)), lowered if a bus length shortens Phase_Seg1).
+    Raises `BitTimingError` naming the rule when no timing passes."""
+    _, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy)
     if best is None:
         raise _no_timing(clock, bitrate, rejected)
     return best
@@ -632,11 +657,12 @@ def all_timings(
     sjw: int | None = None,
     delays: BusDelays | None = None,
     min_tolerance: float | None = None,
+    legacy: bool = False,
 ) -> list[Solution]:
     """Every valid timing the kernel's search visits (one split per prescaler and bit length),
     ranked as the kernel ranks them: `solve`'s pick first, then by bitrate error, sample point
     error and longer bit time."""
-    cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance)
+    cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy)
     if best is None:
         raise _no_timing(clock, bitrate, rejected)
     seen: set[tuple[int, int, int]] = set()
@@ -718,7 +744,8 @@ def limits_from_args(args: argparse.Namespace) -> ControllerLimits:
 def _run(args: argparse.Namespace) -> int:
     lim = limits_from_args(args)
     delays = BusDelays(args.bus_length, args.cable_delay, args.transceiver_delay, args.comparator_delay)
-    kw = dict(sample_point=args.sample_point, limits=lim, sjw=args.sjw, delays=delays, min_tolerance=args.tolerance)
+    kw = dict(sample_point=args.sample_point, limits=lim, sjw=args.sjw, delays=delays, min_tolerance=args.tolerance,
+              legacy=args.legacy)
     if args.all:
         sols = all_timings(args.clock, args.bitrate, **kw)  # type: ignore[arg-type]
         if args.json:
@@ -755,5 +782,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--comparator-delay", type=_number, default=0.0, help="input comparator delay in ns (0)")
     p.add_argument("--tolerance", type=_number, help="required oscillator tolerance in percent")
     p.add_argument("--all", action="store_true", help="list every valid timing, ranked")
+    p.add_argument("--legacy", action="store_true",
+                   help="on a tie keep the larger prescaler, as Linux < 5.19 and can-utils until 2022 did")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_run)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from importlib.metadata import entry_points
 from typing import Sequence
 
 __all__ = ["CliError", "main", "parse_int"]
@@ -26,6 +25,11 @@ SUBCOMMAND_MODULES = [
     "stack.waveform",
     "stack.serve",
 ]
+# which module registers which subcommand: a command line naming one imports only that module
+# (`canstack decode` then starts without python-can or cantools); --help imports them all
+SUBCOMMANDS = {"demo": "stack.commands", "frame": "stack.commands", "bittiming": "stack.bittiming",
+               "sync": "stack.sync", "decode": "stack.waveform", "render": "stack.waveform",
+               "serve": "stack.serve"}
 
 
 class CliError(Exception):
@@ -45,11 +49,15 @@ def parse_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The parser with every available subcommand registered."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every available subcommand registered, or only ``command``'s module
+    when it names one of stack's own subcommands."""
     parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
+    if command in SUBCOMMANDS:
+        importlib.import_module(SUBCOMMANDS[command]).register(sub)
+        return parser
     for name in SUBCOMMAND_MODULES:
         try:
             mod = importlib.import_module(name)
@@ -58,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         mod.register(sub)
+    from importlib.metadata import entry_points  # ~12 ms: only when every command is listed
+
     for ep in sorted(entry_points(group="canstack.commands"), key=lambda e: e.name):
         ep.load()(sub)
     return parser
@@ -66,8 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `canstack` console script."""
     try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
+        args_list = list(sys.argv[1:] if argv is None else argv)
+        first = next((a for a in args_list if not a.startswith("-")), None)
+        parser = build_parser(first)
+        args = parser.parse_args(args_list)
         return int(args.func(args) or 0)
     except BrokenPipeError:  # output piped into head: not an error
         try:

@@ -6,9 +6,10 @@ from `can.Message`, the type users already hold; inside the engine it is the uni
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
+if TYPE_CHECKING:  # pragma: no cover
+    import can  # imported where a Message is built: `canstack decode` starts without python-can
 
 __all__ = [
     "Frame",
@@ -173,6 +174,8 @@ class Frame:
     # -- python-can boundary ------------------------------------------------------------------
     def to_message(self, timestamp: float = 0.0, channel: Any = None) -> can.Message:
         """This frame as a `can.Message` (classic CAN, dlc as on the wire)."""
+        import can
+
         msg = can.Message(
             timestamp=timestamp,
             arbitration_id=self.can_id,

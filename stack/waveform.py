@@ -1061,10 +1061,13 @@ BENCH_CAPTURE = _CAPTURES / "mcp2515dm-bm-125kbits_bus_load_100percent.sr"
 
 def benchmark(path: str | Path | None = None) -> dict[str, Any]:
     """Time `decode_file` on the 12 M sample MCP2515 100 % bus load capture (125 kbit/s, CAN_RX)
-    and, when sigrok-cli is installed, sigrok's CAN decoder on the same file (whole process).
+    in this process and as a whole `canstack decode` process (interpreter start and imports
+    included), and, when sigrok-cli is installed, sigrok's CAN decoder on the same file (a whole
+    process too).
 
-    Returns {"decode_s", "sigrok_s" (None without sigrok-cli), "frames", "vs_sigrok"
-    (sigrok_s / decode_s: > 1 means faster than sigrok)}; the best of 3 runs each.
+    Returns {"decode_s", "decode_cli_s", "sigrok_s" (None without sigrok-cli), "frames",
+    "vs_sigrok" (sigrok_s / decode_s), "cli_vs_sigrok" (sigrok_s / decode_cli_s): > 1 means
+    faster than sigrok}; the best of 3 runs each.
     """
     p = Path(path) if path else BENCH_CAPTURE
     if not p.is_file():
@@ -1076,6 +1079,13 @@ def benchmark(path: str | Path | None = None) -> dict[str, Any]:
         recs = decode_file(p, 125000, channel="CAN_RX")
         best = min(best, time.perf_counter() - t0)
         frames = sum(1 for r in recs if r.ok)
+    # the command line against the command line: a whole `canstack decode` process
+    cli = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "stack.cli", "decode", str(p), "--bitrate", "125000",
+                        "--channel", "CAN_RX"], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        cli = min(cli, time.perf_counter() - t0)
     sig: float | None = None
     exe = shutil.which("sigrok-cli")
     if exe:
@@ -1089,9 +1099,11 @@ def benchmark(path: str | Path | None = None) -> dict[str, Any]:
             sig = min(sig, time.perf_counter() - t0)
     return {
         "decode_s": best,
+        "decode_cli_s": cli,
         "sigrok_s": sig,
         "frames": frames,
         "vs_sigrok": (sig / best) if sig else None,
+        "cli_vs_sigrok": (sig / cli) if sig else None,
     }
 
 

@@ -40,6 +40,14 @@ def _calc(controller: str, clock: int) -> list[dict[str, int | float]]:
     return rows
 
 
+def _calc_is_legacy() -> bool:
+    """Which tie rule the installed tool follows: at 16 MHz, 1 Mbit/s, 80 % both 16 tq (brp 1)
+    and 8 tq (brp 2) reach 75 % exactly; Linux >= 5.19 (and can-utils since 2022) keeps brp 1."""
+    out = subprocess.run([CALC, "-q", "-c", "16000000", "-b", "1000000", "-s", "800", "sja1000"],
+                         capture_output=True, text=True, check=True).stdout
+    return int(out.split()[6]) == 2
+
+
 @pytest.mark.skipif(CALC is None, reason="can-calc-bit-timing (can-utils) not installed")
 @pytest.mark.parametrize("controller", ["sja1000", "mcp251x", "flexcan", "at91", "rcar_can"])
 @pytest.mark.parametrize("clock", [8_000_000, 16_000_000, 24_000_000, 33_333_333])
@@ -51,7 +59,7 @@ def test_matches_can_calc_bit_timing(controller: str, clock: int) -> None:
         nbt = 1 + r["prop_seg"] + r["phase_seg1"] + r["phase_seg2"]
         try:
             # the installed tool predates Linux 6.3 and always uses SJW 1
-            s = solve(clock, int(r["bitrate"]), limits=controller, sjw=1)
+            s = solve(clock, int(r["bitrate"]), limits=controller, sjw=1, legacy=_calc_is_legacy())
         except BitTimingError:
             assert not 8 <= nbt <= 25  # only the 8..25 tq rule may make us refuse what it found
             continue
@@ -74,10 +82,27 @@ def test_matches_can_calc_bit_timing_with_sample_point(bitrate: int, sp_tenths: 
                          capture_output=True, text=True, check=True).stdout
     f = out.split()
     exp = dict(brp=int(f[6]), tseg1=int(f[2]) + int(f[3]), tseg2=int(f[4]), btr0=int(f[12], 16), btr1=int(f[13], 16))
-    s = solve(16_000_000, bitrate, sample_point=sp_tenths / 10, sjw=1)
+    s = solve(16_000_000, bitrate, sample_point=sp_tenths / 10, sjw=1, legacy=_calc_is_legacy())
     assert (s.brp, s.tseg1, s.tseg2) == (exp["brp"], exp["tseg1"], exp["tseg2"])
     assert s.btr == (exp["btr0"], exp["btr1"])
     assert s.sample_point <= sp_tenths / 10
+
+
+def test_tie_keeps_the_smaller_prescaler_as_linux_5_19() -> None:
+    # 16 MHz, 1 Mbit/s, at most 80 %: 16 tq (brp 1) splits 12+4 = 75 % (13+3 = 81.25 % is
+    # above), 8 tq (brp 2) splits 6+2 = 75 %: equal bitrate and sample point errors. Linux
+    # >= 5.19 keeps the first found (the longer bit, brp 1); older kernels the last (brp 2)
+    s = solve(16_000_000, 1_000_000, sample_point=80)
+    assert (s.brp, s.tseg1, s.tseg2, s.sample_point) == (1, 11, 4, 75.0)
+    old = solve(16_000_000, 1_000_000, sample_point=80, legacy=True)
+    assert (old.brp, old.tseg1, old.tseg2, old.sample_point) == (2, 5, 2, 75.0)
+
+
+def test_default_sjw_shrinks_to_fit_a_long_bus() -> None:
+    # 120 m at 5 ns/m: round trip 1200 ns = 9.6 tq of 125 ns -> Prop_Seg 10 of TSEG1 11 leaves
+    # Phase_Seg1 1: the default SJW (min(PS1, PS2 / 2) = 2 before the bus length) must drop to 1
+    s = solve(16_000_000, 500_000, sample_point=75, delays=BusDelays(120))
+    assert (s.brp, s.prop_seg, s.phase_seg1, s.phase_seg2, s.sjw) == (2, 10, 1, 4, 1)
 
 
 def test_worked_example_16mhz_500k() -> None:
