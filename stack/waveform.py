@@ -94,6 +94,9 @@ class Capture:
     samplerate: float
     channel: str
     source: str = ""
+    # the rate the recording was made at, when the samples were subdivided for the receiver
+    # (a VCD's edge grid): the decoder's rescue for coarse captures goes by this one
+    native_rate: float | None = None
 
     @property
     def duration(self) -> float:
@@ -116,7 +119,9 @@ def _parse_samplerate(text: str) -> float:
 
 
 def _select_channel(names: list[str], channel: str | int | None, what: str) -> int:
-    """Index of the channel chosen by name (first) or by 0-based index; a message lists them."""
+    """Index of the channel chosen by name or by 0-based index (``#N`` forces an index); a
+    number that is one channel's name and another's index is refused as ambiguous; a message
+    lists the channels."""
     listing = ", ".join(f"{i}={n!r}" for i, n in enumerate(names) if n is not None)
     if channel is None:
         if "CAN_RX" in names:
@@ -126,14 +131,28 @@ def _select_channel(names: list[str], channel: str | int | None, what: str) -> i
             return present[0]
         raise ValueError(f"{what} has several channels ({listing}): choose one with --channel")
     text = str(channel)
-    if text in names:
-        return names.index(text)
+    if text.startswith("#"):  # explicitly an index
+        try:
+            idx = int(text[1:])
+        except ValueError:
+            idx = -1
+        if 0 <= idx < len(names) and names[idx] is not None:
+            return idx
+        raise ValueError(f"channel index {text!r} not in {what}: available channels are {listing}")
     try:
-        idx = int(text)
+        idx = int(text) if not isinstance(channel, bool) else -1
     except ValueError:
         idx = -1
-    if 0 <= idx < len(names) and names[idx] is not None:
-        return idx
+    by_index = idx if 0 <= idx < len(names) and names[idx] is not None else None
+    if text in names:
+        by_name = names.index(text)
+        if by_index is not None and by_index != by_name:
+            raise ValueError(f"channel {text!r} is ambiguous in {what}: the channel named {text!r} is index "
+                             f"{by_name}, index {idx} is {names[idx]!r}; say --channel {names[idx]} or "
+                             f"--channel '#{idx}' (channels: {listing})")
+        return by_name
+    if by_index is not None:
+        return by_index
     raise ValueError(f"channel {text!r} not found in {what}: available channels are {listing}")
 
 
@@ -317,6 +336,7 @@ def read_vcd(
             g = math.gcd(g, t)
         step = Fraction(g or 1)
         rate = float(1 / (step * timescale))
+        native = rate
         if bitrate and rate < 16 * bitrate:
             # an edge-exact signal stays exact at any integer multiple of its rate
             k = math.ceil(16 * bitrate / rate)
@@ -335,7 +355,7 @@ def read_vcd(
             pos = idx
         level = v
     parts.append((_RECESSIVE if level else _DOMINANT) * max(1, total - pos))
-    return Capture(b"".join(parts), rate, chan_name, str(path))
+    return Capture(b"".join(parts), rate, chan_name, str(path), None if samplerate else native)
 
 
 def read_capture(
@@ -869,8 +889,11 @@ def decode_samples(
     sjw: float | None = None,
     tq_per_bit: int = 16,
     retry: bool = True,
+    native_rate: float | None = None,
 ) -> list[RxRecord]:
     """Decode a CAN_RX signal (one byte per sample, 0 dominant / 1 recessive) into records.
+    (``native_rate``: the rate the signal was recorded at when ``samples`` were subdivided from
+    it; below 8 samples a bit the run-length rescue applies, as for a coarse capture.)
 
     The receiver (see `BitReceiver`) waits for bus idle (11 recessive bits), hard-synchronises on
     the SOF edge, samples one bit per bit time with resynchronisation, and feeds `BitDecoder`.
@@ -910,6 +933,16 @@ def decode_samples(
     out: list[RxRecord] = []
     pos = 0
     need = idle_need
+    # a capture triggered just before a frame has less than 11 bits of idle ahead of its SOF:
+    # the bus before the capture is unknown, so that first frame is taken when it decodes
+    # cleanly (a capture that starts inside a frame gives no such frame, and no false error)
+    if line[0]:
+        f = line.find(_DOMINANT)
+        if T <= f < idle_need:
+            res, end, _ = _receive(line, f, rx, dec)
+            if res is not None and res.ok:
+                need = 0
+                pos = f
     while True:
         sof = _find_sof_after_idle(line, pos, need)
         if sof < 0:
@@ -929,7 +962,7 @@ def decode_samples(
                     res, end, last_si, via = r2, e2, s2, f"sample point {alt.sample_point:g} %"
                     break
             else:
-                if T < 8:
+                if T < 8 or (native_rate is not None and native_rate / bitrate < 8):
                     found = _run_length_retry(line, sof, T)
                     if found is not None:
                         res, end = found
@@ -998,7 +1031,8 @@ def decode_file(
 ) -> list[RxRecord]:
     """Read a capture (`read_capture`) and decode it (`decode_samples`)."""
     cap = read_capture(path, channel, samplerate, bitrate)
-    return decode_samples(cap.samples, cap.samplerate, bitrate, sample_point=sample_point, sjw=sjw, retry=retry)
+    return decode_samples(cap.samples, cap.samplerate, bitrate, sample_point=sample_point, sjw=sjw, retry=retry,
+                          native_rate=cap.native_rate)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1194,7 +1228,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("file", help="sigrok session (.sr), VCD, or raw file of one byte per sample")
     p.add_argument("--bitrate", type=_positive_float, required=True, help="nominal bit rate, bit/s")
-    p.add_argument("--channel", help="channel name or 0-based index (default CAN_RX or the only one)")
+    p.add_argument("--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)")
     p.add_argument("--sample-point", type=float, default=87.5, help="sample point, %% of the bit (default 87.5)")
     p.add_argument("--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))")
     p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")

@@ -21,6 +21,7 @@ from stack.frame import Frame
 from stack.waveform import (
     BitReceiver,
     decode_file,
+    read_capture,
     decode_samples,
     record_to_json,
     render_edges,
@@ -128,9 +129,28 @@ def test_hard_sync_only_after_bus_idle():
     third intermission bit after an error/overload delimiter; 9 is still inside traffic."""
     frame = Frame(0x123, b"\x55")
     samples = render_samples([frame], 500_000, 8_000_000)  # 11 idle bits of 16 samples first
-    assert decode_samples(samples[2 * 16 :], 8_000_000, 500_000) == []
-    assert _frames_of(decode_samples(samples[1 * 16 :], 8_000_000, 500_000)) == [frame]
-    assert _frames_of(decode_samples(samples, 8_000_000, 500_000)) == [frame]
+    traffic = bytes(16)  # one dominant bit: the bus was busy before the recessive run
+    assert decode_samples(traffic + samples[2 * 16 :], 8_000_000, 500_000) == []
+    assert _frames_of(decode_samples(traffic + samples[1 * 16 :], 8_000_000, 500_000)) == [frame]
+    assert _frames_of(decode_samples(traffic + samples, 8_000_000, 500_000)) == [frame]
+
+
+@pytest.mark.parametrize("idle_bits", [1, 3, 9])
+def test_a_frame_right_after_the_capture_starts_is_decoded(idle_bits):
+    """What came before a capture is unknown: a capture triggered on a SOF with a short
+    pre-trigger still gets its first frame (as sigrok does), when it decodes cleanly."""
+    frames = [Frame(0x123, b"\x01\x02"), Frame(0x456, b"\x03")]
+    samples = render_samples(frames, 125_000, 4_000_000, idle_bits=idle_bits)
+    recs = decode_samples(samples, 4_000_000, 125_000)
+    assert _frames_of(recs) == frames and recs[0].t == idle_bits * 32 / 4_000_000
+
+
+def test_a_capture_that_starts_inside_a_frame_gives_no_false_record():
+    frame = Frame(0x2AA, b"\x11\x22\x33")
+    samples = render_samples([frame, frame], 125_000, 4_000_000)
+    cut = samples[(11 + 20) * 32:]  # from bit 20 of the first frame
+    recs = decode_samples(cut, 4_000_000, 125_000)
+    assert _frames_of(recs) == [frame] and all(r.ok for r in recs)
 
 
 def test_back_to_back_frames_start_in_the_intermission():
@@ -270,6 +290,30 @@ def test_cli_missing_channel_lists_the_available_ones(tmp_path, capsys):
     assert rc == 2 and "channel 'CAN_RX' not found" in err and "0='RXD'" in err
 
 
+@needs_corpus
+def test_nmea2000_decodes_the_same_from_vcd_as_from_the_session_file(tmp_path):
+    # 2 samples a bit: the VCD reader subdivides the edge grid for the receiver, and the
+    # decoder must still treat it as the coarse capture it is (run-length rescue)
+    cap = read_capture(NMEA)  # its only channel
+    vcd = tmp_path / "nmea.vcd"
+    write_vcd(vcd, cap.samples, cap.samplerate, name="CAN_RX")
+    from_sr = decode_file(NMEA, 250_000)
+    from_vcd = decode_file(vcd, 250_000, channel="CAN_RX")
+    assert sum(r.ok for r in from_sr) == 113
+    assert [(r.t, r.to_frame()) for r in from_vcd if r.ok] == [(r.t, r.to_frame()) for r in from_sr if r.ok]
+
+
+@needs_corpus
+def test_channel_number_that_is_a_name_and_an_index_is_ambiguous(capsys):
+    # the MCP2515 captures name their channels '1', '2', 'CAN_RX', '4'...: '2' is the name of
+    # index 1 and the index of CAN_RX
+    rc, _, err = _cli(["decode", str(MSG_222), "--bitrate", "125000", "--channel", "2"], capsys)
+    assert rc == 2 and "ambiguous" in err and "--channel '#2'" in err
+    rc, out, _ = _cli(["decode", str(MSG_222), "--bitrate", "125000", "--channel", "#2", "--json"], capsys)
+    ids = {json.loads(line)["id"] for line in out.splitlines() if line.startswith("{")}
+    assert rc == 0 and ids == {0x222}  # the file's name says: message 0x222, 5 bytes
+
+
 def test_cli_too_few_samples_per_bit(tmp_path, capsys):
     raw = tmp_path / "w.bin"
     write_raw(raw, render_samples([Frame(1, b"")], 500_000, 8_000_000))
@@ -329,8 +373,11 @@ def test_mcp2515_golden_standard_frame():
     for r in recs:
         assert (r.can_id, r.extended, r.dlc, r.data, r.crc) == (0x222, False, 5, bytes.fromhex("0011223344"), 0x66DA)
         assert r.crc_ok and r.ack and r.ok and r.via == "receiver"
-    # names win over indices: this session names bit 1 "2" (no traffic there); "CAN_RX" is bit 2
-    assert decode_file(MSG_222, 125_000, channel="2") == []
+    # this session names bit 1 "2" (no traffic there) and "CAN_RX" is bit 2: "2" is ambiguous,
+    # "#1" is the quiet channel by index
+    with pytest.raises(ValueError, match="ambiguous"):
+        decode_file(MSG_222, 125_000, channel="2")
+    assert decode_file(MSG_222, 125_000, channel="#1") == []
     with pytest.raises(ValueError, match=r"channel '9' not found .* 2='CAN_RX'"):
         decode_file(MSG_222, 125_000, channel="9")
 
