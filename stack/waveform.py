@@ -77,6 +77,7 @@ __all__ = [
 #: 8 bits error/overload delimiter + 3 bits intermission (also the bus-integration rule).
 IDLE_BITS = 11
 
+MAX_RENDER_SAMPLES = 400_000_000  # a rendered waveform is built in memory: one byte a sample
 _DOMINANT = b"\x00"
 _RECESSIVE = b"\x01"
 
@@ -177,17 +178,23 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
         try:
             cp.read_string(zf.read("metadata").decode("utf-8", "replace"))
         except configparser.Error as exc:
-            raise ValueError(f"{path}: sigrok metadata is not an ini file: {exc}") from None
+            first = str(exc).splitlines()[0]
+            raise ValueError(f"{path}: sigrok metadata is not an ini file ({first})") from None
         dev = next((s for s in cp.sections() if s.startswith("device")), None)
         if dev is None:
             raise ValueError(f"{path}: sigrok metadata has no [device N] section")
         sec = cp[dev]
         base = sec.get("capturefile", "logic-1")
-        unitsize = int(sec.get("unitsize", "1"))
+        try:
+            unitsize = int(sec.get("unitsize", "1"))
+            total = int(sec.get("total probes", "0"))
+        except ValueError as exc:
+            raise ValueError(f"{path}: sigrok metadata: {exc}") from None
+        if not 1 <= unitsize <= 8:
+            raise ValueError(f"{path}: sigrok metadata: unitsize {unitsize} outside 1..8 bytes a sample")
         if "samplerate" not in sec:
             raise ValueError(f"{path}: sigrok metadata gives no samplerate")
         rate = _parse_samplerate(sec["samplerate"])
-        total = int(sec.get("total probes", "0"))
         probes: dict[int, str] = {}
         for key, value in sec.items():
             m = re.fullmatch(r"probe(\d+)", key)
@@ -416,8 +423,8 @@ def render_edges(
         raise ValueError(f"bitrate {bitrate!r} and samplerate {samplerate!r} must be positive")
     if samplerate / bitrate < 2:
         raise ValueError(
-            f"samplerate {samplerate:g} Hz gives {samplerate / bitrate:.3g} samples per bit at "
-            f"{bitrate:g} bit/s: at least 2 are needed"
+            f"samplerate {samplerate:.10g} Hz gives {samplerate / bitrate:.9g} samples per bit at "
+            f"{bitrate:.10g} bit/s: at least 2 are needed"
         )
     if not -0.2 < drift < 0.2:
         raise ValueError(f"drift {drift}: must be within +-0.2 (a fraction of the bit time)")
@@ -678,7 +685,7 @@ class BitReceiver:
         spb = samplerate / bitrate
         if spb < 2:
             raise ValueError(
-                f"bitrate {bitrate:g} bit/s with samplerate {samplerate:g} Hz gives {spb:.3g} samples "
+                f"bitrate {bitrate:.10g} bit/s with samplerate {samplerate:.10g} Hz gives {spb:.9g} samples "
                 "per bit: at least 2 are needed to decode"
             )
         if not 50 <= sample_point < 100:
@@ -1080,7 +1087,7 @@ def frames_from_jsonl(lines: Iterable[str], source: str = "input") -> list[tuple
                 f"{where}: crc {crc} (0x{crc:04X}) does not match the frame's CRC-15 0x{frame.bits.crc:04X}"
             )
         t = obj.get("t")
-        if t is not None and (not isinstance(t, (int, float)) or isinstance(t, bool) or t < 0):
+        if t is not None and (not isinstance(t, (int, float)) or isinstance(t, bool) or not 0 <= t < math.inf):
             raise ValueError(f"{where}: 't' {t!r} must be a time in seconds >= 0")
         out.append((None if t is None else float(t), frame))
     return out
@@ -1198,12 +1205,21 @@ def _cmd_render(args: argparse.Namespace) -> int:
     else:
         if not src.is_file():
             raise ValueError(f"{src}: no such frames file")
-        text = src.read_text(encoding="utf-8").splitlines()
+        try:
+            text = src.read_text(encoding="utf-8").splitlines()
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{src}: not a text file of JSON lines ({exc.reason} at byte {exc.start})") from None
     pairs = frames_from_jsonl(text, str(src))
     if not pairs:
         raise ValueError(f"{src}: no frames to render")
     frames = [f for _, f in pairs]
     times = [t for t, _ in pairs]
+    # the waveform is written whole: bound it before building it (a far-off 't' would need
+    # gigabytes); frames without 't' follow each other back to back
+    span = max((t for t in times if t is not None), default=0.0) + len(frames) * 200 / args.bitrate
+    if span * args.samplerate > MAX_RENDER_SAMPLES:
+        raise ValueError(f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
+                         f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)")
     runs, _, _ = render_edges(
         frames, args.bitrate, args.samplerate, times=times, drift=args.drift, jitter=args.jitter, seed=args.seed
     )

@@ -501,3 +501,42 @@ def test_sigrok_decodes_our_rendered_vcd(tmp_path):
     theirs = _sigrok_frames(vcd, "CAN_RX", 500_000)
     assert [f["frame"] for f in theirs] == frames
     assert [f["crc"] for f in theirs] == [0x5B40, frames[1].bits.crc]
+
+
+def _session(path, metadata: bytes, samples: bytes = b"\x01" * 64):
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("version", "2")
+        zf.writestr("metadata", metadata)
+        zf.writestr("logic-1-1", samples)
+
+
+@pytest.mark.parametrize("metadata,needle", [
+    (b"\xff\x00[x", "metadata is not an ini file (File contains no section headers.)"),
+    (b"[device 1]\ncapturefile=logic-1\nunitsize=two\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "invalid literal"),
+    (b"[device 1]\ncapturefile=logic-1\nunitsize=0\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "unitsize 0 outside 1..8"),
+])
+def test_cli_bad_session_metadata_is_one_line_naming_the_file(tmp_path, capsys, metadata, needle):
+    sr = tmp_path / "bad.sr"
+    _session(sr, metadata)
+    rc, _, err = _cli(["decode", str(sr), "--bitrate", "125000"], capsys)
+    assert rc == 2 and needle in err and str(sr) in err and err.count("\n") == 1
+
+
+def test_cli_render_refuses_a_waveform_too_long_to_build(tmp_path, capsys):
+    src = tmp_path / "far.jsonl"
+    for t, needle in (("1e300", "span 1e+300 s"), ("1000", "span 1000 s"), ("Infinity", "'t' inf must be")):
+        src.write_text('{"id": 291, "t": %s}\n' % t)
+        rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw",
+                           str(tmp_path / "o.raw"), str(src)], capsys)
+        assert rc == 2 and needle in err and err.count("\n") == 1
+    src.write_bytes(b"\xff\xfe{}")
+    rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw",
+                       str(tmp_path / "o.raw"), str(src)], capsys)
+    assert rc == 2 and "not a text file of JSON lines" in err
+
+
+def test_samples_per_bit_message_is_not_rounded(tmp_path, capsys):
+    raw = tmp_path / "w.bin"
+    write_raw(raw, bytes([1]) * 1000)
+    rc, _, err = _cli(["decode", str(raw), "--bitrate", "2000001", "--samplerate", "4000000"], capsys)
+    assert rc == 2 and "1.999999 samples per bit" in err
