@@ -454,8 +454,7 @@ class BitDecoder:
     def _result(self, error: BitError | None, overload: bool = False) -> DecodedFrame:
         frame = None
         header_done = self._li_done_header
-        dlen = 0 if self._rtr else data_length(self._dlc)
-        data = self._data.to_bytes(dlen, "big") if header_done and dlen else b""
+        data = self.received_data if header_done else b""
         if error is None or (error.kind == "crc"):
             try:
                 frame = Frame(self._id, data, extended=self._ext, remote=bool(self._rtr), dlc=self._dlc)
@@ -483,6 +482,25 @@ class BitDecoder:
     @property
     def _id_done(self) -> bool:
         return Field.RTR in self._done
+
+    @property
+    def received_data(self) -> bytes:
+        """The data bytes received so far: all of them once the data field is complete, else
+        only the whole bytes before the bit where the frame stopped (never a partial byte)."""
+        if not self._li_done_header or self._rtr:
+            return b""
+        dlen = data_length(self._dlc)
+        if Field.DATA in self._done or dlen == 0:
+            return self._data.to_bytes(dlen, "big") if dlen else b""
+        if self._field != Field.DATA:
+            return b""
+        bits = self._field_index
+        return (self._data >> (bits % 8)).to_bytes(bits // 8, "big")
+
+    @property
+    def received_crc(self) -> int | None:
+        """The CRC sequence received, once complete."""
+        return self._crc_rx if self._crc_done else None
 
     @property
     def _li_done_header(self) -> bool:

@@ -959,7 +959,7 @@ def decode_samples(
         t = sof / samplerate
         if res is None:
             # the capture ended inside the frame
-            err = BitError("truncated", dec.field, 0, dec.position)
+            err = BitError("truncated", dec.field, dec._field_index, dec.position)  # noqa: SLF001
             out.append(_record(t, sof, None, err, dec))
             break
         if not res.ok and retry:
@@ -1007,7 +1007,8 @@ def _record(
         assert dec is not None
         can_id = dec._id if Field.RTR in dec._done else None  # noqa: SLF001 - same package
         dlc = dec._dlc if Field.DLC in dec._done else None  # noqa: SLF001
-        return RxRecord(t, sof, can_id, dec._ext, bool(dec._rtr), dlc, b"", None, False, False, error, False)  # noqa: SLF001
+        return RxRecord(t, sof, can_id, dec._ext, bool(dec._rtr), dlc, dec.received_data,  # noqa: SLF001
+                        dec.received_crc, False, False, error, False)
     return RxRecord(
         t=t,
         sample=sof,

@@ -166,3 +166,19 @@ def _reference_bits(f):
 def test_encoder_matches_bitwise_reference(f):
     bits, positions = _reference_bits(f)
     assert f.bits.bits == bits and list(f.bits.stuff_positions) == positions
+
+
+def test_decoder_reports_only_whole_data_bytes_received():
+    # fed up to (not including) data bit 13 of 11 22 33 44: one whole byte (0x11) and 5 bits;
+    # the received data is 11, never a right-aligned partial value
+    from stack.bits import BitDecoder
+
+    f = Frame(0x123, bytes.fromhex("11223344"))
+    stop = f.bits.position(Field.DATA, 13)
+    dec = BitDecoder()
+    for c in f.bits.bits[:stop]:
+        assert dec.feed(int(c)) is None
+    assert dec.received_data == b"\x11" and dec.received_crc is None
+    for c in f.bits.bits[stop:]:
+        res = dec.feed(int(c))
+    assert res.frame == f and res.crc == f.bits.crc

@@ -540,3 +540,12 @@ def test_samples_per_bit_message_is_not_rounded(tmp_path, capsys):
     write_raw(raw, bytes([1]) * 1000)
     rc, _, err = _cli(["decode", str(raw), "--bitrate", "2000001", "--samplerate", "4000000"], capsys)
     assert rc == 2 and "1.999999 samples per bit" in err
+
+
+def test_a_frame_cut_off_by_the_end_of_the_capture_keeps_what_was_received():
+    f = Frame(0x222, bytes.fromhex("0011223344"))
+    samples = render_samples([f], 125_000, 4_000_000)
+    recs = decode_samples(samples[: (11 + 80) * 32], 4_000_000, 125_000)
+    (r,) = recs
+    assert r.error.kind == "truncated" and r.error.position == 80
+    assert (r.can_id, r.dlc, r.data, r.crc) == (0x222, 5, f.data, f.bits.crc)  # 0x66DA, the golden CRC
