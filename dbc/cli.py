@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from typing import Any
 
 from stack.cli import CliError
@@ -27,34 +28,76 @@ def register(subparsers: Any) -> None:
     p.add_argument("--bus", choices=["sim"], default=None, help="the built-in simulated bus (default)")
     p.add_argument("--interface", metavar="NAME", help="python-can interface (socketcan, canstack, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, bus0, ...)")
-    p.add_argument("--bitrate", type=int, default=500_000, help="bit/s (default 500000)")
+    p.add_argument("--bitrate", type=_bitrate, default=None,
+                   help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
+                        "connection (default: the interface's own)")
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
     p.add_argument("--trace", metavar="FILE", help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4)")
     p.add_argument("--json", action="store_true", help="one JSON object per frame on the bus, per line")
     p.set_defaults(func=restbus_command)
 
 
-def _open_driver(interface: str, channel: str | None, bitrate: int) -> Any:
+def _bitrate(text: str) -> int:
+    try:
+        v = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
+    if not 1_000 <= v <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+    return v
+
+
+def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
     """The python-can driver of `stack.driver` on ``interface``/``channel``: ``open_bus`` if the
-    module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node."""
+    module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node; ``bitrate`` (None:
+    the interface's default) is passed to every connection."""
     try:
         from stack import driver  # imported here: the simulated bus needs no python-can driver
     except ImportError:
         raise CliError("python-can driver not available yet (stack.driver)") from None
     if interface == "canstack":
         from stack import pycan  # noqa: F401  (registers the interface when not installed)
+    kw: dict[str, Any] = {} if bitrate is None else {"bitrate": bitrate}
     open_bus = getattr(driver, "open_bus", None)
     if open_bus is not None:
-        return open_bus(interface, channel)
+        return open_bus(interface, channel, **kw)
     if not hasattr(driver, "PyCanDriver"):
         raise CliError("python-can driver not available yet (stack.driver.PyCanDriver)")
     import can
 
     try:  # open one connection now so a bad interface or channel is one clear line
-        can.Bus(interface=interface, channel=channel).shutdown()
+        can.Bus(interface=interface, channel=channel, **kw).shutdown()
     except (can.CanError, OSError, NotImplementedError, ValueError, ImportError) as exc:
         raise CliError(f"cannot open {interface} channel {channel!r}: {' '.join(str(exc).split())}") from None
-    return driver.PyCanDriver(interface=interface, channel=channel)
+    return driver.PyCanDriver(interface=interface, channel=channel, **kw)
+
+
+def _run_driver(bus: Any, duration: float) -> float:
+    """Run the driver for ``duration`` s of wall clock, or until it records an error (a lost
+    connection: every receive fails from then on); returns the seconds it ran."""
+    errors = getattr(bus, "errors", None)
+    if errors is None or not (hasattr(bus, "start") and hasattr(bus, "stop")):
+        bus.run(duration)
+        return duration
+    start = time.monotonic()
+    end = start + duration
+    bus.start()
+    try:
+        while not errors and (left := end - time.monotonic()) > 0:
+            time.sleep(min(left, 0.05))
+    finally:
+        bus.stop()
+    return time.monotonic() - start
+
+
+def _driver_error(bus: Any, interface: str, channel: str | None, ran: float) -> str | None:
+    """One line naming the first error the driver recorded (None if none)."""
+    errors = list(getattr(bus, "errors", None) or ())
+    if not errors:
+        return None
+    more = f" ({len(errors)} errors)" if len(errors) > 1 else ""
+    first = " ".join(str(errors[0]).split())
+    return f"the python-can bus failed after {ran:.2f} s ({interface} channel {channel!r}): {first}{more}"
 
 
 def _line(rec: BusRecord) -> str:
@@ -105,7 +148,7 @@ def restbus_command(args: argparse.Namespace) -> int:
     if args.interface is None:
         from stack.sim import SimBus
 
-        bus = SimBus(args.bitrate, seed=args.seed, record=bool(args.trace))
+        bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
         rb = RestBus(db, bus, dut=args.dut, records=False)
         rb.on_record(_count)
         rb.on_record(emit)
@@ -116,6 +159,7 @@ def restbus_command(args: argparse.Namespace) -> int:
                 print(f"trace: {n} records written to {args.trace}", file=sys.stderr)
     else:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
+        failure: str | None = None
         try:
             rb = RestBus(db, bus, dut=args.dut, records=bool(args.trace), start=False)
             rb.on_record(_count)
@@ -124,8 +168,9 @@ def restbus_command(args: argparse.Namespace) -> int:
                 bus.submit(rb.start)  # ECU timers start on the driver's scheduler thread
             else:
                 rb.start()
-            bus.run(args.duration)
+            ran = _run_driver(bus, args.duration)
             rb.stop()
+            failure = _driver_error(bus, args.interface, args.channel, ran)
         finally:
             for name in ("close", "shutdown"):
                 fn = getattr(bus, name, None)
@@ -136,6 +181,8 @@ def restbus_command(args: argparse.Namespace) -> int:
             from stack.trace import save_messages
 
             save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace)
+        if failure is not None:
+            raise CliError(failure)
     if not args.json:
         print(_summary(rb, args.duration))
         sims = ", ".join(rb.ecus)

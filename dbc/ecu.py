@@ -12,6 +12,7 @@ cantools gives for the same values.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,9 +75,10 @@ class CheckFailed:
 
 
 def node_names(db: cantools.database.can.Database) -> list[str]:
-    """Names of the nodes of a database: ``BU_`` nodes, then senders not declared there
+    """Names of the nodes of a database, each once, in order: ``BU_`` nodes (a node listed
+    twice there, as some real DBCs do, counts once), then senders not declared there
     (``Vector__XXX``, the "no node" placeholder, excluded)."""
-    names = [n.name for n in db.nodes]
+    names = list(dict.fromkeys(n.name for n in db.nodes))
     for m in db.messages:
         for s in m.senders:
             if s not in names:
@@ -213,6 +215,20 @@ class _TxMessage:
             self.frame = f
         return f
 
+    def preview(self, values: Mapping[str, Any] | None = None) -> Frame:
+        """The frame the next transmission would carry with ``values`` merged over the current
+        ones, hooks applied to shallow copies of themselves (an alive counter shows its next
+        value without advancing): no state of the message or its hooks changes."""
+        if values is None and self.frame is not None:
+            return self.frame
+        vals = dict(self.values) if values is None else {**self.values, **values}
+        for h in self.value_hooks:
+            copy.copy(h).tx_values(vals)
+        data = self.encode(vals, strict=False)
+        for h in self.data_hooks:
+            data = copy.copy(h).tx_data(data)
+        return Frame(self.can_id, data, extended=self.extended)
+
     def transmit(self) -> Any:
         node = self.node
         frame = self.frame or self.build()
@@ -265,9 +281,10 @@ class _TxMessage:
         st = self.sig_timing[name]
         kind = st.send_type or self.default_trigger
         t = self.timing
+        fire = kind == "OnWrite" or (kind == "OnChange" and self.changed(name, old, new))
         if t.if_active and name in self.active_signals:
-            self._activity()
-        if kind == "OnWrite" or (kind == "OnChange" and self.changed(name, old, new)):
+            self._activity(fire)
+        if fire:
             self.trigger(st.with_repetition or t.with_repetition)
 
     def changed(self, name: str, old: Any, new: Any) -> bool:
@@ -295,12 +312,25 @@ class _TxMessage:
                 return True
         return False
 
-    def _activity(self) -> None:
+    def _activity(self, spontaneous: bool) -> None:
+        """Re-evaluate activity after a write; ``spontaneous``: the write also triggers a
+        spontaneous transmission (CyclicIfActiveAndSpontaneous, or a signal's own OnWrite or
+        OnChange send type), which then is the one frame of
+        the event: becoming active, the fast cycle starts one fast period after it (see
+        `_spontaneous`); becoming inactive, it carries the inactive values and the cycle stops.
+        Without a spontaneous send, the cycle starts now (active) or sends the inactive values
+        at its next slot and stops."""
         was = self.active
-        self.active = self._is_active()
-        if self.active and not was and self.cycle_timer is None:
-            start = max(self.ecu.node.now(), self.hold_until)
-            self._start_cycle(start, self.timing.fast_period_ns)
+        self.active = active = self._is_active()
+        if active == was:
+            return
+        if active:
+            if self.cycle_timer is None and not spontaneous:
+                start = max(self.ecu.node.now(), self.hold_until)
+                self._start_cycle(start, self.timing.fast_period_ns)
+        elif spontaneous and self.cycle_timer is not None:
+            self.cycle_timer.cancel()
+            self.cycle_timer = None
 
     def trigger(self, repeat: bool) -> None:
         """A spontaneous transmission, delayed by the start delay and (WithDelay types) the
@@ -323,6 +353,9 @@ class _TxMessage:
         self.spont_timer = None
         self.transmit()
         t = self.timing
+        if self.if_active and self.active and self.cycle_timer is None and self.running:
+            # the spontaneous frame opened the active phase: the fast cycle follows it
+            self._start_cycle(self.last_tx + t.fast_period_ns, t.fast_period_ns)
         if self._repeat and t.repetitions and t.fast_period_ns:
             if self.rep_timer is not None:
                 self.rep_timer.cancel()
@@ -339,7 +372,7 @@ class _TxMessage:
 
 
 class _RxMessage:
-    __slots__ = ("message", "name", "hooks", "values", "decode", "time", "count")
+    __slots__ = ("message", "name", "hooks", "values", "decode", "time", "count", "muxed")
 
     def __init__(self, message: Any, hooks: list[Any]) -> None:
         self.message = message
@@ -349,6 +382,7 @@ class _RxMessage:
         self.decode = message.decode
         self.time: int | None = None
         self.count = 0
+        self.muxed = message.is_multiplexed()
 
 
 class Ecu:
@@ -528,7 +562,13 @@ class Ecu:
     def set(self, signal: str, value: Any, *, message: str | None = None, clamp: bool | None = None) -> None:
         """Write a signal of a transmitted message (physical value or choice name), checked
         against its range; the interaction layer decides whether this sends the message.
-        ``signal`` is 'Signal' or 'Message.Signal'."""
+        ``signal`` is 'Signal' or 'Message.Signal'.
+
+        Multiplexed messages: every signal keeps its own value, whatever page the multiplexer
+        selects. A frame carries the page the multiplexer signal currently selects; a value
+        written for a signal of another page is kept (and read back by `get`) and goes out
+        in the first frame sent after the multiplexer is set to select its page (write the
+        multiplexer signal to switch pages; writing a page's signal does not switch it)."""
         msg, sig = self._resolve(signal, message, self._tx)
         tx = self._tx_message(msg)
         v = self.check_value(msg, sig, value, clamp=clamp)
@@ -538,7 +578,8 @@ class Ecu:
 
     def update(self, message: str, values: Mapping[str, Any], *, clamp: bool | None = None) -> None:
         """Write several signals of one transmitted message at once (all checked before any is
-        written); one write event per signal, spontaneous sends coalesce per call."""
+        written); one write event per signal, spontaneous sends coalesce per call. Signals of
+        multiplexed pages behave as in `set`."""
         tx = self._tx_message(message)
         checked = {}
         for k, v in values.items():
@@ -558,13 +599,14 @@ class Ecu:
                 fired = True
                 rep = rep or st.with_repetition or t.with_repetition
         if t.if_active:
-            tx._activity()
+            tx._activity(fired)
         if fired:
             tx.trigger(rep)
 
     def values(self, message: str) -> dict[str, Any]:
         """Current values of a transmitted message, or the last received values of a received
-        one (empty dict if nothing was received yet)."""
+        one (empty dict if nothing was received yet). For a multiplexed message, each signal's
+        last received value, whichever page it came in."""
         tx = self._tx.get(message)
         if tx is not None:
             return dict(tx.values)
@@ -577,7 +619,8 @@ class Ecu:
 
     def get(self, signal: str, *, message: str | None = None, default: Any = None) -> Any:
         """Last received value of a signal ('Signal' or 'Message.Signal'); for a signal this ECU
-        transmits, its current value. ``default`` if nothing was received yet."""
+        transmits, its current value. ``default`` if nothing was received yet. A signal of a
+        multiplexed page keeps its value while frames of other pages arrive."""
         msg, sig = self._resolve(signal, message, self._rx)
         tx = self._tx.get(msg)
         if tx is not None:
@@ -606,7 +649,9 @@ class Ecu:
 
     def encode_frame(self, message: str, values: Mapping[str, Any] | None = None) -> Frame:
         """The frame the ECU path makes for ``message`` with ``values`` (default: its current or
-        initial values), hooks of transmitted messages applied, without sending it."""
+        initial values), hooks of transmitted messages applied, without sending it: nothing
+        changes (an alive counter shows the value the next transmission will carry, and that
+        transmission still carries it)."""
         tx = self._tx.get(message)
         if tx is None:
             m = self._message(message)
@@ -615,15 +660,7 @@ class Ecu:
             vals = initial_values(self.db, m) if values is None else dict(values)
             data = m.encode(vals, strict=False)
             return Frame(m.frame_id, data, extended=bool(m.is_extended_frame))
-        if values is None:
-            return tx.build()
-        saved, frame = tx.values, tx.frame
-        try:
-            tx.values = {**saved, **values}
-            tx.frame = None
-            return tx.build()
-        finally:
-            tx.values, tx.frame = saved, frame
+        return tx.preview(values)
 
     def decode_frame(self, frame: Frame) -> tuple[str, dict[str, Any]] | None:
         """(message name, physical values) of a frame, as the ECU decodes it on reception; None
@@ -728,7 +765,8 @@ class Ecu:
             if bad and not self.accept_failed:
                 return
         old = rx.values
-        rx.values = decoded
+        # a multiplexed frame carries one page: every other signal keeps its last received value
+        rx.values = decoded if old is None or not rx.muxed else {**old, **decoded}
         rx.time = ev.time
         rx.count += 1
         sig_cbs = self._sig_cbs.get(rx.name)

@@ -81,8 +81,11 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
     """Load a DBC (or any format cantools reads) into a cantools `Database`.
 
     A file cantools rejects raises `DbcLoadError` with the line and reason: the line from
-    cantools' parse error when it names one, otherwise the line of the message the reason names
-    (``BO_ <id> <name>:``) found in the text, otherwise none.
+    cantools' parse error when it names one; otherwise the line is found in the text: the
+    ``BA_``/``BA_REL_`` using an attribute no ``BA_DEF_`` defines (cantools only says the
+    attribute's name), the first ``VAL_``/``SIG_VALTYPE_`` that names a signal its message does
+    not have (cantools lists them without lines), or the ``BO_ <id> <name>:`` of the message
+    the reason names; otherwise none.
     """
     p = str(path)
     try:
@@ -100,22 +103,81 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
         if m:
             line = int(m.group(1))
         else:
-            mm = _MSG_RE.search(reason)
-            if mm:
-                line = _find_message_line(p, mm.group(1))
+            found = _explain(p, exc, reason)
+            if found is not None:
+                line, reason = found
+            else:
+                mm = _MSG_RE.search(reason)
+                if mm:
+                    line = _find_message_line(p, mm.group(1))
         raise DbcLoadError(p, line, reason) from None
     if not isinstance(db, cantools.database.can.Database):
         raise DbcLoadError(p, None, f"not a CAN database ({type(db).__name__})")
     return db
 
 
-def _find_message_line(path: str, message: str) -> int | None:
-    pat = re.compile(rf"^\s*BO_\s+\d+\s+{re.escape(message)}\s*:")
+def _lines(path: str) -> list[str]:
+    """The file's lines as cantools reads a DBC (cp1252), or none if it cannot be read."""
     try:
         with open(path, encoding="cp1252", errors="replace") as fh:
-            for i, text in enumerate(fh, 1):
-                if pat.match(text):
-                    return i
+            return fh.read().splitlines()
     except OSError:  # pragma: no cover
-        return None
+        return []
+
+
+def _find_line(lines: list[str], pattern: str) -> int | None:
+    pat = re.compile(pattern)
+    for i, text in enumerate(lines, 1):
+        if pat.match(text):
+            return i
+    return None
+
+
+def _find_message_line(path: str, message: str) -> int | None:
+    return _find_line(_lines(path), rf"^\s*BO_\s+\d+\s+{re.escape(message)}\s*:")
+
+
+_KEY_RE = re.compile(r"^'([^']*)'$")
+_UNUSED_RE = re.compile(r"unused (VAL_|SIG_VALTYPE_) entries in DBC: (.*)$")
+_ENTRY_RE = re.compile(r"(VAL_|SIG_VALTYPE_) (\d+) (\S+)")
+
+
+def _explain(path: str, exc: BaseException, reason: str) -> tuple[int | None, str] | None:
+    """(line, reason) for the cantools errors that carry no line: a ``KeyError`` for an
+    attribute used without definition, and unused ``VAL_``/``SIG_VALTYPE_`` entries; None for
+    any other error."""
+    cause = exc.__cause__ if exc.__cause__ is not None else exc.__context__
+    key: str | None = None
+    if isinstance(cause, KeyError) and cause.args:
+        key = str(cause.args[0])
+    else:
+        mk = _KEY_RE.match(reason)
+        if mk:
+            key = mk.group(1)
+    if key is not None:
+        lines = _lines(path)
+        q = re.escape(key)
+        for use, define in (("BA_", "BA_DEF_"), ("BA_REL_", "BA_DEF_REL_")):
+            line = _find_line(lines, rf'^\s*{use}\s+"{q}"')
+            if line is not None and _find_line(lines, rf'^\s*{define}\s+(?:\w+\s+)*"{q}"') is None:
+                return line, f'attribute "{key}" is used ({use}) but never defined (no {define} "{key}")'
+        return _find_line(lines, rf".*\b{q}\b"), f"undefined name {key!r} referenced"
+    mu = _UNUSED_RE.search(reason)
+    if mu:
+        kind = mu.group(1)
+        entries = _ENTRY_RE.findall(mu.group(2))
+        if not entries:
+            return None
+        lines = _lines(path)
+        _, frame_id, signal = entries[0]
+        line = _find_line(lines, rf"^\s*{kind}\s+{frame_id}\s+{re.escape(signal)}\b")
+        bo = _find_line(lines, rf"^\s*BO_\s+{frame_id}\s")
+        if bo is None:
+            why = f"no message has identifier {frame_id} (no BO_ {frame_id})"
+        else:
+            mm = re.match(r"^\s*BO_\s+\d+\s+(\w+)", lines[bo - 1])
+            name = mm.group(1) if mm else frame_id
+            why = f"message {name} (BO_ {frame_id}, line {bo}) has no signal {signal}"
+        more = f" (and {len(entries) - 1} more unused {kind} entries)" if len(entries) > 1 else ""
+        return line, f"{kind} {frame_id} {signal}: {why}{more}"
     return None

@@ -40,6 +40,14 @@ attribute                       meaning here
 ``GenSigInactiveValue`` (raw)   CYCLIC_IF_ACTIVE: the message is active while any ``IfActive``
                                 signal (or, if none is marked, any signal) differs from its
                                 inactive value; it is sent once more when it becomes inactive.
+                                When the write that changes activity also sends the message
+                                spontaneously (CYCLIC_IF_ACTIVE_AND_SPONTANEOUS, or an OnWrite/
+                                OnChange signal), that frame is the only one of the event:
+                                becoming active, the fast cycle starts one
+                                ``GenMsgCycleTimeFast`` after it; becoming inactive, it carries
+                                the inactive values and the cycle stops. Otherwise the cycle
+                                starts at the write, or sends the inactive values at its next
+                                slot and stops.
 ``GenSigStartValue`` (raw)      the signal's initial value (raw → physical through its scaling);
                                 cantools exposes it as ``Signal.raw_initial``; default 0 raw.
 ==============================  ===============================================================

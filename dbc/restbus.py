@@ -5,8 +5,11 @@
 messages with their initial values and interaction-layer timing, plus a monitor node that
 decodes every frame on the bus into a `BusRecord`. Without a DUT every node is simulated.
 
-The monitor names the sender of a frame: the simulated ECU that sends that message, else the
-DUT if the DBC lists it as a sender, else the DBC's first sender, else ``"?"``.
+The monitor matches a frame to its message as the ECUs do (`RestBus.lookup`: by identifier and
+format; a 29-bit frame also to a J1939 message by PGN, whatever its priority and source address)
+and names its sender: the simulated ECU that sends that message, else the DUT if the DBC lists it
+as a sender, else the DBC's first sender, else ``"?"`` (also for a frame the database does not
+know).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import cantools
 from stack.events import Received
 from stack.frame import Frame
 
-from .ecu import Ecu, node_names
+from .ecu import Ecu, _pgn, node_names
 from .errors import UnknownNameError, load_database
 
 __all__ = ["RestBus", "BusRecord", "json_value", "MONITOR_NAME"]
@@ -81,7 +84,7 @@ class RestBus:
         names = node_names(db)
         if dut is not None and dut not in names:
             raise UnknownNameError("node", dut, names, "(--dut)")
-        chosen = list(nodes) if nodes is not None else [n for n in names if n != dut]
+        chosen = list(dict.fromkeys(nodes)) if nodes is not None else [n for n in names if n != dut]
         for n in chosen:
             if n not in names:
                 raise UnknownNameError("node", n, names)
@@ -93,18 +96,21 @@ class RestBus:
         self.keep = records
         self.records: list[BusRecord] = []
         self._callbacks: list[Callable[[BusRecord], Any]] = []
-        self._sender_of: dict[tuple[int, bool], str] = {}
+        self._sender_of: dict[str, str] = {}
         self._messages: dict[tuple[int, bool], Any] = {}
+        self._by_pgn: dict[int, Any] = {}
         for m in db.messages:
             key = (m.frame_id, bool(m.is_extended_frame))
-            self._messages[key] = m
+            self._messages[key] = m  # as cantools and the Ecu: the last one of a repeated identifier
+            if m.protocol == "j1939" and m.is_extended_frame:
+                self._by_pgn.setdefault(_pgn(m.frame_id), m)
             sim = [s for s in m.senders if s in self.ecus]
             if sim:
-                self._sender_of[key] = sim[0]
+                self._sender_of[m.name] = sim[0]
             elif dut is not None and dut in m.senders:
-                self._sender_of[key] = dut
+                self._sender_of[m.name] = dut
             elif m.senders:
-                self._sender_of[key] = m.senders[0]
+                self._sender_of[m.name] = m.senders[0]
         self.monitor = None
         if monitor:
             self.monitor = bus.node(MONITOR_NAME)
@@ -133,17 +139,28 @@ class RestBus:
             raise UnknownNameError("simulated node", node, self.ecus)
         ecu.set(signal, value, message=message)
 
+    def lookup(self, frame: Frame) -> Any:
+        """The database message of a frame, as the ECUs match it: by identifier and format,
+        then, for a 29-bit frame, a J1939 message by PGN (any priority and source address);
+        None if the database does not know it."""
+        m = self._messages.get((frame.can_id, frame.extended))
+        if m is None and frame.extended and self._by_pgn:
+            m = self._by_pgn.get(_pgn(frame.can_id))
+        return m
+
     def _on_frame(self, ev: Received) -> None:
         f = ev.frame
-        key = (f.can_id, f.extended)
-        m = self._messages.get(key)
+        m = self.lookup(f)
         signals: Mapping[str, Any] = {}
         if m is not None and not f.remote:
             try:
                 signals = m.decode(f.data, decode_choices=True, scaling=True)
             except Exception:
                 signals = {}
-        rec = BusRecord(ev.time, self._sender_of.get(key, "?"), None if m is None else m.name, f, dict(signals))
+        if m is None:
+            rec = BusRecord(ev.time, "?", None, f, {})
+        else:
+            rec = BusRecord(ev.time, self._sender_of.get(m.name, "?"), m.name, f, dict(signals))
         if self.keep:
             self.records.append(rec)
         for cb in self._callbacks:

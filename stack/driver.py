@@ -35,6 +35,7 @@ from .node import Node, Timer
 
 __all__ = ["PyCanDriver", "run_demo_on_bus", "RETRY_NS"]
 
+SEND_FAILURES_REPORTED = 20  # a request whose send failed this often is reported in `errors`
 RETRY_NS = 1_000_000
 _BATCH = 256
 
@@ -302,6 +303,8 @@ class PyCanDriver:
             else:
                 req.retries += 1
                 node.retransmissions += 1
+                if req.retries == SEND_FAILURES_REPORTED:  # not congestion any more: say so, once
+                    self.errors.append(f"{node.name}: send keeps failing ({req.retries} tries): {exc}")
                 self._retry[req] = now + RETRY_NS
                 self._ready.append(node)
             return

@@ -80,3 +80,55 @@ def test_same_restbus_on_a_python_can_bus(capsys):
     assert 15 <= len(eng) <= 30  # 10 ms cycle for 0.25 s of wall clock
     counters = [r["signals"]["EngineCounter"] for r in eng]
     assert counters == [(counters[0] + k) % 16 for k in range(len(counters))]
+
+
+def test_bitrate_is_passed_to_the_python_can_bus(capsys):
+    """A canstack bus already running at 250 kbit/s refuses nodes joining at another rate, so
+    a restbus with --bitrate 125000 must fail and one with 250000 must run."""
+    import stack.pycan  # noqa: F401  (registers interface="canstack")
+
+    keeper = can.Bus(interface="canstack", channel="dbc-cli-bitrate", bitrate=250_000)
+    try:
+        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "0.1", "--interface", "canstack",
+                             "--channel", "dbc-cli-bitrate", "--bitrate", "125000")
+        assert code == 2 and "250000" in err and "125000" in err and len(err.strip().splitlines()) == 1
+        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "0.1", "--interface", "canstack",
+                             "--channel", "dbc-cli-bitrate", "--bitrate", "250000", "--json")
+        assert code == 0 and out
+    finally:
+        keeper.shutdown()
+    code, out, err = run(capsys, "restbus", SAMPLE, "--bitrate", "5", "--duration", "0.1")
+    assert code == 2 and "1000..1000000" in err and len(err.strip().splitlines()) == 1
+
+
+def test_lost_bus_connection_exits_2_with_one_line(capsys):
+    """The canstack server goes away 0.5 s into a 5 s run: restbus stops and names the error."""
+    import threading
+    import time
+
+    from stack.serve import BusServer
+
+    server = BusServer(500_000, listen=("127.0.0.1", 0))
+    timer = threading.Timer(0.5, server.close)
+    timer.start()
+    try:
+        t0 = time.monotonic()
+        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "5", "--interface", "canstack",
+                             "--channel", server.url)
+        took = time.monotonic() - t0
+    finally:
+        timer.join()
+        server.close()
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert server.url in err and "failed" in err
+    assert took < 4  # it did not run on for the whole duration
+
+
+def test_malformed_dbc_without_line_from_cantools_is_one_line(capsys, tmp_path):
+    text = ('VERSION ""\nBS_:\nBU_: A\nBO_ 100 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" A\n'
+            'BA_ "GenMsgCycleTime" BO_ 100 10;\n')
+    bad = tmp_path / "undefattr.dbc"
+    bad.write_text(text)
+    code, out, err = run(capsys, "restbus", str(bad), "--duration", "0.1")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "line 6" in err and 'attribute "GenMsgCycleTime"' in err

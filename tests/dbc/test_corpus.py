@@ -10,6 +10,8 @@ import pytest
 
 from dbc.ecu import Ecu, initial_values, node_names
 from dbc.errors import DbcLoadError, SignalRangeError, load_database
+from dbc.interaction import attribute
+from dbc.restbus import RestBus
 from stack.sim import SimBus
 
 CORPUS = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "dbc"
@@ -187,3 +189,33 @@ def test_timing_dbc_cyclic_foo_only():
     assert set(_periods(bus, foo.frame_id)) == {200 * MS}
     assert len(_periods(bus, foo.frame_id)) == 5
     assert _periods(bus, bar.frame_id) == [] and ecu.timing("Bar").on_request_only
+
+
+def test_restbus_runs_every_loadable_file(corpus):
+    """A rest bus of every node of every file cantools loads (some list a node twice in BU_),
+    run for 100 ms: every node simulated once, every frame decoded as cantools decodes it and
+    credited to a node the DBC names as its sender, periodic messages on the bus."""
+    ok, _ = corpus
+    ran = checked = 0
+    for path, db in ok:
+        nodes = [n.name for n in db.nodes] + [s for m in db.messages for s in m.senders]
+        expected = set(nodes) - {"Vector__XXX"}
+        bus = SimBus(500_000)
+        rb = RestBus(db, bus)
+        assert sorted(rb.ecus) == sorted(expected), path.name
+        bus.run(until=100 * MS)
+        by_name = {m.name: m for m in db.messages}
+        for rec in rb.records:
+            m = by_name[rec.name]
+            assert rec.sender in m.senders, (path.name, rec.name, rec.sender)
+            assert rec.signals == m.decode(rec.frame.data), (path.name, rec.name)
+        # every periodic message (a cantools cycle time of at most 100 ms, a periodic send type or
+        # none, no start delay; CAN 2.0, not FD) of a simulated node goes out in the first 100 ms
+        periodic = {m.name for m in db.messages if set(m.senders) & expected and m.length <= 8 and not m.is_fd
+                    and not m.is_container and m.cycle_time and m.cycle_time <= 100
+                    and m.send_type in (None, "Cyclic", "FixedPeriodic", "EventPeriodic", "CyclicAndSpontaneous")
+                    and not attribute(db, m, "GenMsgStartDelayTime")}
+        assert periodic <= {r.name for r in rb.records}, (path.name, periodic - {r.name for r in rb.records})
+        checked += len(periodic)
+        ran += 1
+    assert ran == len(ok) and checked > 30

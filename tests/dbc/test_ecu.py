@@ -175,3 +175,102 @@ def test_initial_values_select_defined_mux_branch():
     v2 = initial_values(db2, m)
     assert v2["Mux"] == 3
     assert m.decode(m.encode(v2, strict=False)) == {"Mux": 3, "X": 0}
+
+
+def _page_frames(bus, msg, page):
+    """GatewayInfo frames on the wire whose multiplexer (byte 0, InfoPage) selects ``page``."""
+    return [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id and r.frame.data[0] == page]
+
+
+def test_multiplexed_reception_keeps_every_page(net):
+    db, bus, ecus = net
+    gw, ipc = ecus["GW"], ecus["IPC"]
+    msg = db.get_message_by_name("GatewayInfo")  # cycle 200 ms: frames at 0, 200, 400 ms
+    changes = []
+    ipc.on_signal("BatteryVoltage", changes.append)
+    bus.run(until=250 * MS)
+    gw.update("GatewayInfo", {"InfoPage": "Environment", "AmbientTemp": 21.5, "VehicleTime": 99})
+    bus.run(until=450 * MS)
+    page0, page1 = _page_frames(bus, msg, 0), _page_frames(bus, msg, 1)
+    assert len(page0) == 2 and len(page1) == 1  # 0 and 200 ms on page 0, 400 ms on page 1
+    last0, last1 = msg.decode(page0[-1].data), msg.decode(page1[-1].data)
+    assert "BatteryVoltage" not in last1  # the page-1 frame does not carry it ...
+    # ... yet the receiver still knows the value the last page-0 frame carried
+    assert ipc.get("BatteryVoltage") == last0["BatteryVoltage"]
+    assert ipc.get("AmbientTemp") == last1["AmbientTemp"] == 21.5
+    assert ipc.values("GatewayInfo") == {**last0, **last1}
+    # no change event for BatteryVoltage when a frame of the other page comes in
+    assert [(c.old, c.new) for c in changes] == [(None, last0["BatteryVoltage"])]
+
+
+def test_multiplexed_value_of_unselected_page_goes_out_with_its_page(net):
+    db, bus, ecus = net
+    gw = ecus["GW"]
+    msg = db.get_message_by_name("GatewayInfo")
+    gw.set("AmbientTemp", 20)  # InfoPage selects page 0 (Battery): kept, not sent yet
+    assert gw.get("AmbientTemp") == 20
+    bus.run(until=250 * MS)
+    frames = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id]
+    assert frames and all("AmbientTemp" not in msg.decode(f.data) for f in frames)
+    gw.set("InfoPage", "Environment")
+    bus.run(until=450 * MS)
+    sent = msg.decode([r.frame for r in bus.trace if r.frame.can_id == msg.frame_id][-1].data)
+    assert sent["InfoPage"] == "Environment" and sent["AmbientTemp"] == 20
+
+
+def test_encode_frame_changes_nothing(net):
+    db, bus, ecus = net
+    ecm, ipc = ecus["ECM"], ecus["IPC"]
+    msg = db.get_message_by_name("EngineData")  # cycle 10 ms, counter 0..15 (EngineCounter)
+    fails: list[CheckFailed] = []
+    ipc.on_check_failed(fails.append)
+    bus.run(until=25 * MS)
+    wire = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id]
+    last_counter = msg.decode(wire[-1].data)["EngineCounter"]
+    peek = ecm.encode_frame("EngineData")
+    assert msg.decode(peek.data)["EngineCounter"] == (last_counter + 1) % 16  # the next one
+    assert ecm.encode_frame("EngineData") == peek  # asking again gives the same frame
+    other = ecm.encode_frame("EngineData", {"EngineSpeed": 1000})
+    assert msg.decode(other.data)["EngineSpeed"] == 1000
+    assert msg.decode(other.data)["EngineCounter"] == (last_counter + 1) % 16
+    assert ecm.get("EngineSpeed") == msg.decode(wire[-1].data)["EngineSpeed"]  # values untouched
+    bus.run(until=60 * MS)
+    after = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id][len(wire):]
+    assert after[0].data == peek.data  # the next transmission is the frame encode_frame showed
+    counters = [msg.decode(f.data)["EngineCounter"] for f in after]
+    assert counters == [(last_counter + 1 + k) % 16 for k in range(len(counters))]
+    assert fails == [] and ipc.failed_checks == 0
+
+
+_HEAD = 'VERSION ""\nNS_ :\nBS_:\nBU_: A B\nBO_ 100 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" B\n'
+
+
+def _line_of(text: str, start: str) -> int:
+    return next(i for i, line in enumerate(text.splitlines(), 1) if line.startswith(start))
+
+
+def test_malformed_dbc_undefined_attribute_names_line_and_reason(tmp_path):
+    text = _HEAD + 'CM_ BO_ 100 "a comment";\nBA_ "GenMsgCycleTime" BO_ 100 10;\n'
+    p = tmp_path / "undefattr.dbc"
+    p.write_text(text)
+    with pytest.raises(cantools.database.errors.Error):
+        cantools.database.load_file(str(p))  # cantools rejects it, naming no line
+    with pytest.raises(DbcLoadError) as e:
+        load_database(p)
+    assert e.value.line == _line_of(text, 'BA_ "GenMsgCycleTime"')
+    assert "GenMsgCycleTime" in e.value.reason and "BA_DEF_" in e.value.reason
+    assert "\n" not in str(e.value)
+
+
+def test_malformed_dbc_dangling_val_names_line_and_reason(tmp_path):
+    text = _HEAD + 'VAL_ 100 S 1 "one" 0 "zero" ;\nVAL_ 100 T 1 "on" 0 "off" ;\n'
+    p = tmp_path / "dangling.dbc"
+    p.write_text(text)
+    with pytest.raises(DbcLoadError) as e:
+        load_database(p)
+    assert e.value.line == _line_of(text, "VAL_ 100 T")
+    assert "has no signal T" in e.value.reason and "\n" not in str(e.value)
+    p.write_text(_HEAD + 'VAL_ 101 S 1 "one" ;\n')  # no message 101 at all
+    with pytest.raises(DbcLoadError) as e:
+        load_database(p)
+    assert e.value.line == 7 and "no message has identifier 101" in e.value.reason

@@ -119,3 +119,51 @@ def test_stop_cancels_timers(db):
     n = len(queued(bus, 0x100))
     bus.run(until=100 * MS)
     assert len(queued(bus, 0x100)) == n == 3
+
+
+_SEND_TYPES = ["Cyclic", "CyclicIfActiveAndSpontaneous", "CyclicIfActiveAndSpontaneousWithDelay"]
+
+
+def _cias_db(send_type: str, fast: int, delay: int = 0):
+    """One CyclicIfActiveAndSpontaneous message (id 267) whose only signal L (inactive value 0,
+    the default) makes it active; the timing attributes as given."""
+    text = ('VERSION ""\nNS_ :\nBS_:\nBU_: TX RX\nBO_ 267 M: 1 TX\n SG_ L : 0|8@1+ (1,0) [0|255] "" RX\n'
+            'BA_DEF_ BO_ "GenMsgSendType" ENUM ' + ",".join(f'"{t}"' for t in _SEND_TYPES) + ';\n'
+            'BA_DEF_ BO_ "GenMsgCycleTimeFast" INT 0 65535;\nBA_DEF_ BO_ "GenMsgDelayTime" INT 0 65535;\n'
+            'BA_DEF_DEF_ "GenMsgSendType" "Cyclic";\nBA_DEF_DEF_ "GenMsgCycleTimeFast" 0;\n'
+            'BA_DEF_DEF_ "GenMsgDelayTime" 0;\n'
+            f'BA_ "GenMsgSendType" BO_ 267 {_SEND_TYPES.index(send_type)};\n'
+            f'BA_ "GenMsgCycleTimeFast" BO_ 267 {fast};\nBA_ "GenMsgDelayTime" BO_ 267 {delay};\n')
+    db = cantools.database.load_string(text)
+    assert db.get_message_by_name("M").send_type == send_type  # as cantools reads the DBC
+    return db
+
+
+def _writes(bus, ecu, writes):
+    for t, value in writes:
+        bus.run(until=t * MS)
+        ecu.set("L", value)
+
+
+def test_cyclic_if_active_and_spontaneous_one_frame_per_event():
+    db = _cias_db("CyclicIfActiveAndSpontaneous", fast=50)
+    bus, ecu = one(db, "TX")
+    _writes(bus, ecu, [(10, 1), (120, 0)])
+    bus.run(until=400 * MS)
+    # the write at 10 ms activates it: one spontaneous frame, then the fast cycle (50 ms) from
+    # it: 60, 110; the write at 120 ms deactivates it: one spontaneous frame with the inactive
+    # value, and the cycle stops
+    assert queued(bus, 267) == [10 * MS, 60 * MS, 110 * MS, 120 * MS]
+    assert [r.frame.data for r in bus.trace if r.frame.can_id == 267] == [b"\x01"] * 3 + [b"\x00"]
+
+
+def test_cyclic_if_active_and_spontaneous_with_delay():
+    db = _cias_db("CyclicIfActiveAndSpontaneousWithDelay", fast=50, delay=20)
+    bus, ecu = one(db, "TX")
+    _writes(bus, ecu, [(10, 1), (115, 2), (170, 0)])
+    bus.run(until=400 * MS)
+    # 10: activated (spontaneous), cycle 60, 110, 160; 115: spontaneous, but at least
+    # GenMsgDelayTime 20 ms after the 110 frame: 130; 170: deactivated, spontaneous at
+    # 160 + 20 = 180 with the inactive value, and no cycle after it
+    assert queued(bus, 267) == [10 * MS, 60 * MS, 110 * MS, 130 * MS, 160 * MS, 180 * MS]
+    assert [r.frame.data[0] for r in bus.trace if r.frame.can_id == 267] == [1, 1, 1, 2, 2, 0]

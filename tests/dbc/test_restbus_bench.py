@@ -35,3 +35,23 @@ def test_benchmark_counts_every_scheduled_frame():
     # EngineData 10 ms, GearboxData 20 ms (+5 ms), WheelSpeeds 20, VehicleSpeed 100, EEC1 50,
     # ClusterStatus 100, GatewayInfo 200 — each including the transmission at t = 1 s
     assert res["frames"] == 101 + 50 + 51 + 11 + 21 + 11 + 6
+
+
+def test_monitor_matches_j1939_by_pgn_like_the_ecus(sample_db):
+    from stack.frame import Frame
+
+    bus = SimBus(500_000)
+    rb = RestBus(sample_db, bus, dut="ECM")
+    msg = sample_db.get_message_by_name("EEC1")  # J1939 PGN 0xF004, sent by ECM (the DUT)
+    data = msg.encode({"EngineSpeedJ1939": 1000, "DriverDemandTorque": 10})
+    dut = bus.node("ECM")
+    bus.run(until=1 * MS)
+    # priority 6 and source address 0x17 instead of the DBC's 3 and 0x00; then an unknown PGN
+    dut.send(Frame(0x18F00417, data, extended=True))
+    dut.send(Frame(0x18F00517, data, extended=True))
+    bus.run(until=3 * MS)
+    recs = [r for r in rb.records if r.frame.can_id in (0x18F00417, 0x18F00517)]
+    assert [(r.sender, r.name) for r in recs] == [("ECM", "EEC1"), ("?", None)]
+    assert recs[0].signals == msg.decode(data) and recs[1].signals == {}
+    assert rb.ecus["GW"].get("EngineSpeedJ1939") == msg.decode(data)["EngineSpeedJ1939"]
+    assert [r.name for r in rb.from_dut()] == ["EEC1"]

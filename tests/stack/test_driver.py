@@ -149,6 +149,34 @@ def test_send_errors_retry_and_one_shot_fails():
     oneshot_bus.shutdown()
     assert len(flaky.sent) == 1 and n.retransmissions == 2 and n.tx_frames == 1
     assert len(failed) == 1 and "one-shot" in failed[0].reason and o.tx_failed == 1
+    assert drv.errors == []  # two failed tries are congestion, not an error
+
+
+def test_a_send_that_keeps_failing_is_reported():
+    from stack.driver import RETRY_NS, SEND_FAILURES_REPORTED
+
+    class Dead(can.BusABC):
+        def __init__(self):
+            super().__init__(channel="dead")
+
+        def send(self, msg, timeout=None):
+            raise can.CanOperationError("network is down")
+
+        def _recv_internal(self, timeout):
+            time.sleep(timeout or 0)
+            return None, False
+
+    dead = Dead()
+    drv = PyCanDriver()
+    n = drv.add(Node("n"), dead)
+    with drv:
+        with drv.lock:
+            n.send(Frame(0x1, b"\x01"))
+        end = time.monotonic() + 5.0
+        while not drv.errors and time.monotonic() < end:
+            time.sleep(RETRY_NS / 1e9)
+    dead.shutdown()
+    assert drv.errors == [f"n: send keeps failing ({SEND_FAILURES_REPORTED} tries): network is down"]
 
 
 def test_demo_runs_on_the_virtual_bus():
