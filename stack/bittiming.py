@@ -551,6 +551,7 @@ def _candidates(
     delays: BusDelays | None,
     min_tolerance: float | None,
     legacy: bool = False,
+    every_split: bool = False,
 ) -> tuple[list[_Candidate], Solution | None, dict[str, str]]:
     """Walk the kernel's search: every bit length from long to short with the prescaler rounded
     down (even step) and up (odd step). Returns the candidates passing every rule (in visit
@@ -566,6 +567,7 @@ def _candidates(
     order = 0
     nearest: int | None = None
     exact = False
+    extra: list[_Candidate] = []
     for step in range(2 * tseg_hi + 1, 2 * tseg_lo - 1, -1):
         tseg = step // 2
         nbt = tseg + SYNC_SEG
@@ -582,6 +584,20 @@ def _candidates(
                 rejected[RULE_BITRATE] = f"the nearest is {real} bit/s ({br_err / bitrate:.1%} off)"
             continue
         split = _split_for_sample_point(lim, sp_nominal, tseg)
+        if every_split:
+            # --all: the other splits of this bit length at or below the requested sample point
+            # (listed, never picked: the kernel considers only its own split)
+            for tseg2 in range(lim.tseg2_min, lim.tseg2_max + 1):
+                tseg1 = tseg - tseg2
+                sp_p = 1000 * (nbt - tseg2) // nbt
+                if not lim.tseg1_min <= tseg1 <= lim.tseg1_max or not 500 <= sp_p <= sp_nominal \
+                        or (split is not None and (tseg1, tseg2) == split[:2]):
+                    continue
+                try:
+                    sol = _checked(clock, brp, tseg1, tseg2, sjw, lim, delays, min_tolerance, bitrate, sp)
+                except ValueError:  # BitTimingError included: not valid, not listed
+                    continue
+                extra.append(_Candidate(-1, br_err, abs(sp_nominal - sp_p), sol))
         if split is None:
             rejected.setdefault(RULE_SAMPLE_POINT, f"no split of {nbt} tq at or below {sp:g} %")
             continue
@@ -611,7 +627,7 @@ def _candidates(
             continue
         best = cand
         exact = br_err == 0 and cand.sample_point_error == 0
-    return out, best.solution if best else None, rejected
+    return out + extra, best.solution if best else None, rejected
 
 
 def _no_timing(clock: int, bitrate: int, rejected: dict[str, str]) -> BitTimingError:
@@ -659,10 +675,12 @@ def all_timings(
     min_tolerance: float | None = None,
     legacy: bool = False,
 ) -> list[Solution]:
-    """Every valid timing the kernel's search visits (one split per prescaler and bit length),
-    ranked as the kernel ranks them: `solve`'s pick first, then by bitrate error, sample point
-    error and longer bit time."""
-    cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy)
+    """Every valid timing of the bit lengths and prescalers the kernel's search visits: each
+    split of TSEG1/TSEG2 within the controller's limits with the sample point from 50 % up to the
+    requested one that passes every rule, ranked as the kernel ranks them: `solve`'s pick
+    first, then by bitrate error, sample point error and longer bit time."""
+    cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy,
+                                        every_split=True)
     if best is None:
         raise _no_timing(clock, bitrate, rejected)
     seen: set[tuple[int, int, int]] = set()

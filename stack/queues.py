@@ -12,7 +12,7 @@ the head is the policy:
   controller sends the highest-priority mailbox. Without abort, a high-priority frame waits in
   the backlog while the mailboxes hold lower-priority frames (priority inversion); with abort,
   the lowest-priority mailbox that is not on the wire is aborted and put back at the front of
-  the backlog to make room.
+  the backlog to make room — when a frame is queued and again when a mailbox is refilled.
 """
 
 from __future__ import annotations
@@ -214,11 +214,32 @@ class MailboxQueue(TxQueue):
     def head(self) -> TxRequest | None:
         return min(self.boxes) if self.boxes else None
 
+    def _rebalance(self) -> None:
+        """With abort, a mailbox freed and refilled from the backlog's front is checked again:
+        while the backlog holds a frame that beats the lowest-priority mailbox not on the wire,
+        that mailbox is aborted back to the backlog's front and the better frame takes it (the
+        same rule as when a frame is queued), so the mailboxes hold the best pending frames."""
+        while self.backlog:
+            best = min(self.backlog)
+            victims = [b for b in self.boxes if not b.on_wire]
+            if not victims:
+                return
+            worst = max(victims)
+            if not best < worst:
+                return
+            self.backlog.remove(best)
+            self.boxes.remove(worst)
+            self.backlog.appendleft(worst)
+            self.boxes.append(best)
+            self.aborts += 1
+
     def remove(self, req: TxRequest) -> bool:
         if req in self.boxes:
             self.boxes.remove(req)
             if self.backlog:
                 self.boxes.append(self.backlog.popleft())
+            if self.abort:
+                self._rebalance()
             return True
         try:
             self.backlog.remove(req)

@@ -295,3 +295,14 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], argv: list[str], needle:
     rc, out, err = _cli(capsys, *argv)
     assert rc == 2 and out == ""
     assert err.count("\n") == 1 and needle in err and "Traceback" not in err
+
+
+def test_all_lists_every_split_at_or_below_the_sample_point() -> None:
+    # 16 MHz, 500 kbit/s: brp 2 gives 16 tq; every TSEG2 from 2 (87.5 %) to 8 (50 %, SJA1000's
+    # TSEG2 max) is a valid split: 7 rows with brp 2, first the kernel's pick
+    sols = all_timings(16_000_000, 500_000)
+    assert sols[0] == solve(16_000_000, 500_000)
+    brp2 = sorted((s.tseg2, s.sample_point) for s in sols if s.brp == 2)
+    assert brp2 == [(t2, 100 * (16 - t2) / 16) for t2 in range(2, 9)]
+    assert len({(s.brp, s.tseg1, s.tseg2) for s in sols}) == len(sols)
+    assert all(50 <= s.sample_point <= 87.5 for s in sols)

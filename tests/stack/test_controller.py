@@ -68,6 +68,23 @@ def test_mailboxes_without_abort_show_priority_inversion_and_abort_fixes_it():
     assert abort_order[0] == 0x010 and abort_latency == prio_latency
 
 
+@pytest.mark.parametrize("abort,order", [
+    # no abort: the backlog is a FIFO behind the one mailbox
+    (False, [0x300, 0x200, 0x100, 0x050]),
+    # abort: each refill is checked like a new frame, the best backlog frame takes the mailbox
+    (True, [0x300, 0x050, 0x100, 0x200]),
+])
+def test_one_mailbox_refills_in_order_or_by_priority_with_abort(abort, order):
+    bus = SimBus(500_000)
+    a, b = bus.node("a", queue="mailbox", mailboxes=1, abort=abort), bus.node("b")
+    a.send(Frame(0x300))
+    bus.run(duration=2000)  # 0x300 is on the wire: it cannot be aborted
+    for cid in (0x200, 0x100, 0x050):
+        a.send(Frame(cid))
+    bus.run()
+    assert [r.frame.can_id for r in bus.trace] == order
+
+
 def test_tx_queue_full_raises():
     bus = SimBus()
     a = bus.node("a", tx_queue_size=2)
