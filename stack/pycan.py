@@ -22,6 +22,7 @@ checkout that is not installed works too.
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import re
 import statistics
@@ -374,6 +375,15 @@ class _LocalPort:
         _release_runner(self.runner)
 
 
+def _is_socket(path: str) -> bool:
+    import stat
+
+    try:
+        return stat.S_ISSOCK(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
 def _parse_channel(channel: Any) -> tuple[str, str, Any]:
     """('local', name, None) | ('tcp', name, (host, port)) | ('unix', name, path)."""
     if not isinstance(channel, str) or not channel:
@@ -397,6 +407,10 @@ def _parse_channel(channel: Any) -> tuple[str, str, Any]:
             raise can.CanInitializationError(f"canstack channel {channel!r}: port {port} out of range")
         return "tcp", m.group(3), (host, port)
     if scheme == "unix":
+        if _is_socket(rest):
+            raise can.CanInitializationError(
+                f"canstack channel {channel!r}: {rest} is the socket itself; add the bus name: "
+                f"unix://{rest}/NAME")
         path, _, name = rest.rpartition("/")
         if not path.startswith("/") or not _NAME_RE.match(name):
             raise can.CanInitializationError(

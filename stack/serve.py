@@ -285,6 +285,9 @@ class _Session:
                 raise ValueError("mailboxes must be 1..64")
             self.own = bool(hello.get("receive_own_messages", False))
             node = self.server.runner.call(lambda: self.server._attach(self, name, config))
+        except RecursionError:
+            self._reject("HELLO refused: JSON nested too deeply", fatal=True)
+            return False
         except (ValueError, TypeError, UnicodeDecodeError, can.CanError) as exc:
             self._reject(f"HELLO refused: {exc}", fatal=True)
             return False
@@ -314,6 +317,9 @@ class _Session:
                 validate_filters(filters)
             except (ValueError, UnicodeDecodeError) as exc:
                 self._reject(f"FILTERS rejected: {exc}")
+                return
+            except RecursionError:
+                self._reject("FILTERS rejected: JSON nested too deeply")
                 return
             node = self.node
             self.server.runner.post(lambda: node.set_filters(filters or None))

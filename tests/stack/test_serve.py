@@ -185,7 +185,8 @@ def test_hostile_clients_are_rejected_and_the_server_keeps_serving(server):
         s.close()
         # 3. HELLO with bad JSON, bad option types
         for bad in (encode_message(HELLO, b"{not json"), _hello(config={"tx_queue_size": "huge"}),
-                    _hello(config={"evil": 1}), _hello(v=99)):
+                    _hello(config={"evil": 1}), _hello(v=99), encode_message(HELLO, b"[" * 5_000),
+                    _hello(node_name="\x01\x02")):
             s = _raw(server)
             s.sendall(bad)
             assert _read_msgs(s)[0][0] == ERROR
@@ -208,7 +209,7 @@ def test_hostile_clients_are_rejected_and_the_server_keeps_serving(server):
         assert types.count(ERROR) == 2
         s.sendall(encode_message(BYE))
         s.close()
-        assert server.rejected >= 11
+        assert server.rejected >= 13
         # the well-behaved clients saw exactly the one valid frame and still work
         got = drain(good_b, 5, timeout=0.3)
         assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(0x10, b"\x01")]
@@ -276,3 +277,10 @@ def test_unix_path_that_is_not_a_stale_socket_is_never_replaced(tmp_path):
     with BusServer(500_000, unix=str(path)) as srv:
         c = can.Bus(interface="canstack", channel=srv.url)
         c.shutdown()
+
+
+def test_unix_channel_naming_the_socket_itself_says_to_add_the_bus_name(tmp_path):
+    path = str(tmp_path / "bus.sock")
+    with BusServer(500_000, unix=path, name="body"):
+        with pytest.raises(can.CanInitializationError, match=r"is the socket itself; add the bus name"):
+            can.Bus(interface="canstack", channel=f"unix://{path}")
