@@ -549,3 +549,31 @@ def test_a_frame_cut_off_by_the_end_of_the_capture_keeps_what_was_received():
     (r,) = recs
     assert r.error.kind == "truncated" and r.error.position == 80
     assert (r.can_id, r.dlc, r.data, r.crc) == (0x222, 5, f.data, f.bits.crc)  # 0x66DA, the golden CRC
+
+
+def test_capture_receiver_agrees_with_the_time_quantum_receiver_on_drift():
+    """Two implementations of the same synchronisation rules: the decoder's sample-domain
+    receiver and `stack.sync.SyncReceiver` (one tick a time quantum). At 16 samples a bit, with
+    one sample a quantum, they receive the same worst-case frames as the transmitter's bit time
+    drifts, and their limits of drift (both ways) agree to 0.2 % of the bit time."""
+    from stack.sync import SyncReceiver, worst_case_frames
+
+    frames = list(worst_case_frames())
+
+    def both(drift: float) -> tuple[bool, bool]:
+        s = render_samples(frames, 500_000, 8_000_000, drift=drift)
+        rx = SyncReceiver(13, 2, 2)  # 16 tq: sample point 87.5 %, SJW 2 as given to the decoder
+        got = [r.frame for r in map(rx.tick, s) if r is not None and r.frame is not None]
+        dec = [r.to_frame() for r in decode_samples(s, 8_000_000, 500_000, sjw=2, retry=False) if r.ok]
+        return got == frames, dec == frames
+
+    def limit(sign: int, which: int) -> float:
+        d = 0.0
+        while d < 0.05 and both(sign * (d + 0.001))[which]:
+            d += 0.001
+        return d
+
+    assert both(0.0) == (True, True)
+    for sign in (1, -1):
+        tq, sample = limit(sign, 0), limit(sign, 1)
+        assert tq > 0.003 and abs(tq - sample) <= 0.002 + 1e-9, (sign, tq, sample)
