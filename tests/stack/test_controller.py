@@ -343,3 +343,27 @@ def test_bad_controller_requests_are_named():
     from stack.node import Node
     with pytest.raises(NodeError, match="not attached"):
         Node("loose").send(Frame(1))
+
+
+@settings(max_examples=150)
+@given(st.lists(st.tuples(st.sampled_from(["push", "abort", "send"]), st.sampled_from([1, 2, 3, 0x10, 0x7FF]),
+                          st.booleans(), st.integers(0, 1000)), max_size=120))
+def test_priority_queue_matches_a_sorted_reference(ops):
+    # the head is always the pending request with the lowest (arbitration key, queue order):
+    # checked against a plain sorted list under pushes, aborts from anywhere and sends
+    from stack.queues import PriorityQueue, TxRequest
+
+    q, ref = PriorityQueue(10_000), []
+    for seq, (op, cid, ext, pick) in enumerate(ops):
+        if op == "push":
+            r = TxRequest(None, Frame(cid, extended=ext), seq, 0)  # type: ignore[arg-type]
+            q.push(r)
+            ref.append(r)
+        elif ref:
+            r = ref[pick % len(ref)] if op == "abort" else min(ref, key=lambda r: (r.key, r.seq))
+            r.state = "aborted" if op == "abort" else "sent"
+            q.remove(r)
+            ref.remove(r)
+        expect = min(ref, key=lambda r: (r.key, r.seq)) if ref else None
+        assert q.head() is expect and len(q) == len(ref)
+    assert set(q.pending()) == set(ref)
