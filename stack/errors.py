@@ -261,7 +261,10 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
         if first_error is not None and first_flag_bit is None:
             first_flag_bit = b + 1
         if all(v.phase in (IDLE, OFF) or (v.phase == FRAME and v.role == "rx" and not v.dec.in_frame)
-               for v in views) and not any(v.stuck == 0 for v in views):
+               for v in views):
+            # every node is idle: the attempt is over (a node stuck dominant from here on is
+            # the SOF of an episode of its own, started by the fault injector when the bus is
+            # idle)
             b += 1
             break
         b += 1

@@ -468,9 +468,10 @@ class SimBus:
                         cb(ev)
                     if node._head is None:
                         node._update_head()
-                elif by is not None:
+                elif by is not None and not called:
                     # priority queue, inlined _update_head: the next head is the front of the
-                    # lowest key's FIFO (PriorityQueue.head)
+                    # lowest key's FIFO (PriorityQueue.head). Only when no user code ran: a
+                    # callback may have queued (and offered) a frame of a lower key already
                     if dq and dq[0].state == "queued":
                         nxt = dq[0]  # the same key again (a sender of one identifier)
                     else:
@@ -523,7 +524,7 @@ class SimBus:
         if self._faults is not None:
             deaf |= self._faults._deaf
             # a transmitter stuck recessive for good cannot drive the ACK slot either
-            deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None}
+            deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None and s.start <= self._now}
         ackers = [n for n in self.nodes if n._on_bus and not n.listen_only and n not in deaf]
         return all(not any(a is not p for a in ackers) for p in pending)
 

@@ -573,3 +573,34 @@ def test_flip_of_a_bit_the_frame_does_not_have_is_reported_and_not_an_occurrence
     bus.run(frames=1)
     # the flipped attempt and its clean retransmission are occurrences 1 and 2
     assert rule.seen == 2 and rule.fired == 1 and bus.error_frames == 1
+
+
+@pytest.mark.parametrize("onset_bit", [57, 58])
+def test_stuck_dominant_from_the_last_intermission_bit_is_an_episode_of_its_own(onset_bit):
+    # a 55-bit frame (EOF ends at bit 54, intermission 55..57): a node stuck dominant from the
+    # third intermission bit on is a new SOF, not part of the frame's attempt. The frame ends at
+    # bit 55 as without the fault; the episode starts when the bus is idle (bit 58): stuff error
+    # at its 6th bit (rule 1: REC 1), active flag, first dominant bit after it (rule 2: +8), then
+    # rule 6 at the 8th dominant bit after the flag and each 8 more, up to the release
+    f = Frame(0x123, b"\x00")
+    assert f.bits.length == 55
+    bus = SimBus(500_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    FaultInjector(bus).stuck("c", "dominant", start=onset_bit * 2000 - 1000, end=300_000)
+    a.send(f)
+    bus.run(until=10_000_000)
+    frame, episode = bus.trace[0], bus.trace[1]
+    assert frame.kind == "frame" and frame.end == 55 * 2000
+    assert episode.start == 58 * 2000 and episode.detail["error"] == "stuff"
+    # the fault lasts to 300 us = bit 150: the episode's dominant run after the flag (from its
+    # bit 12 = bus bit 70) lasts bits 70..149, 80 bits: rule 6 at runs 8, 16, ..., 80 = 10 times
+    assert b.rec == 1 + 8 + 10 * 8
+
+
+def test_run_guard_ignores_a_stuck_recessive_fault_that_has_not_started():
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    FaultInjector(bus).stuck("b", "recessive", start=1_000_000_000)
+    a.send(F)
+    bus.run()  # b acknowledges until then: the run ends
+    assert bus.frames_ok == 1

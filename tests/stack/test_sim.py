@@ -226,3 +226,24 @@ def test_fast_loop_gives_the_same_trace_as_the_general_path(monkeypatch, scenari
         return [r.as_tuple() for r in bus.trace], {n.name: n.counters() for n in bus.nodes}, bus.now()
 
     assert run(True) == run(False)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_a_callback_that_queues_a_higher_priority_frame_for_the_sender(fast, monkeypatch):
+    # b's receive callback queues 0x100 at a while a still has a second 0x200 waiting: the
+    # priority queue sends 0x100 next, on the fast path as on the general one
+    monkeypatch.setattr(SimBus, "fast", fast)
+    bus = SimBus(500_000)
+    a, b = bus.node("a"), bus.node("b")
+    fired = []
+
+    def cb(ev):
+        if not fired:
+            fired.append(1)
+            a.send(Frame(0x100))
+
+    b.subscribe(cb)
+    a.send(Frame(0x200, b"\x01"))
+    a.send(Frame(0x200, b"\x02"))
+    bus.run()
+    assert [(r.frame.can_id, r.frame.data) for r in bus.trace] == [(0x200, b"\x01"), (0x100, b""), (0x200, b"\x02")]
