@@ -247,3 +247,79 @@ def test_a_callback_that_queues_a_higher_priority_frame_for_the_sender(fast, mon
     a.send(Frame(0x200, b"\x02"))
     bus.run()
     assert [(r.frame.can_id, r.frame.data) for r in bus.trace] == [(0x200, b"\x01"), (0x100, b""), (0x200, b"\x02")]
+
+
+def _random_network(seed: int) -> tuple:
+    """A seeded random scenario: queue policies, filters, self-reception, remote replies,
+    callbacks that send (on reception and on TxDone), periodic tasks, an abort and reads from
+    the FIFOs in the middle of the run. Returns everything observable."""
+    import random
+
+    from stack.events import ArbitrationLost, TxDone
+
+    rng = random.Random(seed)
+    bus = SimBus(rng.choice([125_000, 500_000, 1_000_000]), seed=seed, record=rng.random() < 0.8)
+    ids = [rng.choice([0x100, 0x101, 0x180, 0x200, 0x201, 0x300, 0x7FF]) for _ in range(6)]
+
+    def frame(r):
+        if r.random() < 0.15:
+            return Frame(r.choice(ids), remote=True, dlc=r.randint(0, 8))
+        return Frame(r.choice(ids), bytes(r.randrange(256) for _ in range(r.randint(0, 8))))
+
+    nodes, log = [], []
+    for i in range(rng.randint(2, 5)):
+        policy = rng.choice(["priority", "priority", "fifo", "mailbox"])
+        kw = {"queue": policy, "rx_fifo_size": rng.choice([1, 4, 64]), "receive_own_messages": rng.random() < 0.3}
+        if policy == "mailbox":
+            kw.update(mailboxes=rng.randint(1, 3), abort=rng.random() < 0.5)
+        if rng.random() < 0.3:
+            kw["filters"] = [{"can_id": rng.choice([0x100, 0x200]), "can_mask": 0x700}]
+        nodes.append(bus.node(f"n{i}", **kw))
+    for n in nodes:
+        if rng.random() < 0.3:
+            n.set_remote_reply(Frame(rng.choice(ids), b"\xaa"))
+        own = random.Random(seed * 31 + len(log))
+        budget = [rng.randint(5, 60)]
+
+        def send_some(target, own=own, budget=budget):
+            if budget[0] > 0:
+                budget[0] -= 1
+                try:
+                    target.send(frame(own))
+                except Exception as exc:  # queue full, bus off: part of what is compared
+                    log.append(("refused", type(exc).__name__))
+
+        kind, target = rng.random(), rng.choice(nodes)
+        if kind < 0.3:
+            n.subscribe(lambda ev, t=target, s=send_some: (log.append(("rx", ev.time, ev.frame.key)), s(t)))
+        elif kind < 0.5:
+            n.listen(TxDone, lambda ev, t=target, s=send_some: s(t))
+        elif kind < 0.6:
+            n.listen(ArbitrationLost, lambda ev: log.append(("lost", ev.time, ev.frame.key)))
+        if rng.random() < 0.3:
+            n.send_periodic(frame(rng), rng.choice([200_000, 333_333, 1_000_000]), offset=rng.randint(0, 100_000),
+                            count=rng.randint(1, 20))
+        for _ in range(rng.randint(0, 15)):
+            try:
+                n.send(frame(rng))
+            except Exception as exc:
+                log.append(("refused", type(exc).__name__))
+    victim = rng.choice(nodes)
+    bus.call_at(rng.randint(0, 2_000_000),
+                lambda: log.append(("abort", bool(victim.pending()) and victim.abort(max(victim.pending(), key=lambda r: r.seq)))))
+    for _ in range(3):
+        bus.call_at(rng.randint(0, 5_000_000), lambda: log.extend(("recv", n.name, n.recv()) for n in nodes))
+    bus.run(until=rng.choice([2_000_000, 10_000_000, 40_000_000]))
+    return ([r.as_tuple() for r in bus.trace], {n.name: n.counters() for n in nodes},
+            {n.name: [(t, f, s.name) for t, f, s in n.rx_fifo] for n in nodes},
+            {n.name: sorted((r.frame.key, r.seq) for r in n.pending()) for n in nodes},
+            bus.now(), bus.frames_ok, bus.rounds, bus.busy_ns, log,
+            {k: (v.count, v.total, v.losses, v.min, v.max) for k, v in bus.id_stats.items()})
+
+
+@pytest.mark.parametrize("seed", range(300))
+def test_fast_loop_matches_the_general_path_on_random_networks(monkeypatch, seed):
+    monkeypatch.setattr(SimBus, "fast", True)
+    fast = _random_network(seed)
+    monkeypatch.setattr(SimBus, "fast", False)
+    assert fast == _random_network(seed)
