@@ -82,8 +82,11 @@ RULE_SAMPLE_POINT = "sample point 50..<100 %"
 class BitTimingError(ValueError):
     """A bit timing (or a request for one) that breaks a rule; ``rule`` names the rule."""
 
-    def __init__(self, rule: str, message: str) -> None:
+    def __init__(self, rule: str, message: str, *, phase_seg1: int | None = None) -> None:
         self.rule = rule
+        # set when the only fault is an SJW longer than the Phase_Seg1 left (the solver lowers
+        # its default SJW to it)
+        self.phase_seg1 = phase_seg1
         super().__init__(f"{message} (rule: {rule})")
 
 
@@ -461,7 +464,7 @@ def check_timing(
         else:
             rule = RULE_SJW_PHASE_SEG1
             detail += f", less than sjw={sjw}"
-        raise BitTimingError(rule, detail)
+        raise BitTimingError(rule, detail, phase_seg1=phase_seg1 if phase_seg1 >= 1 else None)
     sol = Solution(timing, prop_seg, phase_seg1, phase_seg2, lim, delays, bitrate_nominal, sample_point_nominal)
     if min_tolerance is not None:
         if sol.tolerance_resync < min_tolerance:
@@ -507,18 +510,18 @@ def _sjw_for(sjw: int | None, lim: ControllerLimits, tseg1: int, tseg2: int) -> 
 def _checked(clock: int, brp: int, tseg1: int, tseg2: int, sjw: int | None, lim: ControllerLimits,
              delays: BusDelays | None, min_tolerance: float | None, bitrate: int, sp: float) -> Solution:
     """`check_timing` of one split. With the default SJW, a Prop_Seg lengthened for the bus
-    length can leave Phase_Seg1 shorter than that SJW: the SJW is lowered to fit (down to 1)
-    rather than the timing refused."""
+    length can leave Phase_Seg1 shorter than that SJW: the SJW is lowered to that Phase_Seg1
+    (the kernel's default min(Phase_Seg1, Phase_Seg2 / 2) on the real Phase_Seg1) rather than
+    the timing refused."""
     width = _sjw_for(sjw, lim, tseg1, tseg2)
-    while True:
-        try:
-            return check_timing(make_timing(clock, brp, tseg1, tseg2, width), lim, delays, None, min_tolerance,
-                                bitrate, sp)
-        except BitTimingError as exc:
-            if sjw is not None or width <= 1 or f"SJW={width} does not fit" not in str(exc) \
-                    and exc.rule != RULE_SJW_PHASE_SEG1:
-                raise
-            width -= 1
+    try:
+        return check_timing(make_timing(clock, brp, tseg1, tseg2, width), lim, delays, None, min_tolerance,
+                            bitrate, sp)
+    except BitTimingError as exc:
+        if sjw is not None or exc.phase_seg1 is None or exc.phase_seg1 >= width:
+            raise
+        return check_timing(make_timing(clock, brp, tseg1, tseg2, exc.phase_seg1), lim, delays, None,
+                            min_tolerance, bitrate, sp)
 
 
 @dataclass
