@@ -282,9 +282,11 @@ class FaultInjector:
         return stuck
 
     def _leaving(self, now: int, horizon: int) -> dict[Node, int]:
-        """Nodes `disconnect` takes off the bus during the attempt starting now: the bit."""
+        """Nodes `disconnect` takes off the bus during the attempt starting now: the bit.
+        Disconnects already past are dropped (every attempt consults this list)."""
+        self._leaves = [(n, at) for n, at in self._leaves if at > now]
         return {n: self._bits_after(now, at) for n, at in self._leaves
-                if now < at <= now + horizon and n.connected}
+                if at <= now + horizon and n.connected}
 
     def attempt(self, bus: "SimBus", now: int, txs: Sequence["TxRequest"]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
