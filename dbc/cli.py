@@ -52,17 +52,17 @@ def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> An
     module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node; ``bitrate`` (None:
     the interface's default) is passed to every connection."""
     try:
-        from stack import driver  # imported here: the simulated bus needs no python-can driver
+        from stack.io import driver  # imported here: the simulated bus needs no python-can driver
     except ImportError:
         raise CliError("python-can driver not available yet (stack.driver)") from None
     if interface == "canstack":
-        from stack import pycan  # noqa: F401  (registers the interface when not installed)
+        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     kw: dict[str, Any] = {} if bitrate is None else {"bitrate": bitrate}
     open_bus = getattr(driver, "open_bus", None)
     if open_bus is not None:
         return open_bus(interface, channel, **kw)
     if not hasattr(driver, "PyCanDriver"):
-        raise CliError("python-can driver not available yet (stack.driver.PyCanDriver)")
+        raise CliError("python-can driver not available yet (stack.io.driver.PyCanDriver)")
     import can
 
     try:  # open one connection now so a bad interface or channel is one clear line
@@ -115,9 +115,9 @@ def restbus_command(args: argparse.Namespace) -> int:
     if args.channel is not None and args.interface is None:
         raise CliError("--channel needs --interface")
     if args.trace:
-        from stack.trace import _check_suffix
+        from stack.bus.trace import check_suffix
 
-        _check_suffix(args.trace)
+        check_suffix(args.trace)
     db = load_database(args.dbc)
     out = sys.stdout
     shown = 0
@@ -146,7 +146,7 @@ def restbus_command(args: argparse.Namespace) -> int:
             shown += 1
 
     if args.interface is None:
-        from stack.sim import SimBus
+        from stack.bus.sim import SimBus
 
         bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
         rb = RestBus(db, bus, dut=args.dut, records=False)
@@ -178,7 +178,7 @@ def restbus_command(args: argparse.Namespace) -> int:
                     fn()
                     break
         if args.trace:
-            from stack.trace import save_messages
+            from stack.bus.trace import save_messages
 
             save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace)
         if failure is not None:

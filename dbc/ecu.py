@@ -20,9 +20,9 @@ from typing import Any, Callable, Iterable, Mapping
 
 import cantools
 
-from stack.events import Received
-from stack.frame import Frame
-from stack.node import QueueFull
+from stack.controller.events import Received
+from stack.wire.frame import Frame
+from stack.controller.node import QueueFull
 
 from .checks import checks_from_attributes
 from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
@@ -391,7 +391,7 @@ class Ecu:
     - ``db``: a cantools `Database` or a path (loaded with `load_database`);
     - ``name``: the DBC node (``BU_``) this ECU is; unknown names raise `UnknownNameError` with
       the closest ones;
-    - ``node``: a `stack.node.Node` (simulated or python-can driven);
+    - ``node``: a `stack.controller.node.Node` (simulated or python-can driven);
     - ``clamp``: out-of-range writes are clamped to the signal's range instead of raising
       `SignalRangeError` (strict is the default);
     - ``checks``: alive counter / checksum hooks (`dbc.checks`); None takes those declared in
@@ -425,8 +425,9 @@ class Ecu:
         self.unsupported: dict[str, str] = {}
         hooks = list(checks_from_attributes(db) if checks is None else checks)
         by_msg: dict[str, list[Any]] = {}
+        message_names = {m.name for m in db.messages}
         for h in hooks:
-            if h.message not in db._name_to_message:
+            if h.message not in message_names:
                 raise UnknownNameError("message", h.message, [m.name for m in db.messages], f"in hook {h.name}")
             by_msg.setdefault(h.message, []).append(h)
         self._tx: dict[str, _TxMessage] = {}

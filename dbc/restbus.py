@@ -1,7 +1,7 @@
 """Rest-bus simulation: every node of a DBC but the device under test, on one bus.
 
 `RestBus(db, bus, dut="IPC")` puts an `Ecu` for each other node on ``bus`` (anything with
-``.node(name)``: a `stack.sim.SimBus`, or the python-can driver's bus object), each sending its
+``.node(name)``: a `stack.bus.sim.SimBus`, or the python-can driver's bus object), each sending its
 messages with their initial values and interaction-layer timing, plus a monitor node that
 decodes every frame on the bus into a `BusRecord`. Without a DUT every node is simulated.
 
@@ -19,8 +19,8 @@ from typing import Any, Callable, Iterable, Mapping
 
 import cantools
 
-from stack.events import Received
-from stack.frame import Frame
+from stack.controller.events import Received
+from stack.wire.frame import Frame
 
 from .ecu import Ecu, _pgn, node_names
 from .errors import UnknownNameError, load_database

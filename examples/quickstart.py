@@ -5,10 +5,10 @@ It prints the frames of the first 5 ms, the per-identifier latency and arbitrati
 what fault confinement made of the noisy node; then writes the trace to quickstart.asc.
 """
 
-from stack.events import ErrorStateChanged
-from stack.faults import FaultInjector
-from stack.frame import Frame
-from stack.sim import SimBus
+from stack.controller.events import ErrorStateChanged
+from stack.bus.faults import FaultInjector
+from stack.wire.frame import Frame
+from stack.bus.sim import SimBus
 
 MS = 1_000_000
 

@@ -4,14 +4,14 @@ Run: python examples/restbus_example.py
 
 Every node but the instrument cluster is simulated from dbc/databases/powertrain_body.dbc with
 its initial values and interaction layer; the "DUT" here is an Ecu too, so the example runs
-anywhere. On a real bench, replace SimBus with stack.driver.PyCanDriver(interface="socketcan",
+anywhere. On a real bench, replace SimBus with stack.io.driver.PyCanDriver(interface="socketcan",
 channel="vcan0") and drop the DUT Ecu: nothing else changes.
 """
 
 from pathlib import Path
 
 from dbc import Ecu, RestBus, load_database
-from stack.sim import SimBus
+from stack.bus.sim import SimBus
 
 MS = 1_000_000
 db = load_database(Path(__file__).resolve().parents[1] / "dbc" / "databases" / "powertrain_body.dbc")

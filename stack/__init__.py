@@ -1,5 +1,101 @@
-"""canstack's software CAN controller and bus (see DESIGN.md)."""
+"""canstack's software CAN controller and bus, in layers (see the README's architecture section):
 
-from .frame import Frame, arbitration_key, data_length
+- `stack.wire` — identifiers, the `Frame` type, CRC-15 and bit stuffing, the bit decoder;
+- `stack.controller` — fault confinement, queues, filters, the node and its events, the node API;
+- `stack.bus` — the simulated bus, bit-level attempts, fault injection, traces;
+- `stack.phy` — bit timing, synchronisation, waveforms;
+- `stack.io` — the python-can driver and interface, the real-time runner, `canstack serve`;
+- `stack.cli` — the `canstack` command and the benchmark.
 
-__all__ = ["Frame", "arbitration_key", "data_length"]
+The names most programs need are importable from here (``from stack import SimBus, Frame``); they
+load on first use, so ``import stack`` stays cheap. Modules that moved when the package was
+split into layers keep working under their old names (``stack.sim``, ``stack.node``, …) with a
+DeprecationWarning naming the new place.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.util
+import sys
+import warnings
+from typing import Any
+
+__all__ = [
+    "Frame", "arbitration_key", "data_length",
+    "Node", "NodeAPI", "NodeError", "QueueFull", "TxRequest", "Timer", "Subscription", "PeriodicTask",
+    "ErrorState", "Received", "TxDone", "TxFailed", "ArbitrationLost", "ErrorStateChanged",
+    "SimBus", "TraceRecord", "FaultInjector", "PyCanDriver",
+]
+
+# public name -> module that defines it
+_EXPORTS = {
+    "Frame": "stack.wire.frame", "arbitration_key": "stack.wire.frame", "data_length": "stack.wire.frame",
+    "Node": "stack.controller.node", "NodeError": "stack.controller.node", "Timer": "stack.controller.node",
+    "Subscription": "stack.controller.node", "PeriodicTask": "stack.controller.node",
+    "ErrorState": "stack.controller.node",
+    "NodeAPI": "stack.controller.api",
+    "QueueFull": "stack.controller.queues", "TxRequest": "stack.controller.queues",
+    "Received": "stack.controller.events", "TxDone": "stack.controller.events", "TxFailed": "stack.controller.events",
+    "ArbitrationLost": "stack.controller.events", "ErrorStateChanged": "stack.controller.events",
+    "SimBus": "stack.bus.sim", "TraceRecord": "stack.bus.sim", "FaultInjector": "stack.bus.faults",
+    "PyCanDriver": "stack.io.driver",
+}
+
+# modules of the flat layout (before the layers) -> where they live now
+MOVED = {
+    "stack.frame": "stack.wire.frame", "stack.bits": "stack.wire.coding", "stack.events": "stack.controller.events",
+    "stack.filters": "stack.controller.filters", "stack.queues": "stack.controller.queues",
+    "stack.node": "stack.controller.node", "stack.sim": "stack.bus.sim", "stack.errors": "stack.bus.attempt",
+    "stack.faults": "stack.bus.faults", "stack.trace": "stack.bus.trace", "stack.bittiming": "stack.phy.bittiming",
+    "stack.sync": "stack.phy.sync", "stack.waveform": "stack.phy.waveform", "stack.driver": "stack.io.driver",
+    "stack.pycan": "stack.io.pycan", "stack.serve": "stack.io.serve", "stack.commands": "stack.cli.demo",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name from its layer on first use (PEP 562)."""
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'stack' has no attribute {name!r}")
+    value = getattr(importlib.import_module(mod), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Import an old flat-layout module name as a stand-in that reads every attribute from the
+    module's new place, with a DeprecationWarning (``stack.bits`` reads the decoder as well)."""
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname in MOVED:
+            return importlib.util.spec_from_loader(fullname, self)
+        return None
+
+    def create_module(self, spec: Any) -> Any:
+        return None  # a plain module, filled in by exec_module
+
+    def exec_module(self, module: Any) -> None:
+        new = MOVED[module.__name__]
+        warnings.warn(f"{module.__name__} moved to {new}; import it from there", DeprecationWarning, stacklevel=2)
+        sources = [importlib.import_module(new)]
+        if module.__name__ == "stack.bits":  # the flat module held the decoder as well
+            sources.append(importlib.import_module("stack.wire.decoder"))
+
+        def __getattr__(name: str) -> Any:
+            for src in sources:
+                if hasattr(src, name):
+                    return getattr(src, name)
+            raise AttributeError(f"module {module.__name__!r} (now {new}) has no attribute {name!r}")
+
+        module.__getattr__ = __getattr__
+        module.__all__ = [n for src in sources for n in getattr(src, "__all__", ())]
+
+
+if not any(isinstance(f, _MovedModules) for f in sys.meta_path):
+    sys.meta_path.insert(0, _MovedModules())  # before path finders: an old checkout's files never shadow it

@@ -10,8 +10,8 @@ from hypothesis import given, strategies as st
 from dbc.checks import E2E, AliveCounter, Checksum, crc8_autosar, crc8_sae_j1850, sum8, xor8
 from dbc.ecu import Ecu
 from dbc.errors import UnknownNameError, load_database
-from stack.frame import Frame
-from stack.sim import SimBus
+from stack.wire.frame import Frame
+from stack.bus.sim import SimBus
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000

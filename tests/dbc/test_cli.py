@@ -71,7 +71,7 @@ def test_unknown_interface_is_one_line_exit_2(capsys):
 
 
 def test_same_restbus_on_a_python_can_bus(capsys):
-    """The ECUs run unchanged on python-can's virtual bus through stack.driver (wall clock)."""
+    """The ECUs run unchanged on python-can's virtual bus through stack.io.driver (wall clock)."""
     code, out, err = run(capsys, "restbus", SAMPLE, "--dut", "IPC", "--duration", "0.25",
                          "--interface", "virtual", "--channel", "dbc-test-restbus", "--json")
     assert code == 0
@@ -85,7 +85,7 @@ def test_same_restbus_on_a_python_can_bus(capsys):
 def test_bitrate_is_passed_to_the_python_can_bus(capsys):
     """A canstack bus already running at 250 kbit/s refuses nodes joining at another rate, so
     a restbus with --bitrate 125000 must fail and one with 250000 must run."""
-    import stack.pycan  # noqa: F401  (registers interface="canstack")
+    import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 
     keeper = can.Bus(interface="canstack", channel="dbc-cli-bitrate", bitrate=250_000)
     try:
@@ -106,7 +106,7 @@ def test_lost_bus_connection_exits_2_with_one_line(capsys):
     import threading
     import time
 
-    from stack.serve import BusServer
+    from stack.io.serve import BusServer
 
     server = BusServer(500_000, listen=("127.0.0.1", 0))
     timer = threading.Timer(0.5, server.close)

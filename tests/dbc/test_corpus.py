@@ -12,7 +12,7 @@ from dbc.ecu import Ecu, initial_values, node_names
 from dbc.errors import DbcLoadError, SignalRangeError, load_database
 from dbc.interaction import attribute
 from dbc.restbus import RestBus
-from stack.sim import SimBus
+from stack.bus.sim import SimBus
 
 CORPUS = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "dbc"
 FILES = sorted(CORPUS.glob("*/*.dbc")) if CORPUS.is_dir() else []

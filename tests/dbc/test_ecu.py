@@ -7,8 +7,8 @@ import pytest
 
 from dbc.ecu import CheckFailed, Ecu, SignalChanged, initial_values
 from dbc.errors import ChoiceError, DbcError, DbcLoadError, SignalRangeError, UnknownNameError, load_database
-from stack.frame import Frame
-from stack.sim import SimBus
+from stack.wire.frame import Frame
+from stack.bus.sim import SimBus
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000

@@ -8,7 +8,7 @@ import pytest
 from dbc.ecu import Ecu
 from dbc.errors import load_database
 from dbc.interaction import SendType, attribute, message_timing, signal_timing
-from stack.sim import SimBus
+from stack.bus.sim import SimBus
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000

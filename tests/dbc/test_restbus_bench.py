@@ -4,7 +4,7 @@ from pathlib import Path
 
 from dbc.bench import benchmark
 from dbc.restbus import RestBus
-from stack.sim import SimBus
+from stack.bus.sim import SimBus
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000
@@ -16,7 +16,7 @@ def test_restbus_simulates_all_but_dut_and_decodes_dut(sample_db):
     assert sorted(rb.ecus) == ["ABS", "BCM", "ECM", "GW", "TCM"]
     dut = bus.node("IPC")  # a stand-in DUT sending its own cluster frame
     msg = sample_db.get_message_by_name("ClusterStatus")
-    from stack.frame import Frame
+    from stack.wire.frame import Frame
 
     bus.run(until=3 * MS)
     dut.send(Frame(0x400, msg.encode({"Odometer": 1234.5, "FuelLevel": 50, "Brightness": 10})))
@@ -38,7 +38,7 @@ def test_benchmark_counts_every_scheduled_frame():
 
 
 def test_monitor_matches_j1939_by_pgn_like_the_ecus(sample_db):
-    from stack.frame import Frame
+    from stack.wire.frame import Frame
 
     bus = SimBus(500_000)
     rb = RestBus(sample_db, bus, dut="ECM")

@@ -1,0 +1,94 @@
+"""The `canstack` command line (the top layer of `stack`).
+
+Each subcommand lives in a module of this package, beside the library module it drives, and exposes
+``register(subparsers) -> None``; the handler it sets with ``set_defaults(func=...)`` takes the
+parsed arguments and returns an exit status. Bad input raises `CliError` (or ValueError from the
+library), which is printed as one line on stderr with exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+__all__ = ["CliError", "main", "parse_int"]
+
+# stack's own modules that contribute subcommands, in the order they are listed in --help;
+# packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
+# group in pyproject.toml, so that stack never imports them (DESIGN.md: imports go one way)
+SUBCOMMAND_MODULES = [
+    "stack.cli.demo",
+    "stack.cli.bittiming",
+    "stack.cli.sync",
+    "stack.cli.waveform",
+    "stack.cli.serve",
+]
+# which module registers which subcommand: a command line naming one imports only that module
+# (`canstack decode` then starts without python-can or cantools); --help imports them all
+SUBCOMMANDS = {"demo": "stack.cli.demo", "frame": "stack.cli.demo", "bittiming": "stack.cli.bittiming",
+               "sync": "stack.cli.sync", "decode": "stack.cli.waveform", "render": "stack.cli.waveform",
+               "serve": "stack.cli.serve"}
+
+
+class CliError(Exception):
+    """A bad command-line argument or input file: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse would print usage + message; keep one line
+        raise CliError(f"{self.prog}: {message}")
+
+
+def parse_int(text: str) -> int:
+    """An integer given in decimal or with 0x/0o/0b prefix (CAN identifiers are usually hex)."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every available subcommand registered, or only ``command``'s module
+    when it names one of stack's own subcommands."""
+    parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    if command in SUBCOMMANDS:
+        importlib.import_module(SUBCOMMANDS[command]).register(sub)
+        return parser
+    for name in SUBCOMMAND_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # subcommand not built yet
+            raise
+        mod.register(sub)
+    from importlib.metadata import entry_points  # ~12 ms: only when every command is listed
+
+    for ep in sorted(entry_points(group="canstack.commands"), key=lambda e: e.name):
+        ep.load()(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `canstack` console script."""
+    try:
+        args_list = list(sys.argv[1:] if argv is None else argv)
+        first = next((a for a in args_list if not a.startswith("-")), None)
+        parser = build_parser(first)
+        args = parser.parse_args(args_list)
+        return int(args.func(args) or 0)
+    except BrokenPipeError:  # output piped into head: not an error
+        try:
+            sys.stdout = None  # type: ignore[assignment]
+        finally:
+            return 0
+    except (CliError, ValueError, OSError) as exc:
+        print(f"canstack: error: {exc}" if not str(exc).startswith("canstack") else f"{exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+

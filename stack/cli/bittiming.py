@@ -1,0 +1,95 @@
+"""`canstack bittiming`: the bit-timing solver on the command line (`stack.phy.bittiming`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+from stack.phy.bittiming import (CONTROLLERS, BusDelays, ControllerLimits, format_hz, all_timings, controller_limits,
+                                 format_solution, parse_limits, solve)
+
+__all__ = ["register", "add_timing_arguments", "limits_from_args"]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(float(text)) if "e" in text.lower() else int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return v
+
+
+def _number(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def add_timing_arguments(p: argparse.ArgumentParser) -> None:
+    """The options shared by `bittiming` and `sync`: clock, bitrate, sample point, controller, sjw."""
+    p.add_argument("--clock", type=_positive_int, required=True, help="controller clock in Hz")
+    p.add_argument("--bitrate", type=_positive_int, required=True, help="bitrate in bit/s")
+    p.add_argument("--sample-point", type=_number, help="sample point in percent (default: CiA 75/80/87.5)")
+    p.add_argument("--controller", default="sja1000", help=f"register limits: {', '.join(CONTROLLERS)}")
+    p.add_argument("--limits", help="custom limits 'tseg1=1..16,tseg2=1..8,sjw=4,brp=1..64[,brp_inc=1]'")
+    p.add_argument("--sjw", type=_positive_int, help="synchronisation jump width in tq (default: kernel's)")
+
+
+def limits_from_args(args: argparse.Namespace) -> ControllerLimits:
+    """--limits if given, else the --controller's limits."""
+    return parse_limits(args.limits) if args.limits else controller_limits(args.controller)
+
+
+def _run(args: argparse.Namespace) -> int:
+    lim = limits_from_args(args)
+    delays = BusDelays(args.bus_length, args.cable_delay, args.transceiver_delay, args.comparator_delay)
+    kw = dict(sample_point=args.sample_point, limits=lim, sjw=args.sjw, delays=delays, min_tolerance=args.tolerance,
+              legacy=args.legacy)
+    if args.all:
+        sols = all_timings(args.clock, args.bitrate, **kw)  # type: ignore[arg-type]
+        if args.json:
+            print(json.dumps([s.as_dict() for s in sols], indent=2))
+            return 0
+        print(f"{len(sols)} valid timings for {args.bitrate} bit/s, {format_hz(args.clock)} clock, {lim.name} (best first)")
+        print("  brp  tq[ns]  nbt prop ps1 ps2 sjw  sample%   bitrate  err%    df%  maxlen[m]")
+        for s in sols:
+            print(
+                f"{s.brp:5d} {s.tq_ns:7.1f} {s.nbt:4d} {s.prop_seg:4d} {s.phase_seg1:3d} {s.phase_seg2:3d} {s.sjw:3d}"
+                f" {s.sample_point:7.2f} {s.bitrate:9.0f} {s.bitrate_error:5.2f} {s.oscillator_tolerance:6.3f} {s.max_bus_length:9.1f}"
+            )
+        return 0
+    sol = solve(args.clock, args.bitrate, **kw)  # type: ignore[arg-type]
+    if args.json:
+        print(json.dumps(sol.as_dict(), indent=2))
+    else:
+        print(f"{args.bitrate} bit/s with a {format_hz(args.clock)} clock on {lim.name}:")
+        print(format_solution(sol))
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add the `bittiming` subcommand."""
+    p = subparsers.add_parser(
+        "bittiming",
+        help="compute CAN bit timing (BRP/TSEG1/TSEG2/SJW) for a clock and bitrate",
+        description="Pick BRP/TSEG1/TSEG2/SJW as the Linux kernel does and check the bit timing rules.",
+    )
+    add_timing_arguments(p)
+    p.add_argument("--bus-length", type=_number, default=0.0, help="bus length in m (Prop_Seg must cover it)")
+    p.add_argument("--cable-delay", type=_number, default=5.0, help="cable propagation delay in ns/m (5)")
+    p.add_argument("--transceiver-delay", type=_number, default=0.0, help="transceiver delay in ns, one way (0)")
+    p.add_argument("--comparator-delay", type=_number, default=0.0, help="input comparator delay in ns (0)")
+    p.add_argument("--tolerance", type=_number, help="required oscillator tolerance in percent")
+    p.add_argument("--all", action="store_true", help="list every valid timing, ranked")
+    p.add_argument("--legacy", action="store_true",
+                   help="on a tie keep the larger prescaler, as Linux < 5.19 and can-utils until 2022 did")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_run)

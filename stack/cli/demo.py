@@ -1,0 +1,349 @@
+"""`canstack demo` and `canstack frame`: the engine's own subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+
+from stack.wire.coding import INTERMISSION_BITS, worst_case_length
+from stack.cli import CliError, parse_int
+from stack.wire.frame import Frame
+from stack.bus.sim import SimBus
+
+__all__ = ["register", "build_demo", "format_summary"]
+
+MS = 1_000_000
+
+
+def build_demo(bus: SimBus) -> None:
+    """The demo network: five ECUs with periodic traffic at different priorities, an extended
+    (J1939-style) message, and a remote request answered automatically by a mailbox."""
+    brake = bus.node("brake")
+    engine = bus.node("engine")
+    body = bus.node("body")
+    gateway = bus.node("gateway")
+    tester = bus.node("tester", filters=[{"can_id": 0x0C1, "can_mask": 0x7FF, "extended": False},
+                                         {"can_id": 0x700, "can_mask": 0x7FF, "extended": False}])
+    # every ECU reads its receive FIFO from an interrupt-like callback, as firmware would
+    for ecu in (brake, engine, body, gateway, tester):
+        ecu.subscribe(lambda ev: None)
+    counter = {"n": 0}
+
+    def wheel_speeds() -> Frame:
+        counter["n"] = (counter["n"] + 1) & 0xFF
+        return Frame(0x0A0, bytes([0x12, 0x34, 0x56, counter["n"]]))
+
+    brake.send_periodic(wheel_speeds, 5 * MS)
+    engine.send_periodic(Frame(0x0C1, bytes.fromhex("4001087500000000")), 10 * MS, offset=1 * MS)
+    engine.send_periodic(Frame(0x0C2, bytes.fromhex("0011223344556677")), 10 * MS, offset=1 * MS)
+    body.send_periodic(Frame(0x3E8, bytes.fromhex("0102")), 100 * MS)
+    body.send_periodic(Frame(0x3E9, bytes.fromhex("00")), 20 * MS, offset=3 * MS)
+    gateway.send_periodic(Frame(0x18FEF100, bytes.fromhex("FFFF3C00FFFFFFFF"), extended=True), 20 * MS)
+    # a burst every 50 ms: six frames queued at once compete with everyone's periodic traffic
+    for i in range(6):
+        gateway.send_periodic(Frame(0x500 + i, bytes(8)), 50 * MS, offset=1 * MS)
+    body.set_remote_reply(Frame(0x700, bytes.fromhex("5A5A")))
+    tester.send_periodic(Frame(0x700, remote=True, dlc=2), 50 * MS, offset=7 * MS)
+
+
+def build_fault_demo(bus: SimBus) -> list[tuple[int, dict[str, tuple[int, int]]]]:
+    """The fault demo: three ECUs; from 100 to 250 ms ecu2's receiver picks up noise (local bit errors)
+    and it goes error passive; from 400 ms its transmitter is disconnected (stuck recessive) and
+    it goes bus off; the fault clears at 410 ms and it recovers (rule 12). Returns the TEC/REC
+    samples (every 0.5 ms) the plot is drawn from."""
+    from stack.bus.faults import FaultInjector
+
+    ecus = [bus.node(n) for n in ("ecu1", "ecu2", "ecu3")]
+    for e in ecus:
+        e.subscribe(lambda ev: None)
+    ecus[0].send_periodic(Frame(0x100, bytes(8)), 2 * MS)
+    ecus[1].send_periodic(Frame(0x200, bytes.fromhex("1122334455667788")), 5 * MS, offset=MS // 2)
+    ecus[2].send_periodic(Frame(0x300, bytes(4)), 3 * MS, offset=MS)
+    fi = FaultInjector(bus)
+    bus.call_at(100 * MS, lambda: fi.bit_errors(3e-3, nodes=["ecu2"]))
+    bus.call_at(250 * MS, lambda: fi.bit_errors(0.0, nodes=["ecu2"]))
+    fi.stuck("ecu2", "recessive", start=400 * MS, end=410 * MS)
+    samples: list[tuple[int, dict[str, tuple[int, int]]]] = []
+
+    def sample() -> None:
+        samples.append((bus.now(), {e.name: (e.tec, e.rec) for e in ecus}))
+        bus.call_later(MS // 2, sample)
+
+    bus.call_at(0, sample)
+    return samples
+
+
+def plot_counters(samples: list[tuple[int, dict[str, tuple[int, int]]]], path: str) -> None:
+    """TEC and REC of each node over time, with the passive (128) and bus-off (256) levels."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise CliError("--plot needs matplotlib: pip install 'canstack[plot]'") from None
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6))
+    t = [s[0] / 1e6 for s in samples]
+    for name in samples[0][1]:
+        ax1.plot(t, [s[1][name][0] for s in samples], label=name)
+        ax2.plot(t, [s[1][name][1] for s in samples], label=name)
+    ax1.axhline(256, color="red", lw=0.8, ls="--", label="bus off (256)")
+    for ax, what in ((ax1, "TEC"), (ax2, "REC")):
+        ax.axhline(96, color="gold", lw=0.8, ls="--", label="error warning (96)")
+        ax.axhline(128, color="orange", lw=0.8, ls="--", label="error passive (128)")
+        ax.set_ylabel(what)
+        ax.legend(loc="upper right", fontsize=8)
+    ax2.set_xlabel("time (ms)")
+    fig.suptitle("canstack fault demo: fault confinement counters")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def format_summary(bus: SimBus) -> str:
+    """A readable summary: bus load, per-ID latency and arbitration losses, node counters."""
+    s = bus.summary()
+    lines = [
+        f"bus {bus.name}: {bus.bitrate // 1000} kbit/s, {s['elapsed_s']:.3f} s simulated, "
+        f"{s['frames']} frames, {s['error_frames']} error frames, bus load {100 * s['bus_load']:.1f} %",
+        "",
+        f"{'ID':>10}  {'frames':>6}  {'latency min/mean/max (us)':>27}  {'arb. losses':>11}",
+    ]
+    for ident, st in s["ids"].items():
+        lat = f"{st['latency_min_us']:.0f} / {st['latency_mean_us']:.0f} / {st['latency_max_us']:.0f}"
+        lines.append(f"{ident:>10}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
+    lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'arb.lost':>8} {'retx':>5} {'overrun':>7} {'TEC':>4} {'REC':>4}"]
+    for name, c in s["nodes"].items():
+        lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['arbitration_lost']:>8} "
+                     f"{c['retransmissions']:>5} {c['rx_overruns']:>7} {c['txerr']:>4} {c['rxerr']:>4}")
+    return "\n".join(lines)
+
+
+def _check_output(path: str, option: str) -> None:
+    """An output file named on the command line: checked before a run, so that a long
+    simulation does not end in an error with nothing written."""
+    import os
+
+    if not path:
+        raise CliError(f"{option} needs a file name")
+    if os.path.isdir(path):
+        raise CliError(f"{option} {path!r} is a directory, not a file")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise CliError(f"{option} {path!r}: directory {parent!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise CliError(f"{option} {path!r}: directory {parent!r} is not writable")
+
+
+def _demo(args: argparse.Namespace) -> int:
+    if args.interface:
+        if args.faults or args.plot:
+            raise CliError("--faults needs the simulated bus (fault injection is a simulation feature)")
+        for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--json", args.json or None)):
+            if val is not None:
+                raise CliError(f"{opt} needs the simulated bus (the trace is the simulation's); "
+                               "on a python-can bus record with python -m can.logger")
+
+        kw = {} if args.bitrate is None else {"bitrate": args.bitrate}
+        print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration, **kw))
+        return 0
+    for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--plot", args.plot)):
+        if val is not None:
+            _check_output(val, opt)
+    if args.trace:
+        from stack.bus.trace import check_suffix
+        check_suffix(args.trace)
+    if args.plot and not args.faults:
+        raise CliError("--plot draws the fault demo's counters: use it with --faults")
+    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=True)
+    if args.faults:
+        from stack.controller.events import ErrorStateChanged
+
+        samples = build_fault_demo(bus)
+        changes: list[ErrorStateChanged] = []
+        for n in bus.nodes:
+            n.listen(ErrorStateChanged, changes.append)
+        duration = args.duration
+        bus.run(until=int(duration * 1e9))
+    else:
+        build_demo(bus)
+        bus.run(until=int(args.duration * 1e9))
+    if args.json:
+        print(json.dumps(bus.summary(), indent=2))
+    else:
+        if args.faults:
+            print("state changes (fault confinement):")
+            for ev in changes:
+                print(f"  {ev.time / 1e6:9.3f} ms  {ev.node:<5} {ev.old:>13} -> {ev.new:<13} TEC {ev.tec:3d} REC {ev.rec:3d}")
+            print()
+        print(format_summary(bus))
+    if args.plot:
+        plot_counters(samples, args.plot)
+        if not args.json:
+            print(f"\nplot: TEC/REC over time written to {args.plot}")
+    if args.trace:
+        n = bus.save_trace(args.trace)
+        if not args.json:
+            print(f"\ntrace: {n} records written to {args.trace}")
+    if args.vcd:
+        n = write_trace_vcd(bus, args.vcd)
+        if not args.json:
+            print(f"waveform: CAN_RX of {n} frames written to {args.vcd} (GTKWave, PulseView)")
+    return 0
+
+
+def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
+    """Render the frames of a simulated trace, at their SOF times, as a CAN_RX waveform in VCD
+    (error attempts are left out: the waveform shows the frames that went through). The
+    waveform starts with 11 recessive bits of bus idle, so its time 0 is 11 bit times before the
+    simulation's: a receiver needs them to join the bus."""
+    from stack.phy.waveform import IDLE_BITS, render_edges, write_vcd
+
+    recs = [r for r in bus.trace if r.kind == "frame"]
+    lead = IDLE_BITS / bus.bitrate
+    runs, _, _ = render_edges([r.frame for r in recs], bus.bitrate, bus.bitrate * samples_per_bit,
+                              times=[lead + r.start / 1e9 for r in recs])
+    write_vcd(path, runs, bus.bitrate * samples_per_bit, comment=f"canstack demo, bus {bus.name}")
+    return len(recs)
+
+
+def _duration(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < v <= 3600:
+        raise argparse.ArgumentTypeError(f"{v}: the duration must be > 0 and at most 3600 s")
+    return v
+
+
+def _bitrate(text: str) -> int:
+    v = parse_int(text)
+    if not 1_000 <= v <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+    return v
+
+
+def _frame_from_args(args: argparse.Namespace) -> Frame:
+    try:
+        data = bytes.fromhex(args.data.replace(" ", "")) if args.data else b""
+    except ValueError:
+        raise CliError(f"--data {args.data!r} is not hex bytes (e.g. 4001087500000000)") from None
+    return Frame(args.id, data, extended=args.extended, remote=args.remote, dlc=args.dlc)
+
+
+def _frame(args: argparse.Namespace) -> int:
+    frame = _frame_from_args(args)
+    fb = frame.bits
+    if args.json:
+        print(json.dumps({"bits": fb.bits, "crc": fb.crc, "length": fb.length, "stuff_bits": fb.stuff_count}))
+        return 0
+    stuff = set(fb.stuff_positions)
+    print(f"frame       {frame!r}")
+    print(f"CRC         0x{fb.crc:04X}")
+    print(f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
+          f"worst case {worst_case_length(frame.length, frame.extended)}")
+    print("bits        (stuff bits in [ ])")
+    for fld, positions in fb.fields.items():
+        if not positions:
+            continue
+        out = []
+        for p in range(positions[0], positions[-1] + 2):
+            if p in stuff:
+                out.append(f"[{fb.bits[p]}]")
+            elif p in positions:
+                out.append(fb.bits[p])
+        print(f"  {fld.value:<10}{''.join(out)}")
+    print(f"stuffed     {fb.bits}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add `demo` and `frame`."""
+    p = sub.add_parser("demo", help="run the demo network on the simulated bus and print a summary")
+    p.add_argument("--duration", type=_duration, default=1.0, help="simulated seconds (default 1)")
+    p.add_argument("--bitrate", type=_bitrate, default=None,
+                   help="bit/s (default 500000; on --interface, passed to the bus when given)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
+    p.add_argument("--vcd", metavar="FILE", help="write the bus as a CAN_RX waveform (VCD, 16 samples a bit)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--faults", action="store_true",
+                   help="the fault demo: a node goes error passive, bus off, and recovers")
+    p.add_argument("--plot", metavar="PNG", help="with --faults: plot TEC/REC over time (needs the plot extra)")
+    p.add_argument("--interface", help="run the same nodes on a python-can bus instead (e.g. socketcan, "
+                                       "virtual, canstack); wall-clock time")
+    p.add_argument("--channel", help="the python-can channel (e.g. vcan0)")
+    p.set_defaults(func=_demo, duration_given=False)
+
+    p = sub.add_parser("frame", help="show a frame's bits on the wire: stuffing, CRC, length")
+    p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")
+    p.add_argument("--data", default="", help="data bytes as hex")
+    p.add_argument("--extended", action="store_true", help="29-bit identifier")
+    p.add_argument("--remote", action="store_true", help="remote frame (give --dlc)")
+    p.add_argument("--dlc", type=parse_int, default=None, help="DLC 0..15 (default: data length)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_frame)
+
+
+def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: Any) -> str:
+    """Run the demo network (`stack.cli.demo.build_demo`) on a python-can bus for
+    ``duration_s`` wall-clock seconds and return a summary: what a monitor connection saw per
+    identifier (count, mean period and p99 deviation from it, from the bus's receive timestamps) and each node's counters.
+
+    ``kwargs`` go to every ``can.Bus``; ``pace_bitrate`` (for buses without wire time such as
+    ``virtual``) goes to the driver.
+    """
+    import statistics
+    import time
+
+    import can
+
+    from stack.io.driver import PyCanDriver
+
+    if duration_s <= 0:
+        raise ValueError(f"duration {duration_s}: must be > 0 seconds")
+    pace = kwargs.pop("pace_bitrate", None)
+    if interface == "canstack":
+        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
+    try:
+        monitor = can.Bus(interface=interface, channel=channel, **kwargs)
+    except (can.CanError, OSError, NotImplementedError) as exc:
+        raise ValueError(f"cannot open {interface} channel {channel!r}: {exc}") from None
+    drv = PyCanDriver(interface=interface, channel=channel, pace_bitrate=pace, **kwargs)
+    seen: dict[tuple[int, bool, bool], list[float]] = {}
+    try:
+        build_demo(drv)  # type: ignore[arg-type]  # the driver offers SimBus's node() and clock
+        drv.start()
+        end = time.monotonic() + duration_s
+        while (left := end - time.monotonic()) > 0:
+            msg = monitor.recv(min(left, 0.1))
+            if msg is not None:
+                seen.setdefault((msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame), []).append(msg.timestamp)
+        drv.stop()
+        counters = {n.name: n.counters() for n in drv.nodes}
+    finally:
+        drv.close()
+        monitor.shutdown()
+    total = sum(len(v) for v in seen.values())
+    lines = [f"{interface} {channel}: {duration_s:.2f} s wall clock, {total} frames seen by a monitor"
+             + (f", paced at {pace} bit/s" if pace else ""),
+             "", f"{'ID':>10}  {'frames':>6}  {'mean period (ms)':>16}  {'p99 deviation (ms)':>18}"]
+    for (cid, ext, rtr), ts in sorted(seen.items()):
+        ident = (f"0x{cid:08X}" if ext else f"0x{cid:03X}") + (" RTR" if rtr else "")
+        gaps = [b - a for a, b in zip(ts, ts[1:])]
+        if gaps:
+            mean = statistics.fmean(gaps)
+            devs = sorted(abs(g - mean) for g in gaps)
+            p99 = devs[min(len(devs) - 1, int(0.99 * len(devs)))]
+            lines.append(f"{ident:>10}  {len(ts):>6}  {mean * 1e3:>16.2f}  {p99 * 1e3:>18.3f}")
+        else:
+            lines.append(f"{ident:>10}  {len(ts):>6}  {'-':>16}  {'-':>18}")
+    lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'retx':>5} {'failed':>6}"]
+    for name, c in counters.items():
+        lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['retransmissions']:>5} {c['tx_failed']:>6}")
+    if drv.errors:
+        lines += ["", f"{len(drv.errors)} callback error(s); first: {drv.errors[0]}"]
+    return "\n".join(lines)

@@ -1,0 +1,141 @@
+"""`canstack sync`: resynchronisation and bus-length simulations on the command line
+(`stack.phy.sync`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import replace
+from typing import Any
+
+from stack.cli.bittiming import add_timing_arguments, limits_from_args
+from stack.phy.bittiming import BusDelays, Solution, solve
+from stack.phy.sync import (BUS_LENGTH_FRAMES, DEFAULT_PHASES, ack_exchange, arbitration_exchange, max_bus_length_simulated,
+                            max_drift, one_way_delay_ns, worst_case_frames)
+
+__all__ = ["register"]
+
+
+
+def _drift_range(text: str) -> tuple[float, float]:
+    lo, dots, hi = text.partition("..")
+    try:
+        a, b = (float(lo), float(hi)) if dots else (0.0, float(lo))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected LOW..HIGH in ppm, e.g. 0..20000") from None
+    if not (0 <= a < b and math.isfinite(b)):
+        raise argparse.ArgumentTypeError(f"{text!r}: a drift range needs 0 <= LOW < HIGH")
+    if b >= 500_000:
+        raise argparse.ArgumentTypeError(f"{text!r}: drift beyond 500000 ppm is not a clock offset")
+    return a, b
+
+
+def _length(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: needs a finite number >= 0")
+    return v
+
+
+def _run_bus_length(args: argparse.Namespace, sol: Solution) -> int:
+    delays = sol.delays
+    at = replace(delays, bus_length_m=args.bus_length)
+    fa, fb = BUS_LENGTH_FRAMES
+    checks = [ack_exchange(fa, sol.timing, at, phase=ph) for ph in DEFAULT_PHASES]
+    checks += [arbitration_exchange(fa, fb, sol.timing, at, phase=ph) for ph in DEFAULT_PHASES]
+    bad = next((r for r in checks if not r.ok), None)
+    res = max_bus_length_simulated(sol, delays)
+    if args.json:
+        d = res.as_dict()
+        d["bus_length_m"] = args.bus_length
+        d["at_bus_length"] = None if bad is None else bad.as_dict()
+        d["ok_at_bus_length"] = bad is None
+        print(json.dumps(d, indent=2))
+        return 0
+    s = sol
+    print(
+        f"{args.bitrate} bit/s, {args.clock} Hz clock: brp {s.brp}, tq {s.tq_ns:g} ns, {s.nbt} tq "
+        f"(prop_seg {s.prop_seg}, phase_seg1 {s.phase_seg1}, phase_seg2 {s.phase_seg2}), sjw {s.sjw}, "
+        f"sample point {s.sample_point:.1f} %; cable {delays.cable_delay_ns_per_m:g} ns/m, "
+        f"node delay {delays.node_delay_ns:g} ns"
+    )
+    print(f"at {args.bus_length:g} m (one-way {one_way_delay_ns(at):g} ns): "
+          + ("ACK and arbitration work" if bad is None else bad.describe()))
+    print(f"largest bus length simulated: {res.simulated_m:.1f} m"
+          + (f"; beyond it: {res.first_failure.describe()}" if res.first_failure else ""))
+    print(f"round trip reaching the sample point: {res.sample_point_m:.1f} m (1 tq of round trip = {res.quantum_m:.1f} m)")
+    print(f"formula Prop_Seg >= 2 x (bus + transceiver + comparator): {res.formula_m:.1f} m "
+          f"(keeps Sync_Seg + Phase_Seg1 free for phase errors: {res.reserve_m:.1f} m below the simulation)")
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    lim = limits_from_args(args)
+    if args.bus_length is not None:
+        delays = BusDelays(0.0, args.cable_delay, args.transceiver_delay, args.comparator_delay)
+        sol = solve(args.clock, args.bitrate, sample_point=args.sample_point, limits=lim, sjw=args.sjw, delays=delays)
+        return _run_bus_length(args, sol)
+    sol = solve(args.clock, args.bitrate, sample_point=args.sample_point, limits=lim, sjw=args.sjw)
+    if args.samples == 3:
+        t = sol.timing
+        sol = Solution(
+            type(t)(f_clock=t.f_clock, brp=t.brp, tseg1=t.tseg1, tseg2=t.tseg2, sjw=t.sjw, nof_samples=3),
+            sol.prop_seg, sol.phase_seg1, sol.phase_seg2, sol.limits, sol.delays,
+            sol.bitrate_nominal, sol.sample_point_nominal,
+        )
+    lo, hi = args.drift_ppm
+    res = max_drift(sol, lo, hi, steps=args.steps, resolution_ppm=args.resolution)
+    if args.json:
+        print(json.dumps(res.as_dict(), indent=2))
+        return 0
+    s = sol
+    print(
+        f"{args.bitrate} bit/s, {args.clock} Hz clock: brp {s.brp}, {s.nbt} tq (tseg1 {s.tseg1}, tseg2 {s.tseg2}), "
+        f"sjw {s.sjw}, sample point {s.sample_point:.1f} %, {s.timing.nof_samples} sample(s)"
+    )
+    print("frames: " + ", ".join(f"0x{f.can_id:03x} [{f.data.hex()}]" for f in worst_case_frames()))
+    for d, f in res.scan:
+        print(f"  drift +-{d:8.0f} ppm: {'ok' if f is None else f'fails ({f.drift_ppm:+.0f} ppm): ' + f.reception.describe()}")
+    if math.isnan(res.max_drift_ppm):
+        print(f"reception fails already at {lo:g} ppm")
+    elif res.first_failure is None:
+        print(f"frames received over the whole range, up to {hi:g} ppm")
+    else:
+        ff = res.first_failure
+        print(f"largest drift received: {res.max_drift_ppm:.0f} ppm")
+        print(
+            f"first failure at {ff.drift_ppm:+.0f} ppm, frame 0x{ff.frame.can_id:03x}: {ff.reception.describe()}"
+        )
+    print(
+        f"formula tolerance: {res.formula_ppm:.0f} ppm (SJW/(20 NBT) {s.tolerance_resync * 1e4:.0f}, "
+        f"min(PS1,PS2)/(2(13 NBT-PS2)) {s.tolerance_error_flag * 1e4:.0f}); "
+        f"simulation reaches {res.margin:.2f} x that"
+    )
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add the `sync` subcommand."""
+    p = subparsers.add_parser(
+        "sync",
+        help="simulate resynchronisation with a drifting receiver clock",
+        description="Find the largest receiver clock drift at which worst-case frames are still "
+        "received, against the ISO 11898-1 oscillator tolerance.",
+    )
+    add_timing_arguments(p)
+    p.add_argument("--drift-ppm", type=_drift_range, default=(0.0, 20_000.0), help="range LOW..HIGH in ppm (0..20000)")
+    p.add_argument("--samples", type=int, choices=(1, 3), default=1, help="samples per bit (1 or 3)")
+    p.add_argument("--steps", type=int, default=10, help="scan intervals before bisection (10)")
+    p.add_argument("--resolution", type=float, default=10.0, help="bisection resolution in ppm (10)")
+    p.add_argument("--bus-length", type=_length,
+                   help="instead of the drift scan: simulate the ACK round trip and arbitration at this bus "
+                   "length (m) and report the largest length that works against the Prop_Seg formula")
+    p.add_argument("--cable-delay", type=_length, default=5.0, help="with --bus-length: cable delay in ns/m (5)")
+    p.add_argument("--transceiver-delay", type=_length, default=0.0, help="with --bus-length: transceiver delay in ns (0)")
+    p.add_argument("--comparator-delay", type=_length, default=0.0, help="with --bus-length: comparator delay in ns (0)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_run)

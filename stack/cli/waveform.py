@@ -1,0 +1,136 @@
+"""`canstack decode` and `canstack render`: CAN_RX waveforms on the command line
+(`stack.phy.waveform`)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from stack.phy.waveform import (MAX_RENDER_SAMPLES, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
+                                 runs_to_raw, write_raw, write_vcd)
+
+__all__ = ["register"]
+
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not v > 0 or math.isinf(v):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    return v
+
+
+def _format_table(recs: Sequence[RxRecord]) -> str:
+    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':3} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
+    for r in recs:
+        ident = "-" if r.can_id is None else (f"{r.can_id:08X}" if r.extended else f"{r.can_id:03X}")
+        fmt = ("ext" if r.extended else "std") + ("R" if r.remote else "")
+        dlc = "-" if r.dlc is None else str(r.dlc)
+        data = "remote" if r.remote else r.data.hex(" ")
+        crc = "-" if r.crc is None else f"0x{r.crc:04X}"
+        ok = lambda b: "ok " if b else "ERR"  # noqa: E731
+        crc_ok = ok(r.crc_ok) if r.crc is not None else " - "
+        row = (
+            f"{r.t:12.6f}  {ident:>10}  {fmt:3} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
+            f"{ok(r.form_ok)}  {'yes' if r.ack else 'no'}"
+        )
+        if r.error is not None:
+            row += f"  {r.error}" + (" [error flag]" if r.error_flag else "")
+        lines.append(row)
+    good = sum(1 for r in recs if r.ok)
+    lines.append(f"{good} frames, {len(recs) - good} error records")
+    return "\n".join(lines)
+
+
+def _cmd_decode(args: argparse.Namespace) -> int:
+    recs = decode_file(
+        args.file, args.bitrate, channel=args.channel, samplerate=args.samplerate,
+        sample_point=args.sample_point, sjw=args.sjw, retry=not args.no_retry,
+    )
+    out = sys.stdout
+    if args.json:
+        for r in recs:
+            out.write(json.dumps(record_to_json(r)) + "\n")
+    else:
+        out.write(_format_table(recs) + "\n")
+    return 0
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    src = Path(args.frames)
+    if str(src) == "-":
+        text = sys.stdin.read().splitlines()
+    else:
+        if not src.is_file():
+            raise ValueError(f"{src}: no such frames file")
+        try:
+            text = src.read_text(encoding="utf-8").splitlines()
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{src}: not a text file of JSON lines ({exc.reason} at byte {exc.start})") from None
+    pairs = frames_from_jsonl(text, str(src))
+    if not pairs:
+        raise ValueError(f"{src}: no frames to render")
+    frames = [f for _, f in pairs]
+    times = [t for t, _ in pairs]
+    # the waveform is written whole: bound it before building it (a far-off 't' would need
+    # gigabytes); frames without 't' follow each other back to back
+    span = max((t for t in times if t is not None), default=0.0) + len(frames) * 200 / args.bitrate
+    if span * args.samplerate > MAX_RENDER_SAMPLES:
+        raise ValueError(f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
+                         f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)")
+    runs, _, _ = render_edges(
+        frames, args.bitrate, args.samplerate, times=times, drift=args.drift, jitter=args.jitter, seed=args.seed
+    )
+    if args.vcd:
+        write_vcd(
+            args.vcd, runs, args.samplerate, name=args.name,
+            comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s, {args.samplerate:g} samples/s",
+        )
+    else:
+        write_raw(args.raw, runs_to_raw(runs, args.raw_bit))
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add the `decode` and `render` subcommands (CLI contract of `stack.cli`)."""
+    p = subparsers.add_parser(
+        "decode",
+        help="decode a recorded CAN_RX waveform (.sr, .vcd, raw) into frames",
+        description="Decode a CAN_RX waveform with a sample-domain bit receiver: hard sync after bus "
+        "idle, resynchronisation with SJW, sampling at the sample point, destuffing and frame checks.",
+    )
+    p.add_argument("file", help="sigrok session (.sr), VCD, or raw file of one byte per sample")
+    p.add_argument("--bitrate", type=_positive_float, required=True, help="nominal bit rate, bit/s")
+    p.add_argument("--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)")
+    p.add_argument("--sample-point", type=float, default=87.5, help="sample point, %% of the bit (default 87.5)")
+    p.add_argument("--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))")
+    p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")
+    p.add_argument("--no-retry", action="store_true", help="do not retry failed frames at other sample points")
+    p.add_argument("--json", action="store_true", help="one JSON object per frame per line")
+    p.set_defaults(func=_cmd_decode)
+
+    r = subparsers.add_parser(
+        "render",
+        help="render frames (JSON lines) as a CAN_RX waveform (VCD or raw samples)",
+        description="Render the frames listed (decode --json keys; t optional, back to back when "
+        "missing) as a CAN_RX waveform.",
+    )
+    r.add_argument("frames", help="JSON-lines file of frames ('-' for stdin)")
+    r.add_argument("--bitrate", type=_positive_float, required=True, help="bit rate, bit/s")
+    r.add_argument("--samplerate", type=_positive_float, required=True, help="samples/s")
+    out = r.add_mutually_exclusive_group(required=True)
+    out.add_argument("--vcd", help="write VCD (GTKWave, PulseView)")
+    out.add_argument("--raw", help="write raw samples, one byte per sample")
+    r.add_argument("--raw-bit", type=int, default=None, help="raw: recessive as 1 << BIT instead of 1")
+    r.add_argument("--name", default="CAN_RX", help="VCD signal name (default CAN_RX)")
+    r.add_argument("--drift", type=float, default=0.0, help="transmitter clock error, fraction (0.01 = 1 %% slow)")
+    r.add_argument("--jitter", type=float, default=0.0, help="edge jitter, fraction of a bit (uniform)")
+    r.add_argument("--seed", type=int, default=0, help="seed for the jitter")
+    r.set_defaults(func=_cmd_render)

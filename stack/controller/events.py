@@ -1,0 +1,65 @@
+"""Events a node reports to the layers above (h11 style: small immutable values).
+
+They are NamedTuples rather than frozen dataclasses: one is made per received frame on the hot
+path, and a NamedTuple is built about 5x faster (0.15 us against 0.8 us on the bench machine).
+
+Times are integer nanoseconds on the driver's clock (virtual in simulation, wall clock on a
+python-can bus).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+from stack.wire.frame import Frame
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stack.controller.queues import TxRequest
+
+__all__ = ["Received", "TxDone", "TxFailed", "ArbitrationLost", "ErrorStateChanged", "Event"]
+
+
+class Received(NamedTuple):
+    """A frame passed the acceptance filters and was received (valid at the end of EOF)."""
+
+    time: int
+    frame: Frame
+
+
+class TxDone(NamedTuple):
+    """A queued frame was transmitted successfully (no error up to the end of EOF)."""
+
+    time: int
+    frame: Frame
+    request: "TxRequest"
+
+
+class TxFailed(NamedTuple):
+    """A queued frame will not be sent: one-shot failure, abort, bus off, or shutdown."""
+
+    time: int
+    frame: Frame
+    request: "TxRequest"
+    reason: str
+
+
+class ArbitrationLost(NamedTuple):
+    """The node's pending frame lost bitwise arbitration to ``winner`` in the round at ``time``."""
+
+    time: int
+    frame: Frame
+    winner: Frame
+
+
+class ErrorStateChanged(NamedTuple):
+    """Fault confinement moved the node to another state (rules 9-12, warning at 96)."""
+
+    time: int
+    node: str
+    old: str
+    new: str
+    tec: int
+    rec: int
+
+
+Event = Any

@@ -1,0 +1,315 @@
+"""Run stack nodes on any python-can bus (socketcan/vcan, virtual, udp_multicast, hardware).
+
+`PyCanDriver` is the second driver of the design: it gives each `Node` a wall clock and a
+`can.BusABC` as its wire. The node's code — and every profile or DBC ECU above it — is the one
+that runs on `SimBus`: it calls ``send``, ``subscribe``, ``listen``, ``call_at``, ``now``; the
+driver turns received frames into `Received`, and frames handed to the bus into `TxDone`.
+
+- One python-can connection per node (``can.Bus(interface, channel)`` each, or a bus you pass),
+  so the nodes see each other's frames through the real bus (on vcan, through the kernel).
+- The software controller still orders its own transmit queue: the driver hands the bus one
+  frame per node at a time, the head of the node's queue; when several nodes of this driver
+  have a frame ready at the same moment, the lowest arbitration key goes first. The bus itself
+  does the real arbitration (hardware), or none (vcan, virtual).
+- ``pace_bitrate`` makes the driver hand frames no faster than the wire would carry them at
+  that bitrate (useful on ``virtual``, which has no wire time).
+- A transmission counts as done (`TxDone`) when ``bus.send`` returns; a `can.CanError` from it
+  is a retransmission 1 ms later (or `TxFailed` for a one-shot node).
+- Timers run on one scheduler thread with the wall clock in ns since the driver started. Every
+  node callback runs on that thread; from another thread use `submit` or hold `lock`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from collections import deque
+from typing import Any, Callable
+
+import can
+
+from stack.wire.frame import Frame
+from stack.controller.node import Node, Timer
+
+__all__ = ["PyCanDriver", "RETRY_NS"]
+
+SEND_FAILURES_REPORTED = 20  # a request whose send failed this often is reported in `errors`
+RETRY_NS = 1_000_000
+_BATCH = 256
+
+
+class PyCanDriver:
+    """Nodes on python-can buses with wall-clock timers (see the module docstring).
+
+    Give ``interface``/``channel`` (and any python-can options in ``bus_kwargs``) to open one
+    ``can.Bus`` per node, or ``bus_factory(node_name) -> can.BusABC``, or pass ``can_bus`` to
+    `add`/`node` for each node.
+    """
+
+    def __init__(self, bus_factory: Callable[[str], can.BusABC] | None = None, *,
+                 interface: str | None = None, channel: Any = None, pace_bitrate: int | None = None,
+                 **bus_kwargs: Any) -> None:
+        if bus_factory is None and interface is not None:
+            def bus_factory(name: str) -> can.BusABC:
+                return can.Bus(interface=interface, channel=channel, **bus_kwargs)
+        if pace_bitrate is not None and not 1_000 <= pace_bitrate <= 1_000_000:
+            raise ValueError(f"pace_bitrate {pace_bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+        self._factory = bus_factory
+        self.pace_bitrate = pace_bitrate
+        self.nodes: list[Node] = []
+        self.buses: dict[Node, can.BusABC] = {}
+        self._owned: set[can.BusABC] = set()
+        self.rounds = 0  # no arbitration rounds are visible from here (Node reads it)
+        self._rec_nonzero: dict[Node, None] = {}
+        self._log: tuple[()] = ()  # no lazy delivery log here: receptions go straight to the node
+        self._log_base = 0  # Node's fault-confinement bookkeeping
+        self.lock = threading.RLock()
+        self._t0 = time.monotonic_ns()
+        self._epoch0 = time.time()  # the wall-clock time of _t0, to read the buses' timestamps
+        self._timers: list[tuple[int, int, Timer]] = []
+        self._seq = 0
+        self._ready: deque[Node] = deque()
+        self._inbox: deque[tuple[int, Node, can.Message]] = deque()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._busy_until = 0
+        self._retry: dict[Any, int] = {}
+        self.rx_ignored = 0  # FD and error frames seen on the bus (not CAN 2.0 data/remote)
+        self.errors: list[str] = []
+
+    # ------------------------------------------------------------------ nodes
+    def node(self, name: str, *, can_bus: can.BusABC | None = None, **config: Any) -> Node:
+        """Create a `Node` (``config`` as for `Node`) on its own python-can connection."""
+        return self.add(Node(name, **config), can_bus)
+
+    def add(self, node: Node, can_bus: can.BusABC | None = None) -> Node:
+        """Attach ``node``; ``can_bus`` is its wire (default: one from the factory)."""
+        if node.bus is not None:
+            raise ValueError(f"node {node.name!r} is already attached to a bus")
+        if any(n.name == node.name for n in self.nodes):
+            raise ValueError(f"a node named {node.name!r} is already on this driver")
+        if can_bus is None:
+            if self._factory is None:
+                raise ValueError("give can_bus, or create the driver with interface/channel or a bus_factory")
+            can_bus = self._factory(node.name)
+            self._owned.add(can_bus)
+        with self.lock:
+            node.bus = self
+            self.nodes.append(node)
+            self.buses[node] = can_bus
+            node._update_head()
+        if self._threads:
+            self._start_reader(node)
+        return node
+
+    # ------------------------------------------------------------------ the node's driver protocol
+    def now(self) -> int:
+        """Wall-clock ns since the driver was created."""
+        return time.monotonic_ns() - self._t0
+
+    def call_at(self, time_ns: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer:
+        """Run ``callback(*args)`` at driver time ``time_ns`` (thread-safe)."""
+        t = Timer(int(time_ns), callback, args)
+        with self.lock:
+            self._seq += 1
+            heapq.heappush(self._timers, (t.time, self._seq, t))
+        self._wake.set()
+        return t
+
+    def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
+        """Run ``callback(*args)`` ``delay`` ns from now."""
+        return self.call_at(self.now() + int(delay), callback, args)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Timer:
+        """Run ``fn(*args)`` on the scheduler thread as soon as possible (thread-safe)."""
+        return self.call_at(0, fn, args)
+
+    @property
+    def _now(self) -> int:  # read by Node.send for the request's queue time
+        return time.monotonic_ns() - self._t0
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def _state_changed(self, node: Node, old: Any, new: Any, t: int) -> None:
+        pass  # the bus's controller does fault confinement; nothing to reschedule here
+
+    _contenders = None  # Node.send calls _offer (SimBus lets it push onto its heap directly)
+
+    def _offer(self, node: Node, req: Any) -> None:
+        self._ready.append(node)
+        self._wake.set()
+
+    def _sync(self, node: Node) -> None:
+        pass  # receptions are delivered eagerly
+
+    def _reclassify(self, node: Node) -> None:
+        pass
+
+    def _filters_changed(self, node: Node) -> None:
+        pass  # acceptance filtering is the node's (software), as in simulation
+
+    # ------------------------------------------------------------------ running
+    def start(self) -> "PyCanDriver":
+        """Start the scheduler thread and one reader thread per node."""
+        if self._threads:
+            return self
+        self._stop.clear()
+        th = threading.Thread(target=self._loop, name="canstack-driver", daemon=True)
+        self._threads.append(th)
+        for node in self.nodes:
+            self._start_reader(node)
+        th.start()
+        return self
+
+    def run(self, duration_s: float) -> None:
+        """Run for ``duration_s`` wall-clock seconds, then stop."""
+        self.start()
+        time.sleep(duration_s)
+        self.stop()
+
+    def stop(self) -> None:
+        """Stop the threads (the buses stay open; `close` shuts down the ones it opened)."""
+        self._stop.set()
+        self._wake.set()
+        for th in self._threads:
+            th.join(2.0)
+        self._threads = []
+
+    def close(self) -> None:
+        """Stop, then shut down the python-can buses this driver opened."""
+        self.stop()
+        for b in self._owned:
+            b.shutdown()
+        self._owned.clear()
+
+    def __enter__(self) -> "PyCanDriver":
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _start_reader(self, node: Node) -> None:
+        th = threading.Thread(target=self._read, args=(node, self.buses[node]), name=f"canstack-rx-{node.name}",
+                              daemon=True)
+        self._threads.append(th)
+        th.start()
+
+    def _read(self, node: Node, bus: can.BusABC) -> None:
+        inbox = self._inbox
+        while not self._stop.is_set():
+            try:
+                msg = bus.recv(0.05)
+            except can.CanError as exc:
+                self.errors.append(f"{node.name}: receive failed: {exc}")
+                time.sleep(0.05)
+                continue
+            if msg is not None:
+                inbox.append((self._stamp(msg), node, msg))
+                self._wake.set()
+
+    def _stamp(self, msg: can.Message) -> int:
+        """A received frame's time on this driver's clock: the bus's own timestamp (the kernel's
+        for SocketCAN, the wire time for canstack) when it is a wall-clock time near now, else
+        the time it reached this thread."""
+        now = self.now()
+        ts = msg.timestamp
+        if ts:
+            t = int((ts - self._epoch0) * 1e9)
+            if now - 2_000_000_000 < t <= now + 1_000_000:
+                return t
+        return now
+
+    def _loop(self) -> None:
+        timers = self._timers
+        inbox = self._inbox
+        while not self._stop.is_set():
+            with self.lock:
+                now = self.now()
+                while timers and timers[0][0] <= now:
+                    _, _, t = heapq.heappop(timers)
+                    if not t.cancelled:
+                        self._guard(t.callback, *t.args)
+                while inbox:
+                    t_rx, node, msg = inbox.popleft()
+                    self._guard(self._receive, t_rx, node, msg)
+                retry_at = self._transmit()
+                nxt = timers[0][0] if timers else now + 50_000_000
+                if retry_at is not None:
+                    nxt = min(nxt, retry_at)
+            if self._ready and retry_at is None:
+                continue
+            delay = (nxt - self.now()) / 1e9
+            if delay > 0 and not inbox:
+                self._wake.wait(min(delay, 0.05))
+            self._wake.clear()
+
+    def _guard(self, fn: Callable[..., Any], *args: Any) -> None:
+        try:
+            fn(*args)
+        except Exception as exc:  # a failing callback must not stop the other nodes
+            self.errors.append(f"{getattr(fn, '__qualname__', fn)}: {type(exc).__name__}: {exc}")
+
+    def _receive(self, t: int, node: Node, msg: can.Message) -> None:
+        try:
+            frame = Frame.from_message(msg)
+        except ValueError:
+            self.rx_ignored += 1
+            return
+        node.deliver(t, frame, None)
+        reply = node.remote_reply(frame)
+        if reply is not None:
+            node.send(reply)
+
+    def _transmit(self) -> int | None:
+        """Hand the heads of ready nodes to their buses, lowest arbitration key first; returns
+        the time to try again when pacing or a retry holds them back."""
+        ready = self._ready
+        sent = 0
+        while ready and sent < _BATCH:
+            nodes = {n: None for n in ready}  # dedupe, keep order
+            ready.clear()
+            heads = sorted((n.head.key, n.head.seq, n) for n in nodes if n.head is not None)
+            for i, (_, _, node) in enumerate(heads):
+                req = node.head
+                if req is None or req.state != "queued" or req.on_wire:
+                    continue
+                now = self.now()
+                if self.pace_bitrate is not None and now < self._busy_until:
+                    ready.extend(h[2] for h in heads[i:])
+                    return self._busy_until
+                if self._retry.get(req, 0) > now:  # waiting for a retry
+                    ready.append(node)
+                    continue
+                self._send_one(node, req, now)
+                sent += 1
+        if ready:
+            pending = [self._retry.get(n.head, 0) for n in ready if n.head is not None]
+            return max(self.now(), min(pending)) if pending else self.now()
+        return None
+
+    def _send_one(self, node: Node, req: Any, now: int) -> None:
+        frame: Frame = req.frame
+        try:
+            self.buses[node].send(frame.to_message(timestamp=time.time()), timeout=0.1)
+        except can.CanError as exc:
+            if node.one_shot:
+                self._retry.pop(req, None)
+                node.fail(req, now, f"send failed (one-shot): {exc}")
+            else:
+                req.retries += 1
+                node.retransmissions += 1
+                if req.retries == SEND_FAILURES_REPORTED:  # not congestion any more: say so, once
+                    self.errors.append(f"{node.name}: send keeps failing ({req.retries} tries): {exc}")
+                self._retry[req] = now + RETRY_NS
+                self._ready.append(node)
+            return
+        if self.pace_bitrate is not None:
+            from stack.wire.coding import INTERMISSION_BITS
+
+            self._busy_until = max(now, self._busy_until) + (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // self.pace_bitrate
+        self._retry.pop(req, None)
+        node.confirm(req, now)

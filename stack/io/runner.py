@@ -1,0 +1,162 @@
+"""The simulated bus in real time on its own thread, and the registry of such buses in this
+process (shared by the python-can interface `stack.io.pycan` and the server `stack.io.serve`)."""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from collections import deque
+from typing import Any, Callable
+
+import can
+
+from stack.bus.sim import SimBus
+
+__all__ = ["RealTimeRunner", "acquire_runner", "release_runner", "running_buses", "BUS_NAME_RE", "DEFAULT_BITRATE"]
+
+LOG = logging.getLogger("stack.io.runner")
+
+DEFAULT_BITRATE = 500_000
+BUS_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+"""A bus or node name: 1..64 letters, digits, '_', '.' or '-' (it appears in channel URLs)."""
+
+
+class RealTimeRunner:
+    """A `SimBus` paced to the wall clock on its own thread.
+
+    The loop advances the engine to the wall clock (``bus.run(until=wall_ns)``), runs the
+    commands posted by other threads, lets arbitration that became due start, and sleeps until
+    the engine's next event (``bus.next_event_time()``) or until a command wakes it.
+    """
+
+    def __init__(self, name: str, bitrate: int) -> None:
+        self.name = name
+        self.sim = SimBus(bitrate, name=name, record=False)
+        self.bitrate = bitrate
+        self._cmds: deque[Callable[[], Any]] = deque()
+        self._wake = threading.Event()
+        self._stop = False
+        self._ports: list[Any] = []
+        self.t0_ns = time.monotonic_ns()
+        self.epoch0 = time.time()
+        self.max_lag_ns = 0
+        self._thread = threading.Thread(target=self._loop, name=f"canstack-{name}", daemon=True)
+        self._thread.start()
+
+    def now_ns(self) -> int:
+        """Wall-clock ns since the bus started (the virtual clock it is paced to)."""
+        return time.monotonic_ns() - self.t0_ns
+
+    def post(self, fn: Callable[[], Any]) -> None:
+        """Run ``fn()`` on the runner thread soon (thread-safe)."""
+        self._cmds.append(fn)
+        self._wake.set()
+
+    def call(self, fn: Callable[[], Any], timeout: float = 5.0) -> Any:
+        """Run ``fn()`` on the runner thread and return its result (or raise its exception)."""
+        if threading.current_thread() is self._thread:
+            return fn()
+        done = threading.Event()
+        box: list[Any] = [None, None]
+
+        def run() -> None:
+            try:
+                box[0] = fn()
+            except BaseException as exc:  # handed to the caller
+                box[1] = exc
+            done.set()
+
+        self.post(run)
+        if not done.wait(timeout):
+            raise can.CanOperationError(f"canstack bus {self.name!r} did not answer within {timeout} s")
+        if box[1] is not None:
+            raise box[1]
+        return box[0]
+
+    def stop(self) -> None:
+        """End the loop after the commands already posted."""
+        self._stop = True
+        self._wake.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the runner thread to end."""
+        self._thread.join(timeout)
+
+    def _loop(self) -> None:
+        sim = self.sim
+        cmds = self._cmds
+        wake = self._wake
+        mono = time.monotonic_ns
+        t0 = self.t0_ns
+        try:
+            while True:
+                now = mono() - t0
+                if now > sim.now():
+                    nxt = sim.next_event_time()
+                    if nxt < now and now - nxt > self.max_lag_ns:
+                        self.max_lag_ns = int(now - nxt)
+                    sim.run(until=now)
+                if cmds:
+                    while cmds:
+                        try:
+                            cmds.popleft()()
+                        except Exception:  # a command must never stop the bus
+                            LOG.exception("canstack bus %r: command failed", self.name)
+                    sim.run(until=sim.now())  # arbitration that became due now
+                for p in self._ports:
+                    p._mirror_state()
+                if self._stop and not cmds:
+                    break
+                nxt = sim.next_event_time()
+                delay = (nxt - (mono() - t0)) / 1e9 if nxt != float("inf") else 0.5
+                if delay > 0:
+                    wake.wait(min(delay, 0.5))
+                wake.clear()
+        except Exception:  # pragma: no cover - an engine failure is logged, the buses see shutdown
+            LOG.exception("canstack bus %r: engine failure, the bus stops", self.name)
+            for p in list(self._ports):
+                p._closed_by_runner("engine failure (see log)")
+
+
+_REGISTRY: dict[str, tuple[RealTimeRunner, int]] = {}
+_REGISTRY_LOCK = threading.Lock()
+
+
+def running_buses() -> dict[str, int]:
+    """Buses running in this process: name -> bitrate."""
+    with _REGISTRY_LOCK:
+        return {name: r.bitrate for name, (r, _) in _REGISTRY.items()}
+
+
+def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
+    with _REGISTRY_LOCK:
+        entry = _REGISTRY.get(name)
+        if entry is not None:
+            runner, refs = entry
+            if bitrate is not None and bitrate != runner.bitrate:
+                raise can.CanInitializationError(
+                    f"canstack bus {name!r} runs at {runner.bitrate} bit/s; a node cannot join it at "
+                    f"{bitrate} bit/s (every node on a CAN bus uses the same bitrate)")
+            _REGISTRY[name] = (runner, refs + 1)
+            return runner
+        try:
+            runner = RealTimeRunner(name, bitrate or DEFAULT_BITRATE)
+        except ValueError as exc:
+            raise can.CanInitializationError(str(exc)) from None
+        _REGISTRY[name] = (runner, 1)
+        return runner
+
+
+def release_runner(runner: RealTimeRunner) -> None:
+    with _REGISTRY_LOCK:
+        entry = _REGISTRY.get(runner.name)
+        if entry is None or entry[0] is not runner:
+            return
+        refs = entry[1] - 1
+        if refs > 0:
+            _REGISTRY[runner.name] = (runner, refs)
+            return
+        del _REGISTRY[runner.name]
+    runner.stop()

@@ -1,0 +1,446 @@
+"""The canstack python-can interface: wire timing, arbitration, errors, filters, periodic tasks,
+and interop with the real libraries (canopen, cantools, python-can's Notifier/Logger/logger)."""
+
+import itertools
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import pytest
+
+import stack.io.pycan  # noqa: F401  (registers interface="canstack" when the package is not installed)
+from stack.wire.coding import INTERMISSION_BITS
+from stack.wire.frame import Frame
+from stack.io.pycan import CanstackBus, CanstackCyclicTask, InvalidFrame, running_buses
+
+ROOT = Path(__file__).resolve().parents[3]
+_ids = itertools.count()
+
+
+def chan() -> str:
+    return f"t{os.getpid()}-{next(_ids)}"
+
+
+def msg(can_id, data=b"", **kw):
+    return can.Message(arbitration_id=can_id, data=data, is_extended_id=kw.pop("extended", False), **kw)
+
+
+def wire_ns(frame: Frame, bitrate: int) -> int:
+    """SOF..EOF plus intermission, from the frame's stuffed bit stream."""
+    return (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // bitrate
+
+
+@pytest.fixture
+def pair():
+    ch = chan()
+    a = can.Bus(interface="canstack", channel=ch, bitrate=500_000)
+    b = can.Bus(interface="canstack", channel=ch)
+    yield a, b
+    a.shutdown()
+    b.shutdown()
+
+
+def test_bus_created_through_python_can_is_a_canstack_node(pair):
+    a, b = pair
+    assert isinstance(a, CanstackBus) and a.bitrate == b.bitrate == 500_000
+    assert a.node_name != b.node_name
+    assert a.state is can.BusState.ACTIVE
+    assert {"interface": "canstack", "channel": a.channel, "bitrate": 500_000} in can.detect_available_configs("canstack")
+
+
+def test_back_to_back_frames_arrive_one_wire_time_apart(pair):
+    a, b = pair
+    frames = [msg(0x123, bytes([i]) * 8) for i in range(5)]
+    t_send = time.time()
+    for m in frames:
+        a.send(m)
+    got = [b.recv(1.0) for _ in frames]
+    assert [bytes(m.data) for m in got] == [bytes(m.data) for m in frames]
+    first = Frame(0x123, bytes([0]) * 8)
+    # the first frame ends one frame length (SOF..EOF) after it started
+    assert got[0].timestamp - t_send >= first.bits.length / 500_000 - 1e-4
+    for prev, cur, m in zip(got, got[1:], frames[1:]):
+        expected = wire_ns(Frame.from_message(m), 500_000) / 1e9
+        assert cur.timestamp - prev.timestamp == pytest.approx(expected, abs=2e-6)
+    assert all(m.is_rx and m.channel == a.channel for m in got)
+
+
+def test_contending_frames_are_arbitrated_lowest_identifier_first():
+    ch = chan()
+    a = CanstackBus(ch, bitrate=10_000)  # 10 kbit/s: the first frame is ~6 ms on the wire
+    b = CanstackBus(ch)
+    c = CanstackBus(ch)
+    try:
+        a.send(msg(0x700, b"\x00"))
+        time.sleep(0.001)  # 0x700 is on the wire now; the rest contend when it ends
+        a.send(msg(0x300, b"\x03"))
+        b.send(msg(0x200, b"\x02"))
+        b.send(msg(0x100, b"\x01"))
+        a.send(msg(0x0F0, b"\x04", extended=True))  # extended 0x0F0: base ID 0 beats all
+        got = [c.recv(1.0) for _ in range(5)]
+    finally:
+        for bus in (a, b, c):
+            bus.shutdown()
+    assert [m.arbitration_id for m in got] == [0x700, 0x0F0, 0x100, 0x200, 0x300]
+
+
+def test_receive_own_messages_marks_them_tx():
+    ch = chan()
+    a = CanstackBus(ch, receive_own_messages=True)
+    b = CanstackBus(ch)
+    try:
+        a.send(msg(0x55, b"\x01\x02"))
+        own = a.recv(1.0)
+        other = b.recv(1.0)
+        assert a.recv(0.05) is None
+    finally:
+        a.shutdown()
+        b.shutdown()
+    assert own.arbitration_id == other.arbitration_id == 0x55
+    assert own.is_rx is False and other.is_rx is True
+    assert own.timestamp == other.timestamp  # both see the end of the same EOF
+
+
+def test_filters_are_applied_by_the_node(pair):
+    a, b = pair
+    b.set_filters([{"can_id": 0x100, "can_mask": 0x7F0, "extended": False}])
+    for cid in (0x101, 0x200, 0x10F):
+        a.send(msg(cid, b"\x00"))
+    a.send(msg(0x105, b"\x00", extended=True))  # extended frame: filter asks for standard only
+    got = []
+    while (m := b.recv(0.1)) is not None:
+        got.append(m.arbitration_id)
+    assert got == [0x101, 0x10F]
+    b.set_filters(None)
+    a.send(msg(0x200, b"\x00"))
+    assert b.recv(1.0).arbitration_id == 0x200
+
+
+def test_bad_input_raises_clear_can_errors(pair):
+    a, b = pair
+    with pytest.raises(InvalidFrame, match="FD"):
+        a.send(can.Message(arbitration_id=1, data=bytes(12), is_fd=True))
+    with pytest.raises(can.CanError, match="at most 8"):
+        a.send(can.Message(arbitration_id=1, data=bytes(9), check=False))
+    with pytest.raises(can.CanInitializationError, match="runs at 500000 bit/s"):
+        can.Bus(interface="canstack", channel=a.channel, bitrate=250_000)
+    with pytest.raises(can.CanInitializationError, match="unknown form"):
+        can.Bus(interface="canstack", channel="udp://127.0.0.1:1/x")
+    with pytest.raises(can.CanInitializationError, match="bus name"):
+        can.Bus(interface="canstack", channel="no spaces please")
+    with pytest.raises(can.CanInitializationError, match="unknown canstack option"):
+        can.Bus(interface="canstack", channel=a.channel, colour="red")
+    b.shutdown()
+    with pytest.raises(can.CanOperationError, match="shut down"):
+        b.send(msg(1, b""))
+
+
+def test_listen_only_node_neither_sends_nor_acknowledges():
+    ch = chan()
+    a = CanstackBus(ch, tx_queue_size=1)
+    spy = CanstackBus(ch, listen_only=True)
+    try:
+        with pytest.raises(can.CanOperationError, match="listen-only"):
+            spy.send(msg(1, b""))
+        a.send(msg(0x10, b"\x01"), timeout=0)
+        deadline = time.monotonic() + 1.0
+        while a.tec == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        # nobody acknowledges: the frame never completes (its queue slot is never freed) and
+        # a's transmit error counter rises with each ACK error (rule 3)
+        assert a.tec > 0
+        with pytest.raises(can.CanOperationError, match="queue full"):
+            a.send(msg(0x11, b""), timeout=0)
+    finally:
+        a.shutdown()
+        spy.shutdown()
+
+
+def test_full_transmit_queue_times_out_with_reason():
+    ch = chan()
+    a = CanstackBus(ch, tx_queue_size=2)  # alone on the bus: no ACK, frames never complete
+    try:
+        a.send(msg(1, b""))
+        a.send(msg(2, b""))
+        t0 = time.monotonic()
+        with pytest.raises(can.CanOperationError, match=r"transmit queue full \(2 frames\)"):
+            a.send(msg(3, b""), timeout=0.05)
+        assert time.monotonic() - t0 >= 0.04
+        with pytest.raises(can.CanOperationError, match="queue full"):
+            a.send(msg(3, b""), timeout=0)
+        # no acknowledgement: TEC rises by 8 per attempt until error passive (rules 3 and 9)
+        deadline = time.monotonic() + 1.0
+        while a.state is not can.BusState.PASSIVE and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert a.state is can.BusState.PASSIVE and a.tec >= 128
+    finally:
+        a.shutdown()
+
+
+def test_native_periodic_task_keeps_the_simulated_period(pair):
+    a, b = pair
+    task = a.send_periodic(msg(0x321, b"\x00\x01"), 0.010)
+    assert isinstance(task, CanstackCyclicTask)
+    stamps = []
+    end = time.monotonic() + 0.25
+    while time.monotonic() < end:
+        m = b.recv(0.1)
+        if m is not None:
+            stamps.append(m)
+    task.modify_data(msg(0x321, b"\x07\x07"))
+    late = b.recv(0.1)
+    task.stop()
+    time.sleep(0.03)
+    while b.recv(0) is not None:
+        pass
+    assert b.recv(0.05) is None  # stopped
+    assert len(stamps) >= 15
+    for x, y in zip(stamps, stamps[1:]):  # virtual clock: the period is exact (only sender)
+        assert y.timestamp - x.timestamp == pytest.approx(0.010, abs=2e-6)
+    assert bytes(late.data) == b"\x07\x07"
+
+
+def test_periodic_task_with_duration_stops_by_itself(pair):
+    a, b = pair
+    a.send_periodic(msg(0x10, b"\x01"), 0.01, duration=0.05)
+    got = []
+    end = time.monotonic() + 0.2
+    while time.monotonic() < end:
+        if (m := b.recv(0.05)) is not None:
+            got.append(m)
+    assert len(got) == 5
+
+
+def test_shutdown_removes_the_node_and_last_one_stops_the_bus():
+    ch = chan()
+    a = CanstackBus(ch)
+    b = CanstackBus(ch)
+    c = CanstackBus(ch)
+    b.shutdown()
+    a.send(msg(0x1, b"\x01"))
+    assert c.recv(1.0).arbitration_id == 0x1
+    assert ch in running_buses()
+    a.shutdown()
+    c.shutdown()
+    assert ch not in running_buses()
+    # a fresh bus with the same name may now start at another bitrate
+    d = CanstackBus(ch, bitrate=125_000)
+    assert d.bitrate == 125_000
+    d.shutdown()
+
+
+# ---------------------------------------------------------------------------- interop
+def test_notifier_printer_and_logger_write_what_was_sent(tmp_path):
+    ch = chan()
+    a = can.Bus(interface="canstack", channel=ch, queue="fifo")  # sent in the order queued
+    b = can.Bus(interface="canstack", channel=ch)
+    out = tmp_path / "printed.txt"
+    asc = tmp_path / "log.asc"
+    printer = can.Printer(str(out))
+    logger = can.Logger(str(asc))
+    notifier = can.Notifier(b, [printer, logger], timeout=0.05)
+    sent = [msg(0x100 + i, bytes([i, i + 1])) for i in range(4)] + [msg(0x1ABCDE, b"\xff", extended=True)]
+    for m in sent:
+        a.send(m)
+    time.sleep(0.1)
+    notifier.stop()
+    printer.stop()
+    logger.stop()
+    a.shutdown()
+    b.shutdown()
+    read = list(can.LogReader(str(asc)))
+    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in read] == \
+        [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in sent]
+    assert out.read_text().count("\n") == len(sent)
+
+
+def _entry_point_path(tmp_path: Path) -> str:
+    """A dist-info with the project's `can.interface` entry point, as `pip install` writes it."""
+    info = tmp_path / "canstack_ep-0.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: canstack-ep\nVersion: 0.0\n")
+    import tomllib
+
+    ep = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["can.interface"]
+    (info / "entry_points.txt").write_text("[can.interface]\n" + "".join(f"{k} = {v}\n" for k, v in ep.items()))
+    return str(tmp_path)
+
+
+def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path):
+    from stack.io.serve import BusServer
+
+    asc = tmp_path / "rec.asc"
+    env = dict(os.environ)
+    # the entry point, exactly as the installed distribution declares it (pyproject.toml)
+    env["PYTHONPATH"] = os.pathsep.join([_entry_point_path(tmp_path), str(ROOT), env.get("PYTHONPATH", "")])
+    with BusServer(500_000, listen=("127.0.0.1", 0)) as server:
+        proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url,
+                                 "-f", str(asc)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        try:
+            line = proc.stdout.readline()
+            assert "Connected to CanstackBus" in line, line + proc.stderr.read()
+            with can.Bus(interface="canstack", channel=server.url) as tx:
+                sent = [msg(0x700 + i, bytes(range(i))) for i in range(6)]
+                for m in sent:
+                    tx.send(m)
+                time.sleep(0.3)
+            proc.send_signal(signal.SIGINT)
+            proc.wait(10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    read = list(can.LogReader(str(asc)))
+    assert [(m.arbitration_id, bytes(m.data)) for m in read] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+
+
+def _object_dictionary():
+    import canopen
+    from canopen.objectdictionary import ODVariable, datatypes
+
+    od = canopen.ObjectDictionary()
+    for index, name, dtype, access, default in [
+        (0x1000, "Device type", datatypes.UNSIGNED32, "ro", 0x00020192),
+        (0x1017, "Producer heartbeat time", datatypes.UNSIGNED16, "rw", 0),
+        (0x2000, "Setpoint", datatypes.UNSIGNED16, "rw", 100),
+        (0x2001, "Name", datatypes.VISIBLE_STRING, "rw", "canstack-local-node"),  # segmented SDO
+    ]:
+        var = ODVariable(name, index)
+        var.data_type = dtype
+        var.access_type = access
+        var.default = default
+        od.add_object(var)
+    return od
+
+
+def test_canopen_master_and_local_node_on_two_canstack_buses():
+    import canopen
+
+    ch = chan()
+    master = canopen.Network()
+    master.connect(interface="canstack", channel=ch, bitrate=500_000)
+    slave_net = canopen.Network()
+    slave_net.connect(interface="canstack", channel=ch)
+    try:
+        local = canopen.LocalNode(5, _object_dictionary())
+        slave_net.add_node(local)
+        remote = master.add_node(5, _object_dictionary())
+        # SDO upload (expedited and segmented) and download
+        assert remote.sdo["Device type"].raw == 0x00020192
+        assert remote.sdo["Name"].raw == "canstack-local-node"
+        remote.sdo["Setpoint"].raw = 1234
+        assert local.sdo["Setpoint"].raw == 1234
+        remote.sdo.download(0x2001, 0, b"renamed by the master")
+        assert local.sdo.upload(0x2001, 0) == b"renamed by the master"
+        # NMT state change commanded by the master
+        remote.nmt.state = "OPERATIONAL"
+        deadline = time.monotonic() + 1.0
+        while local.nmt.state != "OPERATIONAL" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert local.nmt.state == "OPERATIONAL"
+        # heartbeat produced by the local node, received by the master
+        local.nmt.start_heartbeat(50)
+        assert remote.nmt.wait_for_heartbeat(timeout=1.0) == "OPERATIONAL"
+        local.nmt.stop_heartbeat()
+    finally:
+        master.disconnect()
+        slave_net.disconnect()
+
+
+DBC = """VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: Tester Dut
+
+BO_ 256 Command: 2 Tester
+ SG_ Enable : 0|1@1+ (1,0) [0|1] "" Dut
+ SG_ Setpoint : 8|8@1+ (1,0) [0|255] "" Dut
+
+BO_ 512 Status: 2 Dut
+ SG_ Active : 0|1@1+ (1,0) [0|1] "" Tester
+ SG_ Value : 8|8@1+ (1,0) [0|255] "" Tester
+
+BO_ 768 Heartbeat: 1 Tester
+ SG_ Counter : 0|8@1+ (1,0) [0|255] "" Dut
+
+BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;
+BA_DEF_DEF_ "GenMsgCycleTime" 0;
+BA_ "GenMsgCycleTime" BO_ 768 20;
+"""
+
+
+def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
+    import cantools
+    from cantools.tester import Tester
+
+    db = cantools.database.load_string(DBC, database_format="dbc")
+    ch = chan()
+    tester_bus = can.Bus(interface="canstack", channel=ch, bitrate=500_000)
+    dut_bus = can.Bus(interface="canstack", channel=ch)
+    stop = threading.Event()
+    heartbeats = []
+
+    def dut() -> None:  # doubles the setpoint, reports Enable as Active
+        cmd, status, hb = db.get_message_by_name("Command"), db.get_message_by_name("Status"), \
+            db.get_message_by_name("Heartbeat")
+        while not stop.is_set():
+            m = dut_bus.recv(0.05)
+            if m is None:
+                continue
+            if m.arbitration_id == cmd.frame_id:
+                s = cmd.decode(m.data)
+                dut_bus.send(can.Message(arbitration_id=status.frame_id, is_extended_id=False,
+                                         data=status.encode({"Active": s["Enable"], "Value": 2 * s["Setpoint"] % 256})))
+            elif m.arbitration_id == hb.frame_id:
+                heartbeats.append(m.timestamp)
+
+    th = threading.Thread(target=dut, daemon=True)
+    th.start()
+    tester = Tester("Dut", db, tester_bus)
+    try:
+        tester.start()  # starts the periodic Heartbeat (a native canstack periodic task)
+        tester.send("Command", {"Enable": 1, "Setpoint": 21})
+        assert tester.expect("Status", {"Active": 1}, timeout=2.0) == {"Active": 1, "Value": 42}
+        tester.send("Command", {"Enable": 0, "Setpoint": 200})
+        assert tester.expect("Status", None, timeout=2.0) == {"Active": 0, "Value": 144}
+        time.sleep(0.2)
+        tester.stop()
+    finally:
+        stop.set()
+        th.join(1.0)
+        tester_bus.shutdown()
+        dut_bus.shutdown()
+    assert len(heartbeats) >= 8
+    gaps = [y - x for x, y in zip(heartbeats, heartbeats[1:])]
+    # the heartbeat period is exact except when the Command/Status exchange delayed one frame
+    assert sum(1 for g in gaps if abs(g - 0.020) < 1e-3) >= len(gaps) - 2
+
+
+@pytest.mark.parametrize("kw,needle", [
+    ({"queue": "mailbox", "mailboxes": "x"}, "mailboxes 'x'"),
+    ({"listen_only": "maybe"}, "listen_only 'maybe' must be True or False"),
+    ({"node_name": "a b"}, "node name 'a b'"),
+    ({"node_name": "\x01\x02"}, "node name"),
+    ({"data_bitrate": 2_000_000}, "no FD data phase"),
+])
+def test_bad_node_options_are_refused(kw, needle):
+    with pytest.raises(can.CanInitializationError, match=re.escape(needle)):
+        can.Bus(interface="canstack", channel=f"opt{os.getpid()}", **kw)
+
+
+def test_config_file_strings_for_flags_are_read():
+    bus = can.Bus(interface="canstack", channel=f"optstr{os.getpid()}", listen_only="yes", mailboxes="2",
+                  queue="mailbox")
+    try:
+        with pytest.raises(can.CanOperationError, match="listen-only"):
+            bus.send(can.Message(arbitration_id=1, is_extended_id=False))
+    finally:
+        bus.shutdown()
