@@ -209,6 +209,36 @@ class SimBus:
         node.connected = False
         self._reclassify(node)
 
+    def remove(self, node: Node) -> None:
+        """Detach a node for good (a client that left): it goes off the wire at once, its queued
+        frames are aborted (`TxFailed` 'aborted'), and its name is free again. A frame of its
+        own already on the wire finishes first (a controller cannot take back bits it sent);
+        the node leaves the bus's lists when that transmission ends."""
+        if node.bus is not self or node not in self.nodes:
+            raise ValueError(f"node {node.name!r} is not on bus {self.name!r}")
+        if node.connected:
+            self.disconnect(node)
+        for req in node.pending():
+            node.abort(req)
+        if self._tx is not None and any(q.node is node for q in self._tx[0]):
+            self.call_at(self._tx_end + 1, self._detach, (node,))  # after the completion at _tx_end
+        else:
+            self._detach(node)
+
+    def _detach(self, node: Node) -> None:
+        if node not in self.nodes:
+            return
+        self.nodes.remove(node)
+        self._rec_nonzero.pop(node, None)
+        self._busoff.discard(node)
+        if node._suspended:
+            self._suspended = [n for n in self._suspended if n is not node]
+            node._suspended = False
+        self._reclassify(node)  # not connected: out of the delivery and arbitration lists
+        self._filters_changed(node)
+        node._on_bus = False
+        node.bus = None
+
     def reconnect(self, node: Node) -> None:
         """Put a disconnected node back on the wire; it receives from now on."""
         node.connected = True

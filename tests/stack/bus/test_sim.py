@@ -323,3 +323,45 @@ def test_fast_loop_matches_the_general_path_on_random_networks(monkeypatch, seed
     fast = _random_network(seed)
     monkeypatch.setattr(SimBus, "fast", False)
     assert fast == _random_network(seed)
+
+
+def test_removed_node_leaves_the_bus_and_frees_its_name():
+    from stack.controller.events import TxFailed
+
+    bus = SimBus(500_000)
+    a = bus.node("a")
+    b = bus.node("b")
+    failed = []
+    b.listen(TxFailed, failed.append)
+    b.send(Frame(0x200, b"\x01"))
+    b.send(Frame(0x201, b"\x02"))
+    bus.remove(b)
+    assert [n.name for n in bus.nodes] == ["a"] and b.bus is None
+    assert [ev.reason for ev in failed] == ["aborted", "aborted"]
+    bus.node("b")  # the name is free again
+    a.send(Frame(0x100))
+    bus.run(duration=1_000_000)
+    assert bus.frames_ok == 1 and bus["b"].rx_frames == 1
+
+
+def test_node_removed_while_its_frame_is_on_the_wire_finishes_that_frame_first():
+    bus = SimBus(500_000)
+    a = bus.node("a")
+    b = bus.node("b")
+    a.send(Frame(0x100, bytes(8)))
+    bus.run(until=bus.bits_to_ns(20))  # inside the frame
+    bus.remove(a)
+    assert a in bus.nodes  # still transmitting
+    bus.run(duration=1_000_000)
+    assert a not in bus.nodes and a.tx_frames == 1 and b.rx_frames == 1
+
+
+def test_many_nodes_joining_and_leaving_leave_no_trace():
+    bus = SimBus(500_000)
+    keep = bus.node("keep", rx_fifo_size=1000)
+    for i in range(500):
+        n = bus.node(f"client{i % 3}")
+        n.send(Frame(0x300 + i % 3))
+        bus.run(duration=200_000)
+        bus.remove(n)
+    assert bus.nodes == [keep] and keep.rx_frames == 500
