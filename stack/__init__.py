@@ -39,7 +39,7 @@ _EXPORTS = {
     "QueueFull": "stack.controller.queues", "TxRequest": "stack.controller.queues",
     "Received": "stack.controller.events", "TxDone": "stack.controller.events", "TxFailed": "stack.controller.events",
     "ArbitrationLost": "stack.controller.events", "ErrorStateChanged": "stack.controller.events",
-    "SimBus": "stack.bus.sim", "TraceRecord": "stack.bus.sim", "FaultInjector": "stack.bus.faults",
+    "SimBus": "stack.bus.sim", "TraceRecord": "stack.bus.trace", "FaultInjector": "stack.bus.faults",
     "PyCanDriver": "stack.io.driver",
 }
 

@@ -38,6 +38,8 @@ from stack.wire.coding import INTERMISSION_BITS
 from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from stack.wire.frame import Frame
 from stack.controller.confinement import ACTIVE, BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
+from stack.bus.stats import IdStats
+from stack.bus.trace import TraceRecord
 from stack.controller.node import Node, Timer
 from stack.controller.queues import TxRequest
 
@@ -51,68 +53,6 @@ _third = itemgetter(2)
 _key_of = attrgetter("key")
 SUSPEND_BITS = 8
 LOG_LIMIT = 1 << 15
-
-
-class TraceRecord:
-    """One bus event: a frame ('frame'), a failed attempt ending in an error frame ('error'),
-    or a collision after arbitration ('collision').
-
-    ``start``/``end`` in ns (SOF to end of EOF, or to the end of the error delimiter);
-    ``sender`` node name(s); ``bits`` the stuffed length on the wire; ``losses`` arbitration
-    rounds the frame lost before winning; ``queued`` the time it was queued; ``detail`` a dict
-    (error kind, field, bit position, nodes that saw it, counters after).
-    """
-
-    __slots__ = ("kind", "start", "end", "sender", "frame", "bits", "losses", "queued", "detail")
-
-    def __init__(self, kind: str, start: int, end: int, sender: str, frame: Frame, bits: int,
-                 losses: int, queued: int, detail: dict[str, Any] | None = None) -> None:
-        self.kind = kind
-        self.start = start
-        self.end = end
-        self.sender = sender
-        self.frame = frame
-        self.bits = bits
-        self.losses = losses
-        self.queued = queued
-        self.detail = detail
-
-    def as_tuple(self) -> tuple[Any, ...]:
-        """A plain tuple for comparisons (determinism checks)."""
-        return (self.kind, self.start, self.end, self.sender, self.frame.key, self.frame.dlc,
-                self.frame.data, self.bits, self.losses, self.queued,
-                tuple(sorted((self.detail or {}).items())))
-
-    def to_message(self, channel: Any = None) -> can.Message:
-        """python-can message of this record (an error frame for 'error'/'collision')."""
-        if self.kind == "frame":
-            return self.frame.to_message(timestamp=self.end / 1e9, channel=channel)
-        return can.Message(timestamp=self.end / 1e9, is_error_frame=True, channel=channel,
-                           arbitration_id=0, dlc=0, check=False)
-
-    def __repr__(self) -> str:
-        return (f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
-                f" bits={self.bits} losses={self.losses}{' ' + str(self.detail) if self.detail else ''})")
-
-
-class IdStats:
-    """Per-identifier statistics: frames and latency (queued to end of EOF) min/mean/max in ns."""
-
-    __slots__ = ("can_id", "extended", "count", "total", "min", "max", "losses")
-
-    def __init__(self, can_id: int, extended: bool) -> None:
-        self.can_id = can_id
-        self.extended = extended
-        self.count = 0
-        self.total = 0
-        self.min = 1 << 62
-        self.max = 0
-        self.losses = 0
-
-    @property
-    def mean(self) -> float:
-        """Mean latency in ns."""
-        return self.total / self.count if self.count else 0.0
 
 
 class SimBus:
