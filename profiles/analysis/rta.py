@@ -33,9 +33,10 @@ cannot be pre-empted, so the busy period can extend past T_m even when the first
 its deadline; a later instance then waits for the push-through of its predecessor and for the
 higher-priority frames released meanwhile, and can be later than the first.
 
-Deadlines: the busy-period formulation does not depend on D_m <= T_m; the paper presents the exact
-analysis for arbitrary deadlines and gives its simpler sufficient tests for constrained ones.
-Here D_m may be below, equal to or above T_m.
+Deadlines: the busy-period formulation does not depend on D_m <= T_m (it examines every instance
+the busy period holds, however many). As recalled, and not re-checked against the text, the paper
+states its exact analysis for arbitrary deadlines and its simpler sufficient tests for
+constrained ones (D_m <= T_m). Here D_m may be below, equal to or above T_m.
 
 Errors (optional, ``ErrorModel``): Tindell and Burns' simple model, errors at least T_error apart,
 each costing an error frame and the retransmission of the longest frame of priority higher than
