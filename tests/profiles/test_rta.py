@@ -29,13 +29,13 @@ def msg(name: str, can_id: int, dlc: int, period_ns: int, deadline_ns: int | Non
 
 def _stack_worst_case_length():
     """`stack`'s worst-case stuffed length SOF..EOF, wherever the restructuring put it."""
-    for path in ("stack.wire.bits", "stack.bits"):
+    for path in ("stack.wire.coding", "stack.wire.bits", "stack.bits"):
         try:
             module = __import__(path, fromlist=["worst_case_length"])
             return module.worst_case_length
         except (ImportError, AttributeError):
             continue
-    pytest.skip("stack's worst_case_length not found under stack.wire.bits or stack.bits")
+    pytest.skip("stack's worst_case_length not found under stack.wire.coding, stack.wire.bits or stack.bits")
 
 
 @pytest.mark.parametrize("extended", [False, True])
