@@ -24,7 +24,8 @@ from typing import Any
 
 __all__ = [
     "Frame", "arbitration_key", "data_length",
-    "Node", "NodeAPI", "NodeError", "QueueFull", "TxRequest", "Timer", "Subscription", "PeriodicTask",
+    "Node", "NodeAPI", "NodeError", "QueueFull", "TxRequest", "RequestState", "Timer", "Subscription",
+    "PeriodicTask", "LocalClock",
     "ErrorState", "Received", "TxDone", "TxFailed", "ArbitrationLost", "ErrorStateChanged",
     "SimBus", "TraceRecord", "FaultInjector", "PyCanDriver",
 ]
@@ -32,11 +33,12 @@ __all__ = [
 # public name -> module that defines it
 _EXPORTS = {
     "Frame": "stack.wire.frame", "arbitration_key": "stack.wire.frame", "data_length": "stack.wire.frame",
-    "Node": "stack.controller.node", "NodeError": "stack.controller.node", "Timer": "stack.controller.node",
-    "Subscription": "stack.controller.node", "PeriodicTask": "stack.controller.node",
-    "ErrorState": "stack.controller.node",
+    "Node": "stack.controller.node", "NodeError": "stack.controller.exceptions", "Timer": "stack.controller.contract",
+    "Subscription": "stack.controller.node", "PeriodicTask": "stack.controller.periodic",
+    "ErrorState": "stack.controller.confinement", "LocalClock": "stack.controller.clock",
     "NodeAPI": "stack.controller.api",
-    "QueueFull": "stack.controller.queues", "TxRequest": "stack.controller.queues",
+    "QueueFull": "stack.controller.exceptions", "TxRequest": "stack.controller.queues",
+    "RequestState": "stack.controller.queues",
     "Received": "stack.controller.events", "TxDone": "stack.controller.events", "TxFailed": "stack.controller.events",
     "ArbitrationLost": "stack.controller.events", "ErrorStateChanged": "stack.controller.events",
     "SimBus": "stack.bus.sim", "TraceRecord": "stack.bus.trace", "FaultInjector": "stack.bus.faults",

@@ -315,7 +315,7 @@ class FaultInjector:
             for p in self._random_positions(None, self._ber_global, length):
                 _add_flip(flips, p, None)
         for n, rate in self._ber_nodes.items():
-            if n._on_bus:
+            if n.on_bus:
                 for p in self._random_positions(n, rate, length):
                     _add_flip(flips, p, frozenset((n,)))
         # faults that begin while this attempt is on the wire are part of it: the frame, its
@@ -323,8 +323,8 @@ class FaultInjector:
         horizon = bus.bits_to_ns(length + ATTEMPT_MARGIN_BITS)
         stuck = self._stuck_now(now, horizon) if self._stuck else {}
         leave = self._leaving(now, horizon) if self._leaves else {}
-        deaf = [n for n in self._deaf if n._on_bus]
-        overload = {n: k for n, k in self._overload.items() if n._on_bus and all(q.node is not n for q in txs)}
+        deaf = [n for n in self._deaf if n.on_bus]
+        overload = {n: k for n, k in self._overload.items() if n.on_bus and all(q.node is not n for q in txs)}
         if not flips and not stuck and not deaf and not overload and not leave:
             return None
         self.injected += len(flips)
@@ -346,9 +346,9 @@ class FaultInjector:
         if now < bus._idle_at:
             bus.call_at(bus._idle_at, self._disturb, ())  # in the intermission
             return
-        if any(bus._valid(e[2]) and e[2].node._ready_at <= now for e in bus._contenders):
+        if any(bus._valid(e[2]) and e[2].node.ready_at <= now for e in bus._contenders):
             return  # arbitration starts now and carries the fault
-        bus._bitlevel(now, (), stuck=stuck, deaf=[n for n in self._deaf if n._on_bus])
+        bus._bitlevel(now, (), stuck=stuck, deaf=[n for n in self._deaf if n.on_bus])
 
 
 def _add_flip(flips: dict[int, Any], pos: int, nodes: frozenset[Node] | None) -> None:

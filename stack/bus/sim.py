@@ -26,6 +26,7 @@ is flushed — instead of being visited per frame. See `python -m stack.bench` f
 from __future__ import annotations
 
 import heapq
+import itertools
 from bisect import bisect_left
 import random
 from collections import Counter
@@ -35,13 +36,13 @@ from typing import Any, Callable, Iterable, Iterator
 import can
 
 from stack.wire.coding import INTERMISSION_BITS
-from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
+from stack.controller.events import TxDone
 from stack.wire.frame import Frame
-from stack.controller.confinement import ACTIVE, BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
+from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
 from stack.bus.stats import IdStats
 from stack.bus.trace import TraceRecord
 from stack.controller.node import Node, Timer
-from stack.controller.queues import TxRequest
+from stack.controller.queues import QUEUED, TxRequest
 
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
@@ -59,8 +60,12 @@ class SimBus:
     """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
 
     ``record`` keeps a `TraceRecord` per bus event in ``trace``; ``seed`` seeds ``rng`` (used by
-    fault injection and by scenario code that asks for randomness).
+    fault injection and by scenario code that asks for randomness). It is a driver for nodes in
+    the sense of `stack.controller.contract` and knows everything a node can be told.
     """
+
+    capabilities = frozenset({"bus-time", "sof", "arbitration-lost", "error-confinement", "one-shot",
+                              "latest-start"})
 
     def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0",
                  record: bool = True) -> None:
@@ -79,7 +84,7 @@ class SimBus:
         self.bit_ns = 1_000_000_000 / bitrate
         self._now = 0
         self._timers: list[tuple[int, int, Timer]] = []
-        self._seq = 0
+        self.seqs = itertools.count(1)  # requests and timers: ties order by it (the contract's `seqs`)
         self._contenders: list[TxRequest] = []
         self._suspended: list[Node] = []
         self.rounds = 0
@@ -88,7 +93,8 @@ class SimBus:
         self._tx_end: int = 0
         # reception
         self._log: list[tuple[int, Frame, Node]] = []
-        self._log_base = 0
+        self._log_base = 0  # receptions before the first entry of _log
+        self.delivered = 0  # receptions ever logged (_log_base + len(_log)): the contract's counter
         self._lazy: list[Node] = []
         self._eager: list[Node] = []
         self._arb_watch: list[Node] = []
@@ -108,6 +114,7 @@ class SimBus:
         self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
         self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
+        self._busoff_marks: dict[Node, int] = {}  # recessive-run count when each started recovering
         self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
 
     # ------------------------------------------------------------------ nodes
@@ -119,10 +126,10 @@ class SimBus:
             raise ValueError(f"a node named {node.name!r} is already on bus {self.name!r}")
         node.bus = self
         self.nodes.append(node)
-        node._cursor = self._log_base + len(self._log)
-        self._filters_changed(node)
-        self._reclassify(node)
-        node._update_head()
+        node.rx_cursor = self.delivered
+        self.filters_changed(node)
+        self.node_changed(node)
+        node.update_head()
         return node
 
     def node(self, name: str, **config: Any) -> Node:
@@ -145,9 +152,9 @@ class SimBus:
 
     def disconnect(self, node: Node) -> None:
         """Take a node off the wire: it neither receives, acknowledges nor transmits."""
-        self._sync(node)
+        self.sync(node)
         node.connected = False
-        self._reclassify(node)
+        self.node_changed(node)
 
     def remove(self, node: Node) -> None:
         """Detach a node for good (a client that left): it goes off the wire at once, its queued
@@ -171,27 +178,28 @@ class SimBus:
         self.nodes.remove(node)
         self._rec_nonzero.pop(node, None)
         self._busoff.discard(node)
-        if node._suspended:
+        if node.suspended:
             self._suspended = [n for n in self._suspended if n is not node]
-            node._suspended = False
-        self._reclassify(node)  # not connected: out of the delivery and arbitration lists
-        self._filters_changed(node)
-        node._on_bus = False
+            node.suspended = False
+        self.node_changed(node)  # not connected: out of the delivery and arbitration lists
+        self.filters_changed(node)
+        node.on_bus = False
         node.bus = None
 
     def reconnect(self, node: Node) -> None:
         """Put a disconnected node back on the wire; it receives from now on."""
         node.connected = True
-        node._cursor = self._log_base + len(self._log)
-        self._reclassify(node)
-        if node._head is not None:
-            node._head.head_since = self.rounds
-            self._offer(node, node._head)
+        node.rx_cursor = self.delivered
+        self.node_changed(node)
+        if node.offered is not None:
+            node.offered.head_since = self.rounds
+            self.offer(node, node.offered)
         else:
-            node._update_head()
+            node.update_head()
 
-    def _reclassify(self, node: Node) -> None:
-        """Put the node in the lists the engine walks (buffering, callbacks, arbitration
+    def node_changed(self, node: Node) -> None:
+        """Subscriptions, listeners or modes of ``node`` changed (the contract's notification),
+        or its connection or state did: put the node in the lists the engine walks (buffering, callbacks, arbitration
         watchers). The lists are replaced, never changed in place: a loop delivering a frame
         keeps the list it started with even if a callback subscribes or unsubscribes."""
         was_lazy = node in self._lazy
@@ -199,16 +207,16 @@ class SimBus:
         eager = [n for n in self._eager if n is not node]
         watch = [n for n in self._arb_watch if n is not node]
         on = node.connected and node.state is not BUS_OFF
-        node._on_bus = on
+        node.on_bus = on
         if on:
-            if node._subs:
-                self._sync(node)
+            if node.subscribed:
+                self.sync(node)
                 eager.append(node)
             else:
                 if not was_lazy:  # frames delivered while it was eager or off the bus are not its
-                    node._cursor = self._log_base + len(self._log)
+                    node.rx_cursor = self.delivered
                 lazy.append(node)
-            if node.one_shot or node._listeners.get(ArbitrationLost):
+            if node.watches_arbitration:
                 watch.append(node)
         # keep the delivery order deterministic: attach order
         order = {n: i for i, n in enumerate(self.nodes)}
@@ -218,11 +226,13 @@ class SimBus:
         self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
                               and n.state is not BUS_OFF)
 
-    def _filters_changed(self, node: Node) -> None:
+    def filters_changed(self, node: Node) -> None:
+        """Acceptance filters or remote replies of ``node`` changed (the contract's
+        notification): the receivers per identifier and the reply mailboxes are looked up anew."""
         self._key_receivers = {}
         self._rtr = {}
         for n in self.nodes:
-            for k in n._remote_replies:
+            for k in n.remote_replies:
                 self._rtr.setdefault(k, []).append(n)
 
     # ------------------------------------------------------------------ clock
@@ -230,17 +240,13 @@ class SimBus:
         """Virtual time in ns."""
         return self._now
 
-    def _next_seq(self) -> int:
-        self._seq += 1
-        return self._seq
 
     def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer:
         """Schedule ``callback(*args)`` at virtual time ``time`` ns (not before now)."""
         if time < self._now:
             time = self._now
         t = Timer(time, callback, args)
-        self._seq += 1
-        heapq.heappush(self._timers, (time, self._seq, t))
+        heapq.heappush(self._timers, (time, next(self.seqs), t))
         return t
 
     def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
@@ -252,9 +258,17 @@ class SimBus:
         return bits * 1_000_000_000 // self.bitrate
 
     # ------------------------------------------------------------------ engine
-    def _offer(self, node: Node, req: TxRequest) -> None:
-        if node._on_bus and not node._suspended:  # a suspended node joins again in _wake
+    def offer(self, node: Node, req: TxRequest) -> None:
+        """``req`` is ``node``'s new offered request: it enters the next arbitration."""
+        if node.on_bus and not node.suspended:  # a suspended node joins again in _wake
             heapq.heappush(self._contenders, (req.key, req.seq, req))
+
+    def counters_changed(self, node: Node) -> None:
+        """TEC/REC of ``node`` changed: it is in the set rule 8 visits while its REC is above 0."""
+        if node.rec > 0:
+            self._rec_nonzero[node] = None
+        else:
+            self._rec_nonzero.pop(node, None)
 
     def run(self, until: int | None = None, *, duration: int | None = None,
             frames: int | None = None) -> "SimBus":
@@ -277,7 +291,7 @@ class SimBus:
             elif self._contenders:
                 tb = self._idle_at if self._idle_at > self._now else self._now
             elif self._suspended:
-                tb = max(self._idle_at, self._now, min(n._ready_at for n in self._suspended))
+                tb = max(self._idle_at, self._now, min(n.ready_at for n in self._suspended))
             else:
                 tb = INF
             if tt <= tb:
@@ -333,6 +347,7 @@ class SimBus:
         idle_at = self._idle_at
         frames_ok = self.frames_ok
         rounds = self.rounds
+        delivered = self.delivered
         log_limit = LOG_LIMIT
         # int bounds: int-to-int comparisons are cheaper than against float('inf')
         if tt == INF:
@@ -348,7 +363,7 @@ class SimBus:
                     break
                 req = heap[0][2]
                 node = req.node
-                if req.state != "queued" or node._head is not req or not node._on_bus or node._ready_at > t0 \
+                if req.state is not QUEUED or node.offered is not req or not node.on_bus or node.ready_at > t0 \
                         or node.state is PASSIVE:
                     break
                 frame = req.frame
@@ -372,7 +387,7 @@ class SimBus:
                 lost = r - req.head_since
                 if lost > 0:
                     req.losses += lost
-                    node._arb_lost += lost
+                    node.rounds_lost += lost
                 req.head_since = rounds
                 # completion
                 now = end
@@ -381,8 +396,8 @@ class SimBus:
                 busy += idle_at - t0
                 if busoff:
                     self._recessive_events += 1
-                listeners = node._listeners.get(TxDone) if node._listeners else None
-                called = eager or rec_nonzero or node.tec or listeners or record
+                listeners = node.listeners
+                called = eager or rec_nonzero or node.tec or record or (listeners and TxDone in listeners)
                 if called:  # user code may run (callbacks, state-change listeners): bus state first
                     self.rounds = rounds
                     self._now = end
@@ -396,31 +411,22 @@ class SimBus:
                         cb(rec)
                 if lazy:
                     log.append((end, frame, node))
+                    delivered += 1
                     if len(log) >= log_limit:
                         self._flush()
                         log = self._log
+                if called:
+                    self.delivered = delivered
                 for n in eager:
-                    n._deliver(end, frame, node)
+                    n.deliver(end, frame, node, t0)
                 if rec_nonzero:
                     for n in tuple(rec_nonzero):
-                        if n is not node and n._on_bus:
-                            n._on_rx_success()
+                        if n is not node and n.on_bus:
+                            n.on_rx_success()
                 st = id_stats.get(frame.key)
                 if st is None:
                     st = id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
-                req.state = "sent"
-                req.t_done = end
-                node.tx_frames += 1
-                q = node.queue
-                by = q._by_key
-                if by is not None:  # priority queue (PriorityQueue.remove), inlined
-                    dq = by.get(req.key)
-                    if dq and dq[0] is req:
-                        dq.popleft()
-                    q._n -= 1
-                else:
-                    q.remove(req)
-                lat = end - req.t_queued
+                lat = end - req.t_queued  # IdStats.add, inlined
                 st.count += 1
                 st.total += lat
                 st.losses += req.losses
@@ -428,31 +434,14 @@ class SimBus:
                     st.min = lat
                 if lat > st.max:
                     st.max = lat
-                if node.tec:
-                    node._on_tx_success()
-                if listeners:
-                    # confirm first, then pick the next head once (sends from the callback included)
-                    node._head = None
-                    ev = _tuple_new(TxDone, (end, frame, req))  # TxDone(...) without its Python __new__
-                    for cb in listeners:
-                        cb(ev)
-                    if node._head is None:
-                        node._update_head()
-                elif by is not None and not called:
-                    # priority queue, inlined _update_head: the next head is the front of the
-                    # lowest key's FIFO (PriorityQueue.head). Only when no user code ran: a
-                    # callback may have queued (and offered) a frame of a lower key already
-                    if dq and dq[0].state == "queued":
-                        nxt = dq[0]  # the same key again (a sender of one identifier)
-                    else:
-                        nxt = q.head()
-                    node._head = nxt
-                    if nxt is not None:
-                        nxt.head_since = rounds
+                self.rounds = rounds  # the node offers its next head at this round
+                # the one bookkeeping of a success (rule 7, TxDone, the next head)
+                nxt = node.confirm(req, end, t0)
+                if nxt is not None:
+                    if called:
+                        self.offer(node, nxt)  # user code may have taken the node off the bus
+                    else:  # SimBus.offer, inlined: the node is on the bus and not suspended
                         heappush(heap, (nxt.key, nxt.seq, nxt))
-                else:
-                    self.rounds = rounds  # read by _update_head for the new head's rounds
-                    node._update_head()
                 done += 1
                 if called:  # user code ran: it may have changed what the loop relies on
                     if timers:
@@ -463,6 +452,7 @@ class SimBus:
                         break
         finally:
             self.rounds = rounds
+            self.delivered = delivered
             self._now = now
             self._idle_at = idle_at
             self.frames_ok = frames_ok
@@ -479,7 +469,7 @@ class SimBus:
         elif self._contenders:
             tb = max(self._idle_at, self._now)
         elif self._suspended:
-            tb = max(self._idle_at, self._now, min(n._ready_at for n in self._suspended))
+            tb = max(self._idle_at, self._now, min(n.ready_at for n in self._suspended))
         else:
             tb = INF
         return min(tt, tb)
@@ -487,7 +477,7 @@ class SimBus:
     def _unbounded_risk(self) -> bool:
         """True when a node on the bus has a frame nobody can acknowledge: a run without a time
         bound would retransmit for ever (exception 1 of rule 3 keeps TEC at 128)."""
-        pending = [n for n in self.nodes if n._on_bus and n.head is not None]
+        pending = [n for n in self.nodes if n.on_bus and n.head is not None]
         if not pending:
             return False
         deaf: set[Node] = set()
@@ -495,16 +485,16 @@ class SimBus:
             deaf |= self._faults._deaf
             # a transmitter stuck recessive for good cannot drive the ACK slot either
             deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None and s.start <= self._now}
-        ackers = [n for n in self.nodes if n._on_bus and not n.listen_only and n not in deaf]
+        ackers = [n for n in self.nodes if n.on_bus and not n.listen_only and n not in deaf]
         return all(not any(a is not p for a in ackers) for p in pending)
 
     def _wake(self, now: int) -> None:
         still = []
         for n in self._suspended:
-            if n._ready_at <= now:
-                n._suspended = False
-                h = n._head
-                if h is not None and h.state == "queued":
+            if n.ready_at <= now:
+                n.suspended = False
+                h = n.offered
+                if h is not None and h.state is QUEUED:
                     h.head_since = self.rounds
                     heapq.heappush(self._contenders, (h.key, h.seq, h))
             else:
@@ -512,7 +502,7 @@ class SimBus:
         self._suspended = still
 
     def _valid(self, req: TxRequest) -> bool:
-        return req.state == "queued" and req.node._head is req and req.node._on_bus
+        return req.state is QUEUED and req.node.offered is req and req.node.on_bus
 
     def _arbitrate(self) -> None:
         now = self._now
@@ -524,13 +514,13 @@ class SimBus:
         while heap:
             req = heap[0][2]
             node = req.node
-            if req.state != "queued" or node._head is not req or not node._on_bus:
+            if req.state is not QUEUED or node.offered is not req or not node.on_bus:
                 heappop(heap)
                 continue
-            if node._ready_at > now:  # error passive: suspend transmission
+            if node.ready_at > now:  # error passive: suspend transmission
                 heappop(heap)
-                if not node._suspended:
-                    node._suspended = True
+                if not node.suspended:
+                    node.suspended = True
                     self._suspended.append(node)
                 continue
             winner = heappop(heap)[2]
@@ -549,7 +539,7 @@ class SimBus:
             lost = r - q.head_since
             if lost > 0:
                 q.losses += lost
-                q.node._arb_lost += lost
+                q.node.rounds_lost += lost
             q.head_since = r + 1
             q.on_wire = True
         if self._arb_watch:
@@ -582,9 +572,9 @@ class SimBus:
             q = heapq.heappop(heap)[2]
             if not self._valid(q) or q in txs or q.node is winner.node:
                 continue
-            if q.node._ready_at > now:
-                if not q.node._suspended:
-                    q.node._suspended = True
+            if q.node.ready_at > now:
+                if not q.node.suspended:
+                    q.node.suspended = True
                     self._suspended.append(q.node)
                 continue
             txs.append(q)
@@ -602,32 +592,17 @@ class SimBus:
         return diff
 
     def _notify_losers(self, now: int, r: int, txs: list[TxRequest]) -> None:
+        """Nodes that watch arbitration hear of each round their offered request lost
+        (`Node.lost_arbitration`: ArbitrationLost, and a one-shot request fails)."""
         winners = {q.node for q in txs}
         wframe = txs[0].frame
         for n in tuple(self._arb_watch):
-            h = n._head
-            if n in winners or h is None or h.state != "queued" or h.on_wire or n._suspended:
+            h = n.offered
+            if n in winners or h is None or h.state is not QUEUED or h.on_wire or n.suspended:
                 continue
             if not (n.connected and n.state is not BUS_OFF) or h.head_since > r:
                 continue
-            n._emit(ArbitrationLost(now, h.frame, wframe))
-            if n.one_shot and h.state == "queued":
-                lost = r + 1 - h.head_since
-                h.losses += lost
-                n._arb_lost += lost
-                h.head_since = r + 1
-                self._fail_request(h, now, "arbitration lost (one-shot)")
-
-    def _fail_request(self, req: TxRequest, now: int, reason: str) -> None:
-        node = req.node
-        req.on_wire = False
-        req.state = "failed"
-        req.reason = reason
-        req.t_done = now
-        node.tx_failed += 1
-        node.queue.remove(req)
-        node._update_head()
-        node._emit(TxFailed(now, req.frame, req, reason))
+            n.lost_arbitration(now, h, wframe)
 
     def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
                   stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
@@ -636,7 +611,7 @@ class SimBus:
         """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
         from stack.bus.attempt import simulate_attempt
 
-        nodes = [n for n in self.nodes if n._on_bus]
+        nodes = [n for n in self.nodes if n.on_bus]
         res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
         res.collision = collision
         res.before = {n.name: n.state for n in nodes}  # the states the attempt was sent in
@@ -653,7 +628,7 @@ class SimBus:
 
     def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
         """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
-        node._set_counters(tec, rec, self._now)
+        node.set_counters(tec, rec, self._now)
 
     def _complete(self) -> None:
         txs, start, detail = self._tx
@@ -680,19 +655,20 @@ class SimBus:
         if self._lazy:
             log = self._log
             log.append((end, frame, sender))
+            self.delivered += 1
             if len(log) >= LOG_LIMIT:
                 self._flush()
         for n in self._eager:
-            n._deliver(end, frame, sender)
+            n.deliver(end, frame, sender, start)
         if self._busoff:
             self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
         if self._rec_nonzero:
             for n in tuple(self._rec_nonzero):
-                if n is not sender and n._on_bus:
-                    n._on_rx_success()
+                if n is not sender and n.on_bus:
+                    n.on_rx_success()
         for q in txs:
             q.on_wire = False
-            self._tx_success(q, end, idle, passive=q.node.state is PASSIVE, rule7=True)
+            self._tx_success(q, end, idle, start, passive=q.node.state is PASSIVE, rule7=True)
         if frame.remote and self._rtr:
             self._auto_reply(frame, sender, self._rtr.get((frame.can_id, frame.extended), ()))
 
@@ -712,11 +688,11 @@ class SimBus:
             self._flush_for_direct()
         for node, o in accepted:
             t_acc = start + self.bits_to_ns(o.accept_bit + 2)
-            node._deliver(t_acc, o.frame, sender)
+            node.deliver(t_acc, o.frame, sender, start)
         for q in txs:  # self-reception: each transmitter that succeeded gets its own copy
             o = outcomes.get(q.node.name)
             if o is not None and o.success and q.node.receive_own_messages:
-                q.node._deliver(end, q.frame, q.node)
+                q.node.deliver(end, q.frame, q.node, start)
         if winner is not None:
             self.frames_ok += 1
         else:
@@ -726,40 +702,34 @@ class SimBus:
         for name, o in outcomes.items():
             node = by_name[name]
             # the bases carry rules 7 and 8 applied at the bit where they happened
-            node._set_counters(o.tec0 + o.tec_delta, o.rec0 + o.rec_delta, end)
+            node.set_counters(o.tec0 + o.tec_delta, o.rec0 + o.rec_delta, end)
         for q in txs:
             node = q.node
             o = outcomes.get(node.name)
             q.on_wire = False
             if o is not None and o.success:
-                self._tx_success(q, end, idle, passive=before[node.name] is PASSIVE, rule7=False)
+                self._tx_success(q, end, idle, start, passive=before[node.name] is PASSIVE, rule7=False)
                 continue
             if o is not None and o.lost_arbitration:  # a flipped bit made it lose: not an error of its own
                 q.losses += 1
-                node._arb_lost += 1
+                node.rounds_lost += 1
                 q.head_since = self.rounds
-                if node.one_shot:
-                    self._fail_request(q, end, "arbitration lost (one-shot)")
-                elif node._head is q:
-                    self._offer(node, q)
+                if q.one_shot:
+                    node.fail(q, end, "arbitration lost (one-shot)")
+                elif node.offered is q:
+                    self.offer(node, q)
                 continue
-            if q.state != "queued":
+            if q.state is not QUEUED:
                 continue
             if before.get(node.name) is PASSIVE or node.state is PASSIVE:
                 self._suspend(node, idle)  # it transmitted as (or is now) error passive
-            if node.one_shot:
+            if q.one_shot:
                 kind = o.detected[0] if o is not None and o.detected else "error"
-                self._fail_request(q, end, f"{kind} error (one-shot)")
+                node.fail(q, end, f"{kind} error (one-shot)")
             elif node.state is BUS_OFF:
                 pass  # stays queued; offered again after recovery
             else:
-                q.retries += 1
-                node.retransmissions += 1
-                q.head_since = self.rounds
-                if node._head is q:
-                    self._offer(node, q)
-                else:
-                    node._update_head()
+                node.retry(q)
         if winner is not None and winner.frame.remote and self._rtr:
             self._auto_reply(winner.frame, sender, [n for n, o in accepted])
         if self.record:
@@ -771,44 +741,30 @@ class SimBus:
         key = (frame.can_id, frame.extended)
         holders = self._rtr.get(key, ())
         for n in receivers:
-            if n in holders and n is not sender and n._on_bus and not n.listen_only:
-                n.send(n._remote_replies[key])
+            if n in holders and n is not sender and n.on_bus and not n.listen_only:
+                n.send(n.remote_replies[key])  # the mailbox's frame (Node.remote_reply)
 
     def _suspend(self, node: Node, idle: int) -> None:
         """Suspend transmission: an error-passive node that transmitted waits 8 more bits after
         the intermission; until then it is out of arbitration (not counted as losing)."""
-        node._ready_at = idle + self._suspend_ns
-        if not node._suspended:
-            node._suspended = True
+        node.ready_at = idle + self._suspend_ns
+        if not node.suspended:
+            node.suspended = True
             self._suspended.append(node)
 
-    def _tx_success(self, q: TxRequest, end: int, idle: int, *, passive: bool, rule7: bool) -> None:
-        """A transmission that went through: counters, per-ID latency, rule 7 (unless the
-        caller applied the counters already), suspend transmission if it was sent error
-        passive, the next head, and `TxDone`."""
-        node = q.node
-        frame = q.frame
-        q.state = "sent"
-        q.t_done = end
-        node.tx_frames += 1
-        node.queue.remove(q)
-        st = self.id_stats.get(frame.key)
+    def _tx_success(self, q: TxRequest, end: int, idle: int, sof: int, *, passive: bool, rule7: bool) -> None:
+        """A transmission that went through: per-ID latency, suspend transmission if it was sent
+        error passive, then the node's own bookkeeping (`Node.confirm`: counters, rule 7 unless
+        the attempt's counters were applied already, the next head, `TxDone`)."""
+        st = self.id_stats.get(q.key)
         if st is None:
-            st = self.id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
-        lat = end - q.t_queued
-        st.count += 1
-        st.total += lat
-        st.losses += q.losses
-        st.min = min(st.min, lat)
-        st.max = max(st.max, lat)
+            st = self.id_stats[q.key] = IdStats(q.frame.can_id, q.frame.extended)
+        st.add(end - q.t_queued, q.losses)
         if passive:
-            self._suspend(node, idle)
-        if rule7 and node.tec:
-            node._on_tx_success()
-        node._update_head()
-        if node._listeners:
-            for cb in node._listeners.get(TxDone, ()):
-                cb(TxDone(end, frame, q))
+            self._suspend(q.node, idle)
+        nxt = q.node.confirm(q, end, sof, rule7=rule7)
+        if nxt is not None:
+            self.offer(q.node, nxt)
 
     def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any,
                          changes: dict[str, tuple[ErrorState, ErrorState]]) -> None:
@@ -851,17 +807,31 @@ class SimBus:
             self._flush()
 
     # ------------------------------------------------------------------ fault confinement
-    def _state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
+    def state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
+        """Fault confinement moved ``node`` from ``old`` to ``new`` (the contract's notification):
+        bus off takes it off the bus (and starts rule 12's count if it recovers by itself),
+        leaving bus off puts it back, leaving error passive ends suspend transmission."""
         if new is BUS_OFF:
             self._busoff.add(node)
-            self._sync(node)
-            node.bus_off_count += 1
-            self._reclassify(node)
+            self.sync(node)
+            self.node_changed(node)
             self._rec_nonzero.pop(node, None)
             if node.auto_recovery:
-                self._start_recovery(node)
+                self.start_recovery(node)
+        elif old is BUS_OFF:
+            self._busoff.discard(node)
+            self._busoff_marks.pop(node, None)
+            node.ready_at = 0
+            node.rx_cursor = self.delivered
+            self.node_changed(node)
+            h = node.offered
+            if h is not None and h.state is QUEUED:
+                h.head_since = self.rounds
+                self.offer(node, h)
+            else:
+                node.update_head()
         elif old is PASSIVE and new is not PASSIVE:
-            node._ready_at = 0
+            node.ready_at = 0
 
     def _recessive_count(self, now: int) -> int:
         n = self._recessive_events
@@ -869,88 +839,31 @@ class SimBus:
             n += (now - self._idle_at) * self.bitrate // 11_000_000_000
         return n
 
-    def _start_recovery(self, node: Node) -> None:
+    def start_recovery(self, node: Node) -> None:
         """Rule 12: bus off ends after 128 occurrences of 11 consecutive recessive bits."""
-        node._busoff_mark = self._recessive_count(self._now)
+        self._busoff_marks[node] = self._recessive_count(self._now)
         self.call_at(self._now + self.bits_to_ns(RECOVERY_OCCURRENCES * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,))
 
     def _check_recovery(self, node: Node) -> None:
         if node.state is not BUS_OFF:
             return
-        done = self._recessive_count(self._now) - node._busoff_mark
+        done = self._recessive_count(self._now) - self._busoff_marks[node]
         if done >= RECOVERY_OCCURRENCES:
-            old = node.state
-            node.tec = node.rec = 0
-            node.state = ACTIVE
-            self._busoff.discard(node)
-            node._ready_at = 0
-            node._cursor = self._log_base + len(self._log)
-            self._reclassify(node)
-            if node._head is not None and node._head.state == "queued":
-                node._head.head_since = self.rounds
-                self._offer(node, node._head)
-            else:
-                node._update_head()
-            node._emit(ErrorStateChanged(self._now, node.name, old.value, node.state.value, 0, 0))
+            node.recovered(self._now)  # back to error active: state_changed puts it on the bus
         else:
             self.call_at(self._now + self.bits_to_ns((RECOVERY_OCCURRENCES - done) * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,))
 
     # ------------------------------------------------------------------ lazy reception
-    def _sync(self, node: Node) -> None:
+    def sync(self, node: Node) -> None:
         """Bring a buffering node's FIFO and counters up to date from the delivery log."""
         log = self._log
-        i = node._cursor - self._log_base
+        i = node.rx_cursor - self._log_base
         if i >= len(log) or node not in self._lazy:
-            node._cursor = self._log_base + len(log)
+            node.rx_cursor = self._log_base + len(log)
             return
         entries = log[i:] if i > 0 else log
-        node._cursor = self._log_base + len(log)
-        self._absorb(node, entries)
-
-    def _absorb(self, node: Node, entries: list[tuple[int, Frame, Node]]) -> None:
-        fifo = node._fifo
-        cap = node.rx_fifo_size
-        acc = node.acceptance
-        own = node.receive_own_messages
-        n = len(entries)
-        if acc.accepts_all and (own or node not in map(_third, entries)):
-            # every entry is for this node: copy what fits in C, count the rest as overruns
-            room = cap - len(fifo)
-            if room >= n:
-                fifo.extend(entries)
-                node._rx_frames += n
-            else:
-                room = max(room, 0)
-                fifo.extend(entries[:room])
-                node._rx_frames += room
-                node._rx_overruns += n - room
-            return
-        cache = acc._cache
-        i = 0
-        got = 0
-        while len(fifo) < cap and i < n:
-            e = entries[i]
-            i += 1
-            if e[2] is node and not own:
-                continue
-            ok = cache.get(e[1].key)
-            if ok is None:
-                ok = acc.accepts(e[1])
-            if ok:
-                fifo.append(e)
-                got += 1
-        node._rx_frames += got
-        if i >= n:
-            return
-        # FIFO full: the rest are overruns (data overrun: the new frame is lost)
-        if acc.accepts_all:
-            rest = n - i
-            if not own:
-                rest -= sum(1 for e in entries[i:] if e[2] is node)
-            node._rx_overruns += rest
-            return
-        accepts = acc.accepts
-        node._rx_overruns += sum(1 for e in entries[i:] if (own or e[2] is not node) and accepts(e[1]))
+        node.rx_cursor = self._log_base + len(log)
+        node.absorb(entries)
 
     def _receivers_of(self, frame: Frame) -> tuple[Node, ...]:
         """Nodes whose acceptance filters pass this arbitration key (cached until filters change)."""
@@ -971,10 +884,10 @@ class SimBus:
         log = self._log
         base = self._log_base
         end = base + len(log)
-        lazy = {n for n in self._lazy if n._cursor < end}
+        lazy = {n for n in self._lazy if n.rx_cursor < end}
         # nodes that read nothing since the last flush and whose FIFO is full only count
         # overruns: tallied per (identifier, sender) pair with C-level counting
-        full = {n for n in lazy if n._cursor == base and len(n._fifo) >= n.rx_fifo_size}
+        full = {n for n in lazy if n.rx_cursor == base and n.rx_free <= 0}
         total = len(log)
         per_sender: Counter[Node] | None = None
         if full:
@@ -984,7 +897,7 @@ class SimBus:
             if everything:
                 per_sender = Counter(map(_third, log))
                 for node in everything:
-                    node._rx_overruns += total if node.receive_own_messages else total - per_sender.get(node, 0)
+                    node.count_overruns(total if node.receive_own_messages else total - per_sender.get(node, 0))
             filtered = full.difference(everything)
             if filtered:
                 frames = list(map(_second, log))
@@ -997,7 +910,7 @@ class SimBus:
                         if node in filtered and (node is not sender or node.receive_own_messages):
                             tally[node] = tally.get(node, 0) + c
                 for node, c in tally.items():
-                    node._rx_overruns += c
+                    node.count_overruns(c)
             lazy -= full
         if lazy and any(not n.receive_own_messages for n in lazy):
             # a node that only sent (and does not receive its own frames) has nothing to take
@@ -1008,7 +921,7 @@ class SimBus:
             self._log_base = end
             self._log = []
             for node in self._lazy:
-                node._cursor = end
+                node.rx_cursor = end
             return
         by_key: dict[int, list[int]] = {}
         by_sender: dict[Node, list[int]] = {}
@@ -1034,39 +947,26 @@ class SimBus:
         for node in self._lazy:
             lists = node_lists.get(node)
             if lists:
-                self._absorb_indexed(node, log, lists, node._cursor - base, by_sender.get(node, ()))
+                self._absorb_indexed(node, log, lists, node.rx_cursor - base, by_sender.get(node, ()))
         self._log_base = base + len(log)
         self._log = []
         for node in self._lazy:
-            node._cursor = self._log_base
+            node.rx_cursor = self._log_base
 
     def _absorb_indexed(self, node: Node, log: list[tuple[int, Frame, Node]], lists: list[list[int]],
                         start: int, own_positions: Iterable[int]) -> None:
-        fifo = node._fifo
-        cap = node.rx_fifo_size
-        own = node.receive_own_messages
+        """The log positions of the identifiers ``node``'s filters pass go to its FIFO
+        (`Node.absorb_positions`); once it is full the rest are counted as overruns by
+        bisection, without a walk."""
         merged = lists[0] if len(lists) == 1 else heapq.merge(*lists)
-        got = 0
-        stop_at = None
-        for idx in merged:
-            if idx < start:
-                continue
-            e = log[idx]
-            if e[2] is node and not own:
-                continue
-            if len(fifo) >= cap:
-                stop_at = idx
-                break
-            fifo.append(e)
-            got += 1
-        node._rx_frames += got
+        stop_at = node.absorb_positions(log, (i for i in merged if i >= start))
         if stop_at is None:
             return
         rest = sum(len(lst) - bisect_left(lst, stop_at) for lst in lists)
-        if not own:
+        if not node.receive_own_messages:
             acc = node.acceptance.accepts
             rest -= sum(1 for i in own_positions if i >= stop_at and acc(log[i][1]))
-        node._rx_overruns += rest
+        node.count_overruns(rest)
 
     # ------------------------------------------------------------------ results
     @property

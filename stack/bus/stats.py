@@ -19,6 +19,16 @@ class IdStats:
         self.max = 0
         self.losses = 0
 
+    def add(self, latency: int, losses: int) -> None:
+        """One frame sent: its latency (queued to end of EOF, ns) and arbitration rounds lost."""
+        self.count += 1
+        self.total += latency
+        self.losses += losses
+        if latency < self.min:
+            self.min = latency
+        if latency > self.max:
+            self.max = latency
+
     @property
     def mean(self) -> float:
         """Mean latency in ns."""

@@ -3,8 +3,11 @@
 They are NamedTuples rather than frozen dataclasses: one is made per received frame on the hot
 path, and a NamedTuple is built about 5x faster (0.15 us against 0.8 us on the bench machine).
 
-Times are integer nanoseconds on the driver's clock (virtual in simulation, wall clock on a
-python-can bus).
+Times are integer nanoseconds on the node's clock: the driver's (virtual in simulation, wall
+clock on a python-can bus), shifted and scaled when the node has a `LocalClock`. ``sof`` is the
+start of frame of the frame in question, on the same clock (the bus time of its SOF bit — what a
+time-triggered node's hard synchronisation sees; on a python-can bus an estimate, see
+``node.capabilities``).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ class Received(NamedTuple):
 
     time: int
     frame: Frame
+    sof: int = -1
 
 
 class TxDone(NamedTuple):
@@ -32,10 +36,12 @@ class TxDone(NamedTuple):
     time: int
     frame: Frame
     request: "TxRequest"
+    sof: int = -1
 
 
 class TxFailed(NamedTuple):
-    """A queued frame will not be sent: one-shot failure, abort, bus off, or shutdown."""
+    """A queued frame will not be sent: one-shot failure, abort, its latest start time passed
+    (reason "not started by ..."), bus off, or shutdown."""
 
     time: int
     frame: Frame

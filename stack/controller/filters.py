@@ -44,14 +44,17 @@ def validate_filters(filters: Iterable[Mapping[str, Any]] | None) -> list[tuple[
 
 
 class AcceptanceFilter:
-    """A compiled filter list; `accepts(frame)` implements python-can's matching rule."""
+    """A compiled filter list; `accepts(frame)` implements python-can's matching rule.
 
-    __slots__ = ("filters", "_rules", "_cache")
+    ``cache`` maps an arbitration key to the verdict once computed (the controller reads it
+    directly on its receive path)."""
+
+    __slots__ = ("filters", "_rules", "cache")
 
     def __init__(self, filters: Iterable[Mapping[str, Any]] | None = None) -> None:
         self._rules = validate_filters(filters)
         self.filters = [dict(f) for f in filters] if filters else None
-        self._cache: dict[int, bool] = {}
+        self.cache: dict[int, bool] = {}
 
     @property
     def accepts_all(self) -> bool:
@@ -60,10 +63,10 @@ class AcceptanceFilter:
 
     def accepts(self, frame: Frame) -> bool:
         """True if any filter matches the frame (or none is set)."""
-        r = self._cache.get(frame.key)
+        r = self.cache.get(frame.key)
         if r is None:
             r = self._match(frame.can_id, frame.extended)
-            self._cache[frame.key] = r
+            self.cache[frame.key] = r
         return r
 
     def _match(self, can_id: int, extended: bool) -> bool:

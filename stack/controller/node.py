@@ -1,94 +1,41 @@
 """A node: the software CAN controller the layers above talk to.
 
 The node is sans-IO: it is attached to a driver (the simulated bus, or a python-can bus) that
-gives it a clock and a wire. Layers above use only `send`, `subscribe`, `listen`, `call_at`,
-`call_later` and `now`, so the same profile or ECU runs unchanged on either driver.
+gives it a clock and a wire, through the contract of `stack.controller.contract`. Layers above use
+only the node API (`stack.controller.api.NodeAPI`: `send`, `subscribe`, `listen`, `call_at`,
+`call_later`, `now`, …), so the same profile or ECU runs unchanged on either driver.
 
-Controller features (per node): transmit queue policy (`stack.queues`), acceptance filters with
-python-can semantics, a bounded receive FIFO that counts overruns, automatic replies to remote
-frames, self-reception, listen-only and one-shot modes, and the counters a user expects.
+Controller features (per node): transmit queue policy (`stack.controller.queues`), acceptance
+filters with python-can semantics, a bounded receive FIFO that counts overruns, automatic
+replies to remote frames, self-reception, listen-only and one-shot modes (per node and per
+request), a latest start time per request, fault confinement (`stack.controller.confinement`),
+an optional drifting local clock (`stack.controller.clock`), and the counters a user expects.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from heapq import heappush
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
+from operator import itemgetter
+from typing import Any, Callable, Iterable, Mapping
 
 import can
 
-from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
-from stack.controller.events import ErrorStateChanged, Received, TxDone, TxFailed
+from stack.controller.clock import LocalClock
+from stack.controller.confinement import (ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success,
+                                          state_for)
+from stack.controller.contract import Driver, Timer
+from stack.controller.exceptions import NodeError
+from stack.controller.events import ArbitrationLost, ErrorStateChanged, Received, TxDone, TxFailed
 from stack.controller.filters import AcceptanceFilter
+from stack.controller.periodic import PeriodicTask
+from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, TxRequest, make_queue  # noqa: F401
 from stack.wire.frame import Frame
-from stack.controller.queues import QueueFull, TxRequest, make_queue
-
-if TYPE_CHECKING:  # pragma: no cover
-    from stack.bus.sim import SimBus
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
 
-_new_tuple = tuple.__new__  # Received(t, frame) without its Python-level __new__: 2x cheaper
-
-
-class Driver(Protocol):
-    """What a node needs from the driver it is attached to (`SimBus`, `PyCanDriver`).
-
-    Clock and timers: ``now()`` and ``call_at(time, callback, args)`` (ns); ``rounds``, the
-    number of arbitration rounds so far; ``_seq`` (a counter the node bumps for each request, so
-    requests order deterministically) and ``_now`` (the current time, read directly on the hot
-    path of `Node.send`); ``_contenders``, the simulated bus's arbitration heap that `Node.send`
-pushes a new head onto directly, or None (then ``_offer`` is called). Notifications from the node: ``_offer(node, request)`` (a new head to
-    arbitrate), ``_sync(node)`` (bring lazily buffered receptions up to date before the node is
-    read), ``_reclassify(node)`` (subscriptions, listeners or modes changed),
-    ``_filters_changed(node)``, ``_state_changed(node, old, new, time)`` (fault confinement) and
-    ``_start_recovery(node)``; ``_rec_nonzero``, the nodes whose REC is above 0 (rule 8), a dict
-    used as an ordered set so that their updates run in a deterministic order;
-    ``_log`` and ``_log_base``, the delivery log lazily read receivers catch up from (a driver
-    that delivers at once keeps an empty log).
-    A driver reports back through the node's public `head`, `confirm`, `fail`, `deliver` and
-    `remote_reply`.
-    """
-
-    rounds: int
-    _contenders: list[Any] | None
-    _seq: int
-    _now: int
-    _rec_nonzero: dict["Node", None]
-    _log: Any
-    _log_base: int
-
-    def now(self) -> int: ...
-    def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> "Timer": ...
-    def _offer(self, node: "Node", req: TxRequest) -> None: ...
-    def _sync(self, node: "Node") -> None: ...
-    def _reclassify(self, node: "Node") -> None: ...
-    def _filters_changed(self, node: "Node") -> None: ...
-    def _state_changed(self, node: "Node", old: "ErrorState", new: "ErrorState", t: int) -> None: ...
-    def _start_recovery(self, node: "Node") -> None: ...
-
-
-class NodeError(Exception):
-    """An operation the node cannot do in its current mode (listen-only, detached, bus off)."""
-
-
-class Timer:
-    """A pending callback on the driver's clock; `cancel()` stops it from running."""
-
-    __slots__ = ("time", "callback", "args", "cancelled")
-
-    def __init__(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...]) -> None:
-        self.time = time
-        self.callback = callback
-        self.args = args
-        self.cancelled = False
-
-    def cancel(self) -> None:
-        """Do not run the callback."""
-        self.cancelled = True
-
-    def __lt__(self, other: "Timer") -> bool:  # pragma: no cover - heap entries carry a seq
-        return self.time < other.time
+_new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
+_sender = itemgetter(2)  # of a (time, frame, sender) reception
 
 
 class Subscription:
@@ -103,7 +50,7 @@ class Subscription:
 
     def unsubscribe(self) -> None:
         """Stop receiving through this callback."""
-        self.node._unsubscribe(self)
+        self.node.unsubscribe(self)
 
 
 class Node:
@@ -113,7 +60,14 @@ class Node:
     ``mailboxes`` and ``abort`` for the mailbox policy, ``tx_queue_size``, ``rx_fifo_size``,
     acceptance ``filters`` (python-can format), ``receive_own_messages`` (self-reception),
     ``listen_only`` (no ACK, no transmission, no error flags), ``one_shot`` (no retransmission
-    after a lost arbitration or an error).
+    after a lost arbitration or an error; `send` can override it per frame), ``auto_recovery``
+    (rule 12 without asking), ``clock`` (a `LocalClock`: the node's own oscillator).
+
+    Driver-side state (`stack.controller.contract`): ``offered`` is the request the controller
+    offers to arbitration now; ``listeners`` the callbacks by event type (drivers read it to know
+    whether a report runs user code); ``rounds_lost`` the arbitration rounds lost so far (a
+    driver settling a round adds to it); ``on_bus``, ``suspended``, ``ready_at`` and
+    ``rx_cursor`` are the driver's bookkeeping about this node, written by the driver only.
     """
 
     def __init__(
@@ -130,6 +84,7 @@ class Node:
         listen_only: bool = False,
         one_shot: bool = False,
         auto_recovery: bool = True,
+        clock: LocalClock | None = None,
     ) -> None:
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
@@ -141,6 +96,8 @@ class Node:
                 raise ValueError(f"{opt} {val!r} must be True or False")
         if mailboxes is not None and (isinstance(mailboxes, bool) or not isinstance(mailboxes, int) or mailboxes < 1):
             raise ValueError(f"mailboxes {mailboxes!r}: a controller has at least 1 transmit mailbox")
+        if clock is not None and not isinstance(clock, LocalClock):
+            raise ValueError(f"clock {clock!r}: a stack.controller.clock.LocalClock or None")
         self.name = name
         self.queue = make_queue(queue, capacity=tx_queue_size, mailboxes=mailboxes, abort=abort)
         self.acceptance = AcceptanceFilter(filters)
@@ -148,46 +105,95 @@ class Node:
         self.rx_fifo_size = rx_fifo_size
         self.receive_own_messages = bool(receive_own_messages)
         self.listen_only = bool(listen_only)
-        self.one_shot = bool(one_shot)
+        self._one_shot = bool(one_shot)
+        self._one_shot_pending = 0  # queued requests that are one-shot while the node is not
+        self.clock = clock
         # counters
         self.tx_frames = 0
         self._rx_frames = 0
         self._rx_overruns = 0
         self.retransmissions = 0
         self.tx_failed = 0
-        self._arb_lost = 0
-        # fault confinement (CAN 2.0 rules 1-12)
+        self.rounds_lost = 0  # arbitration rounds lost, settled (see `arbitration_lost`)
+        self.bus_off_count = 0
+        # fault confinement (rules 1-12, `stack.controller.confinement`)
         self.tec = 0
         self.rec = 0
         self.state = ACTIVE
         self.auto_recovery = bool(auto_recovery)
-        self._busoff_mark = 0
-        self.bus_off_count = 0
         # wiring
-        self.bus: "SimBus | Any | None" = None
-        self._head: TxRequest | None = None
+        self.bus: Driver | Any | None = None
+        self.offered: TxRequest | None = None
         self._subs: list[Subscription] = []
-        self._listeners: dict[type, list[Callable[[Any], Any]]] = {}
-        self._remote_replies: dict[tuple[int, bool], Frame] = {}
-        self._cursor = 0  # lazy reception: position in the bus's delivery log
-        self._ready_at = 0  # suspend transmission (error passive) ends here
-        self._suspended = False  # set aside from arbitration until _ready_at
+        self.listeners: dict[type, list[Callable[[Any], Any]]] = {}  # by event type (read by drivers)
+        self.remote_replies: dict[tuple[int, bool], Frame] = {}
+        # the driver's bookkeeping (written by the driver only)
+        self.rx_cursor = 0  # lazy reception: position in the driver's delivery log
+        self.ready_at = 0  # suspend transmission (error passive) ends here
+        self.suspended = False  # set aside from arbitration until ready_at
+        self.on_bus = False  # connected and not bus off
         self.connected = True
-        self._on_bus = False  # connected and not bus off; kept by the bus
+
+    # ------------------------------------------------------------------ modes
+    @property
+    def one_shot(self) -> bool:
+        """No retransmission after a lost arbitration or an error (the default for `send`)."""
+        return self._one_shot
+
+    @one_shot.setter
+    def one_shot(self, value: bool) -> None:
+        if not isinstance(value, bool):
+            raise ValueError(f"one_shot {value!r} must be True or False")
+        self._one_shot = value
+        if self.bus is not None:
+            self.bus.node_changed(self)  # the driver watches one-shot nodes' arbitration
+
+    @property
+    def watches_arbitration(self) -> bool:
+        """True when the driver must tell this node each arbitration round it loses: it has
+        one-shot requests or `ArbitrationLost` listeners."""
+        return self._one_shot or self._one_shot_pending > 0 or bool(self.listeners.get(ArbitrationLost))
+
+    @property
+    def subscribed(self) -> bool:
+        """True when frames go to subscription callbacks (a receive interrupt) instead of the FIFO."""
+        return bool(self._subs)
 
     # ------------------------------------------------------------------ clock and timers
     def now(self) -> int:
-        """Current time of the driver's clock in ns."""
-        return self._driver().now()
+        """Current time of the node's clock in ns (the driver's, through the node's `LocalClock`)."""
+        t = self._driver().now()
+        return t if self.clock is None else self.clock.local(t)
 
     def call_at(self, time: int, callback: Callable[..., Any], *args: Any) -> Timer:
-        """Run ``callback(*args)`` at absolute driver time ``time`` (ns)."""
-        return self._driver().call_at(int(time), callback, args)
+        """Run ``callback(*args)`` at time ``time`` (ns) of the node's clock."""
+        t = int(time)
+        return self._driver().call_at(t if self.clock is None else self.clock.bus(t), callback, args)
 
     def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
-        """Run ``callback(*args)`` ``delay`` ns from now."""
+        """Run ``callback(*args)`` ``delay`` ns of the node's clock from now."""
         d = self._driver()
-        return d.call_at(d.now() + int(delay), callback, args)
+        if self.clock is None:
+            return d.call_at(d.now() + int(delay), callback, args)
+        return d.call_at(self.clock.bus(self.clock.local(d.now()) + int(delay)), callback, args)
+
+    def to_local(self, t_bus: int) -> int:
+        """A bus (driver) time as the node's local time."""
+        return t_bus if self.clock is None or t_bus < 0 else self.clock.local(t_bus)
+
+    def to_bus(self, t_local: int) -> int:
+        """A local time of the node as the bus (driver) time."""
+        return t_local if self.clock is None else self.clock.bus(t_local)
+
+    @property
+    def bit_ns(self) -> float | None:
+        """The bit time of the bus the node is on, ns (None when detached or unknown)."""
+        return None if self.bus is None else self.bus.bit_ns
+
+    @property
+    def capabilities(self) -> frozenset[str]:
+        """What the driver underneath can know (`stack.controller.contract.CAPABILITIES`)."""
+        return frozenset() if self.bus is None else self.bus.capabilities
 
     def _driver(self) -> Any:
         if self.bus is None:
@@ -195,9 +201,13 @@ class Node:
         return self.bus
 
     # ------------------------------------------------------------------ transmit
-    def send(self, frame: Frame | can.Message) -> TxRequest:
+    def send(self, frame: Frame | can.Message, *, one_shot: bool | None = None,
+             not_after: int | None = None) -> TxRequest:
         """Queue a frame for transmission; returns its request (state, losses, retries).
 
+        ``one_shot`` overrides the node's mode for this frame. ``not_after`` is the latest start
+        time (ns on the node's clock): a frame that has not started by then is withdrawn and
+        reported as `TxFailed` ('not started by ...') — TTCAN's transmit-enable window.
         Raises `QueueFull` when the transmit queue has no room, `NodeError` in listen-only mode,
         when bus off, or when not attached.
         """
@@ -206,39 +216,60 @@ class Node:
         bus = self.bus
         if bus is None or self.listen_only or self.state is BUS_OFF:
             self._refuse()
-        seq = bus._seq = bus._seq + 1
-        req = TxRequest(self, frame, seq, bus._now)
+        if one_shot is None and not_after is None:
+            req = TxRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot, None)
+        else:
+            req = self._special_request(bus, frame, one_shot, not_after)
         q = self.queue
-        by = q._by_key
+        by = q.fifos
         if by is not None:
             # priority queue (PriorityQueue.push), inlined: this runs once per frame sent
-            if q._n >= q.capacity:
+            if q.size >= q.capacity:
                 raise QueueFull(f"transmit queue full ({q.capacity} frames)")
             key = req.key
             dq = by.get(key)
             if dq is None:
                 dq = by[key] = deque()
-                heappush(q._keys, key)
+                heappush(q.keys, key)
             dq.append(req)
-            q._n += 1
+            q.size += 1
         elif q.push(req):
             for m in q.moved:  # aborted out of a mailbox: not offered any more
-                self._settle_losses(m)
-        cur = self._head
+                self.settle_losses(m)
+        cur = self.offered
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
             new = q.head()
-            self._head = new
+            self.offered = new
             if new is not None:
                 new.head_since = bus.rounds
-                arb = bus._contenders
-                if arb is None:
-                    bus._offer(self, new)
-                elif self._on_bus and not self._suspended:  # SimBus._offer, inlined (hot path)
-                    heappush(arb, (new.key, new.seq, new))
+                bus.offer(self, new)
         elif not cur.on_wire and req.key < cur.key:
-            self._update_head()
+            self.update_head()
         return req
+
+    def _special_request(self, bus: Any, frame: Frame, one_shot: bool | None, not_after: int | None) -> TxRequest:
+        if one_shot is not None and not isinstance(one_shot, bool):
+            raise ValueError(f"one_shot {one_shot!r} must be True, False or None")
+        nb = None
+        if not_after is not None:
+            if isinstance(not_after, bool) or not isinstance(not_after, int):
+                raise ValueError(f"not_after {not_after!r}: a time in integer ns on the node's clock")
+            nb = self.to_bus(not_after)
+        req = TxRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot if one_shot is None else one_shot, nb)
+        if req.one_shot and not self._one_shot:
+            self._one_shot_pending += 1
+            if self._one_shot_pending == 1:
+                bus.node_changed(self)
+        if nb is not None:
+            # withdrawn just after its latest start: an arbitration at not_after itself may start it
+            req.expiry = bus.call_at(max(nb + 1, bus.now()), self._expire, (req,))
+        return req
+
+    def _expire(self, req: TxRequest) -> None:
+        if req.state is QUEUED and not req.on_wire:
+            bus = self._driver()
+            self.fail(req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns")
 
     @staticmethod
     def _coerce(frame: Any) -> Frame:
@@ -256,95 +287,280 @@ class Node:
         raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
 
     def send_periodic(self, frame: "Frame | Callable[[], Frame]", period: int, *, offset: int = 0,
-                      count: int | None = None) -> "PeriodicTask":
+                      count: int | None = None) -> PeriodicTask:
         """Send ``frame`` every ``period`` ns, first ``offset`` ns from now (a cyclic
         transmission on the node's clock; see `PeriodicTask`)."""
         return PeriodicTask(self, frame, period, offset=offset, count=count)
 
     def abort(self, req: TxRequest) -> bool:
         """Abort a queued request that is not on the wire; True if it was aborted."""
-        if req.state != "queued" or req.on_wire or req.node is not self:
+        if req.state is not QUEUED or req.on_wire or req.node is not self:
             return False
-        self._settle_losses(req)
-        req.state = "aborted"
-        req.reason = "aborted"
-        self.queue.remove(req)
-        self._update_head()
-        self._emit(TxFailed(self.bus.now() if self.bus else 0, req.frame, req, "aborted"))
+        self.settle_losses(req)
+        t = self.bus.now() if self.bus else 0
+        self._finish(req, ABORTED, "aborted", t)
+        self.update_head()
+        self._emit(TxFailed(self.to_local(t), req.frame, req, "aborted"))
         return True
 
     def pending(self) -> list[TxRequest]:
         """Requests still queued."""
         return self.queue.pending()
 
-    def _settle_losses(self, req: TxRequest) -> None:
-        # arbitration rounds lost while this request was the offered head
-        if self._head is req and self.bus is not None and req.head_since >= 0 and self._eligible():
+    def _finish(self, req: TxRequest, state: Any, reason: str, t: int) -> None:
+        """Take a request out for good (sent requests go through `confirm`'s inlined copy)."""
+        req.on_wire = False
+        req.state = state
+        req.reason = reason
+        req.t_done = t
+        self.queue.remove(req)
+        if req.expiry is not None:
+            req.expiry.cancel()
+        if req.one_shot and not self._one_shot:
+            self._one_shot_pending -= 1
+            if self._one_shot_pending == 0 and self.bus is not None:
+                self.bus.node_changed(self)
+
+    def settle_losses(self, req: TxRequest) -> None:
+        """Count the arbitration rounds ``req`` lost while it was the offered head (the driver's
+        ``rounds`` against the round it became the head)."""
+        if self.offered is req and self.bus is not None and req.head_since >= 0 and self.eligible:
             lost = self.bus.rounds - req.head_since
             if lost > 0:
                 req.losses += lost
-                self._arb_lost += lost
+                self.rounds_lost += lost
             req.head_since = self.bus.rounds
 
-    def _eligible(self) -> bool:
-        return self.connected and not self._suspended and self.state is not BUS_OFF
+    @property
+    def eligible(self) -> bool:
+        """Connected, not suspended and not bus off: the node takes part in arbitration."""
+        return self.connected and not self.suspended and self.state is not BUS_OFF
 
-    def _update_head(self) -> None:
-        cur = self._head
+    def update_head(self) -> None:
+        """Offer the queue's head to the driver if it changed (unless a frame is on the wire)."""
+        cur = self.offered
         if cur is not None and cur.on_wire:
             return
         new = self.queue.head()
         if new is cur:
             return
-        if cur is not None and cur.state == "queued":
-            self._settle_losses(cur)
-        self._head = new
+        if cur is not None and cur.state is QUEUED:
+            self.settle_losses(cur)
+        self.offered = new
         if new is not None and self.bus is not None:
             new.head_since = self.bus.rounds
-            self.bus._offer(self, new)
+            self.bus.offer(self, new)
 
     # ------------------------------------------------------------------ driver side
     @property
     def head(self) -> TxRequest | None:
         """The request this controller offers to arbitration now (None if nothing is queued)."""
-        h = self._head
-        return h if h is not None and h.state == "queued" else None
+        h = self.offered
+        return h if h is not None and h.state is QUEUED else None
 
-    def confirm(self, req: TxRequest, t: int) -> None:
-        """The driver's report that ``req`` went out without error at ``t``: counts it, applies
-        rule 7, picks the next head and emits `TxDone`."""
+    def confirm(self, req: TxRequest, t: int, sof: int = -1, *, rule7: bool = True) -> TxRequest | None:
+        """The driver's report that ``req`` went out without error (end of EOF at ``t``, its SOF
+        at ``sof``, bus times): counts it, applies rule 7 (unless the driver applied the
+        attempt's counters itself, ``rule7=False``), picks the next head and emits `TxDone`.
+
+        Returns the next head when the driver must offer it to arbitration itself (None when
+        the queue is empty or the node offered it already) — so that the simulated bus's fast
+        loop pushes it onto its heap without another call.
+
+        The one bookkeeping of a successful transmission, for every driver and both of the
+        simulated bus's paths. The priority queue's removal and next head are inlined: this runs
+        once per frame (the fast loop's figure in `python -m stack.bench`).
+        """
         req.on_wire = False
-        req.state = "sent"
+        req.state = SENT
         req.t_done = t
+        req.sof = sof
         self.tx_frames += 1
-        self.queue.remove(req)
-        if self.tec:
-            self._on_tx_success()
-        self._update_head()
-        self._emit(TxDone(t, req.frame, req))
+        q = self.queue
+        by = q.fifos
+        dq = None
+        if by is not None:  # PriorityQueue.remove, inlined
+            dq = by.get(req.key)
+            if dq and dq[0] is req:
+                dq.popleft()
+            q.size -= 1
+        else:
+            q.remove(req)
+        if req.expiry is not None or (req.one_shot and not self._one_shot):
+            if req.expiry is not None:
+                req.expiry.cancel()
+            if req.one_shot and not self._one_shot:
+                self._one_shot_pending -= 1
+                if self._one_shot_pending == 0:
+                    self.bus.node_changed(self)
+        if self.tec and rule7:
+            self.on_tx_success()
+        listeners = self.listeners.get(TxDone) if self.listeners else None
+        if listeners:
+            # confirm first, then pick the next head once (sends from the callbacks included)
+            self.offered = None
+            if self.clock is None:
+                ev = _new_tuple(TxDone, (t, req.frame, req, sof))
+            else:
+                ev = TxDone(self.clock.local(t), req.frame, req, self.to_local(sof))
+            for cb in listeners:
+                cb(ev)
+            if self.offered is None:
+                self.update_head()
+            return None
+        if dq is not None:
+            # the next head is the front of the lowest key's FIFO (PriorityQueue.head): the same
+            # key again for a sender of one identifier, unless a lower key was queued meanwhile
+            nxt = dq[0] if dq and dq[0].state is QUEUED and q.keys[0] == req.key else q.head()
+            self.offered = nxt
+            if nxt is not None:
+                nxt.head_since = self.bus.rounds
+            return nxt
+        self.update_head()
+        return None
 
     def fail(self, req: TxRequest, t: int, reason: str) -> None:
-        """The driver's report that ``req`` will not be sent (one-shot failure): emits
-        `TxFailed` and picks the next head."""
-        req.on_wire = False
-        req.state = "failed"
-        req.reason = reason
-        req.t_done = t
+        """The driver's report that ``req`` will not be sent (one-shot failure, latest start
+        time passed, a send that failed for good): emits `TxFailed` and picks the next head."""
+        self._finish(req, FAILED, reason, t)
         self.tx_failed += 1
-        self.queue.remove(req)
-        self._update_head()
-        self._emit(TxFailed(t, req.frame, req, reason))
+        self.update_head()
+        self._emit(TxFailed(self.to_local(t), req.frame, req, reason))
 
-    def deliver(self, t: int, frame: Frame, sender: Any = None) -> None:
-        """The driver's report of a valid frame on the bus at ``t`` (acceptance filters, FIFO
-        or subscriptions, as in simulation)."""
-        self._deliver(t, frame, sender)
+    def retry(self, req: TxRequest) -> None:
+        """The driver's report that an attempt of ``req`` failed and will be repeated
+        (automatic retransmission): counts it and offers the request again."""
+        req.on_wire = False
+        req.retries += 1
+        self.retransmissions += 1
+        if self.bus is not None:
+            req.head_since = self.bus.rounds
+        if self.offered is req:
+            if self.bus is not None:
+                self.bus.offer(self, req)
+        else:
+            self.update_head()
+
+    def lost_arbitration(self, t: int, req: TxRequest, winner: Frame) -> None:
+        """The driver's report that the offered ``req`` lost the round at bus time ``t`` to
+        ``winner``: emits `ArbitrationLost`; a one-shot request fails."""
+        self._emit(ArbitrationLost(self.to_local(t), req.frame, winner))
+        if req.one_shot and req.state is QUEUED:
+            r = self.bus.rounds
+            lost = r - req.head_since
+            if lost > 0:
+                req.losses += lost
+                self.rounds_lost += lost
+            req.head_since = r
+            self.fail(req, t, "arbitration lost (one-shot)")
+
+    def deliver(self, t: int, frame: Frame, sender: Any = None, sof: int = -1) -> None:
+        """The driver's report of a valid frame on the bus at ``t`` (start of frame ``sof``, bus
+        times): acceptance filters, then the subscriptions or the FIFO."""
+        if sender is self and not self.receive_own_messages:
+            return
+        acc = self.acceptance.cache.get(frame.key)
+        if acc is None:
+            acc = self.acceptance.accepts(frame)
+        if not acc:
+            return
+        if self._subs:
+            self._rx_frames += 1
+            if self.clock is None:
+                ev = _new_tuple(Received, (t, frame, sof))
+            else:
+                ev = Received(self.clock.local(t), frame, self.to_local(sof))
+            for sub in tuple(self._subs):
+                if sub.filter is None or sub.filter.accepts(frame):
+                    sub.callback(ev)
+        elif len(self._fifo) < self.rx_fifo_size:
+            self._rx_frames += 1
+            self._fifo.append((t, frame, sender))
+        else:
+            self._rx_overruns += 1
+
+    def absorb(self, entries: list[tuple[int, Frame, Any]]) -> None:
+        """A batch of receptions the driver logged for this buffering node, (time, frame,
+        sender) in bus order: the ones the filters pass go into the FIFO until it is full, the
+        rest are overruns (data overrun: the new frame is lost)."""
+        fifo = self._fifo
+        cap = self.rx_fifo_size
+        acc = self.acceptance
+        own = self.receive_own_messages
+        n = len(entries)
+        if acc.accepts_all and (own or self not in map(_sender, entries)):
+            # every entry is for this node: copy what fits in C, count the rest as overruns
+            room = cap - len(fifo)
+            if room >= n:
+                fifo.extend(entries)
+                self._rx_frames += n
+            else:
+                room = max(room, 0)
+                fifo.extend(entries[:room])
+                self._rx_frames += room
+                self._rx_overruns += n - room
+            return
+        cache = acc.cache
+        i = 0
+        got = 0
+        while len(fifo) < cap and i < n:
+            e = entries[i]
+            i += 1
+            if e[2] is self and not own:
+                continue
+            ok = cache.get(e[1].key)
+            if ok is None:
+                ok = acc.accepts(e[1])
+            if ok:
+                fifo.append(e)
+                got += 1
+        self._rx_frames += got
+        if i >= n:
+            return
+        if acc.accepts_all:
+            rest = n - i
+            if not own:
+                rest -= sum(1 for e in entries[i:] if e[2] is self)
+            self._rx_overruns += rest
+            return
+        accepts = acc.accepts
+        self._rx_overruns += sum(1 for e in entries[i:] if (own or e[2] is not self) and accepts(e[1]))
+
+    def absorb_positions(self, log: list[tuple[int, Frame, Any]], positions: Iterable[int]) -> int | None:
+        """Receptions at ``positions`` (ascending) of the driver's log, already filtered for this
+        node: into the FIFO until it is full. Returns the position where the FIFO filled (the
+        rest are overruns the driver counts with `count_overruns`), or None."""
+        fifo = self._fifo
+        cap = self.rx_fifo_size
+        own = self.receive_own_messages
+        got = 0
+        stop_at = None
+        for idx in positions:
+            e = log[idx]
+            if e[2] is self and not own:
+                continue
+            if len(fifo) >= cap:
+                stop_at = idx
+                break
+            fifo.append(e)
+            got += 1
+        self._rx_frames += got
+        return stop_at
+
+    def count_overruns(self, n: int) -> None:
+        """``n`` accepted frames lost because the receive FIFO was full."""
+        self._rx_overruns += n
+
+    @property
+    def rx_free(self) -> int:
+        """Room left in the receive FIFO (as last brought up to date)."""
+        return self.rx_fifo_size - len(self._fifo)
 
     def remote_reply(self, frame: Frame) -> Frame | None:
         """The data frame a mailbox answers this remote frame with, if one is configured."""
         if not frame.remote or self.listen_only:
             return None
-        return self._remote_replies.get((frame.can_id, frame.extended))
+        return self.remote_replies.get((frame.can_id, frame.extended))
 
     # ------------------------------------------------------------------ receive
     def subscribe(self, callback: Callable[[Received], Any],
@@ -356,47 +572,48 @@ class Node:
         """
         sub = Subscription(self, callback, AcceptanceFilter(filters) if filters else None)
         if self.bus is not None:
-            self.bus._sync(self)
+            self.bus.sync(self)
         self._subs.append(sub)
         if self.bus is not None:
-            self.bus._reclassify(self)
+            self.bus.node_changed(self)
         return sub
 
-    def _unsubscribe(self, sub: Subscription) -> None:
+    def unsubscribe(self, sub: Subscription) -> None:
+        """Remove a subscription (`Subscription.unsubscribe`)."""
         if sub in self._subs:
             self._subs.remove(sub)
             if self.bus is not None:
-                self.bus._reclassify(self)
+                self.bus.node_changed(self)
 
     def listen(self, event_type: type, callback: Callable[[Any], Any]) -> None:
         """Call ``callback(event)`` for events of ``event_type``: TxDone, TxFailed,
-        ArbitrationLost (and the fault-confinement events of `stack.errors`)."""
-        self._listeners.setdefault(event_type, []).append(callback)
+        ArbitrationLost, ErrorStateChanged."""
+        self.listeners.setdefault(event_type, []).append(callback)
         if self.bus is not None:
-            self.bus._reclassify(self)
+            self.bus.node_changed(self)
 
     def _emit(self, event: Any) -> None:
-        for cb in self._listeners.get(type(event), ()):
+        for cb in self.listeners.get(type(event), ()):
             cb(event)
 
     def recv(self) -> tuple[int, Frame] | None:
         """Pop the oldest frame from the receive FIFO as (time_ns, frame), or None if empty."""
         bus = self.bus
-        if bus is not None and self._cursor != bus._log_base + len(bus._log):
-            bus._sync(self)  # frames delivered since the last read are still in the bus log
+        if bus is not None and self.rx_cursor != bus.delivered:
+            bus.sync(self)  # frames delivered since the last read are still in the driver's log
         if self._fifo:
             t, frame, _ = self._fifo.popleft()
-            return t, frame
+            return (t if self.clock is None else self.clock.local(t)), frame
         return None
 
     def set_filters(self, filters: Iterable[Mapping[str, Any]] | None) -> None:
         """Replace the acceptance filters (python-can format; None accepts everything)."""
         flt = AcceptanceFilter(filters)
         if self.bus is not None:
-            self.bus._sync(self)
+            self.bus.sync(self)
         self.acceptance = flt
         if self.bus is not None:
-            self.bus._filters_changed(self)
+            self.bus.filters_changed(self)
 
     def set_remote_reply(self, frame: Frame | None, *, can_id: int | None = None, extended: bool = False) -> None:
         """Answer remote frames for ``frame``'s identifier automatically with ``frame``
@@ -404,41 +621,20 @@ class Node:
         if frame is None:
             if can_id is None:
                 raise ValueError("give the frame to reply with, or can_id to remove a reply")
-            self._remote_replies.pop((can_id, extended), None)
+            self.remote_replies.pop((can_id, extended), None)
         else:
             if frame.remote:
                 raise ValueError("the automatic reply to a remote frame must be a data frame")
-            self._remote_replies[(frame.can_id, frame.extended)] = frame
+            self.remote_replies[(frame.can_id, frame.extended)] = frame
         if self.bus is not None:
-            self.bus._filters_changed(self)
-
-    def _deliver(self, t: int, frame: Frame, sender: Any) -> None:
-        """Reception at the end of a valid frame (eager path; see SimBus for the lazy one)."""
-        if sender is self and not self.receive_own_messages:
-            return
-        acc = self.acceptance._cache.get(frame.key)
-        if acc is None:
-            acc = self.acceptance.accepts(frame)
-        if not acc:
-            return
-        if self._subs:
-            self._rx_frames += 1
-            ev = _new_tuple(Received, (t, frame))  # Received(t, frame), 2x cheaper on this hot path
-            for sub in tuple(self._subs):
-                if sub.filter is None or sub.filter.accepts(frame):
-                    sub.callback(ev)
-        elif len(self._fifo) < self.rx_fifo_size:
-            self._rx_frames += 1
-            self._fifo.append((t, frame, sender))
-        else:
-            self._rx_overruns += 1
+            self.bus.filters_changed(self)
 
     @property
     def rx_fifo(self) -> deque[tuple[int, Frame, Any]]:
-        """The receive FIFO as (time, frame, sender) entries, oldest first, brought up to date
-        (the simulated bus fills buffering nodes lazily); `recv` pops from it."""
+        """The receive FIFO as (time, frame, sender) entries (bus times), oldest first, brought up
+        to date (the simulated bus fills buffering nodes lazily); `recv` pops from it."""
         if self.bus is not None:
-            self.bus._sync(self)
+            self.bus.sync(self)
         return self._fifo
 
     # ------------------------------------------------------------------ counters
@@ -446,22 +642,22 @@ class Node:
     def rx_frames(self) -> int:
         """Frames received and accepted by the filters (delivered to the FIFO or callbacks)."""
         if self.bus is not None:
-            self.bus._sync(self)
+            self.bus.sync(self)
         return self._rx_frames
 
     @property
     def rx_overruns(self) -> int:
         """Accepted frames lost because the receive FIFO was full."""
         if self.bus is not None:
-            self.bus._sync(self)
+            self.bus.sync(self)
         return self._rx_overruns
 
     @property
     def arbitration_lost(self) -> int:
         """Arbitration rounds this node entered and lost."""
-        n = self._arb_lost
-        h = self._head
-        if h is not None and h.state == "queued" and not h.on_wire and self.bus is not None and self._eligible():
+        n = self.rounds_lost
+        h = self.offered
+        if h is not None and h.state is QUEUED and not h.on_wire and self.bus is not None and self.eligible:
             n += max(0, self.bus.rounds - h.head_since)
         return n
 
@@ -480,42 +676,54 @@ class Node:
         }
 
     # ------------------------------------------------------------------ fault confinement
-    def _on_tx_success(self) -> None:
+    def on_tx_success(self) -> None:
         """Rule 7 (`stack.controller.confinement.after_tx_success`)."""
-        self._set_counters(after_tx_success(self.tec), self.rec, self.bus.now() if self.bus else 0)
+        self.set_counters(after_tx_success(self.tec), self.rec, self.bus.now() if self.bus else 0)
 
-    def _on_rx_success(self) -> None:
+    def on_rx_success(self) -> None:
         """Rule 8 (`stack.controller.confinement.after_rx_success`)."""
-        self._set_counters(self.tec, after_rx_success(self.rec), self.bus.now() if self.bus else 0)
+        self.set_counters(self.tec, after_rx_success(self.rec), self.bus.now() if self.bus else 0)
 
     state_for = staticmethod(state_for)
 
-    def _set_counters(self, tec: int, rec: int, t: int) -> None:
+    def set_counters(self, tec: int, rec: int, t: int) -> None:
+        """New TEC/REC at bus time ``t`` (the driver applied rules 1-8): the state follows rules
+        9-11 (`state_for`); bus off is left only by rule 12 (`recovered`)."""
         self.tec = tec
         self.rec = rec
         bus = self.bus
         if bus is not None:
-            if rec > 0:
-                bus._rec_nonzero[self] = None
-            else:
-                bus._rec_nonzero.pop(self, None)
+            bus.counters_changed(self)
         old = self.state
         if old is BUS_OFF:
-            return  # only rule 12 leaves bus off
-        new = self.state_for(tec, rec)
+            return
+        new = state_for(tec, rec)
         if new is old:
             return
         self.state = new
+        if new is BUS_OFF:
+            self.bus_off_count += 1
         if bus is not None:
-            bus._state_changed(self, old, new, t)
-        self._emit(ErrorStateChanged(t, self.name, old.value, new.value, tec, rec))
+            bus.state_changed(self, old, new, t)
+        self._emit(ErrorStateChanged(self.to_local(t), self.name, old.value, new.value, tec, rec))
+
+    def recovered(self, t: int) -> None:
+        """The driver's report that rule 12 is met at bus time ``t``: bus off ends with TEC and
+        REC 0, error active."""
+        old = self.state
+        self.tec = self.rec = 0
+        self.state = ACTIVE
+        if self.bus is not None:
+            self.bus.counters_changed(self)
+            self.bus.state_changed(self, old, ACTIVE, t)
+        self._emit(ErrorStateChanged(self.to_local(t), self.name, old.value, ACTIVE.value, 0, 0))
 
     def recover(self) -> None:
         """Ask a bus-off controller to recover (rule 12: after 128 occurrences of 11
         consecutive recessive bits); needed when ``auto_recovery`` is off."""
         if self.state is not BUS_OFF:
             raise NodeError(f"node {self.name!r} is {self.state}, not bus off: nothing to recover")
-        self._driver()._start_recovery(self)
+        self._driver().start_recovery(self)
 
     @property
     def error_state(self) -> ErrorState:
@@ -524,49 +732,3 @@ class Node:
 
     def __repr__(self) -> str:
         return f"<Node {self.name!r} {self.state}>"
-
-
-class PeriodicTask:
-    """A frame sent every ``period`` ns on the node's clock (a cyclic transmission).
-
-    ``frame`` may be a `Frame` or a callable returning the next frame (alive counters, changing
-    signals). ``count`` limits the number of transmissions; `stop()` ends it.
-    """
-
-    def __init__(self, node: Node, frame: Frame | Callable[[], Frame], period: int, *,
-                 offset: int = 0, count: int | None = None) -> None:
-        if isinstance(period, bool) or not isinstance(period, int) or period <= 0:
-            raise ValueError(f"period {period!r} ns must be a positive int")
-        self.node = node
-        self.frame = frame
-        self.period = period
-        self.count = count
-        self.sent = 0
-        self.overflows = 0
-        self.skipped = 0
-        self._stopped = False
-        self._next = node.now() + max(0, int(offset))
-        self._timer = node.call_at(self._next, self._fire)
-
-    def _fire(self) -> None:
-        if self._stopped:
-            return
-        f = self.frame() if callable(self.frame) else self.frame
-        try:
-            self.node.send(f)
-        except QueueFull:
-            self.overflows += 1
-        except NodeError:
-            self.skipped += 1  # bus off: a controller drops what the application writes
-        self.sent += 1
-        if self.count is not None and self.sent >= self.count:
-            self._stopped = True
-            return
-        self._next += self.period
-        self._timer = self.node.call_at(self._next, self._fire)
-
-    def stop(self) -> None:
-        """Stop sending."""
-        self._stopped = True
-        self._timer.cancel()
-

@@ -19,48 +19,83 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
-from typing import TYPE_CHECKING
+from enum import Enum
+from typing import Any, Protocol
 
+from stack.controller.exceptions import QueueFull
 from stack.wire.frame import Frame
 
-if TYPE_CHECKING:  # pragma: no cover
-    from stack.controller.node import Node
-
-__all__ = ["TxRequest", "TxQueue", "PriorityQueue", "FifoQueue", "MailboxQueue", "make_queue", "QueueFull"]
+__all__ = ["TxRequest", "RequestState", "RequestOwner", "TxQueue", "PriorityQueue", "FifoQueue", "MailboxQueue",
+           "make_queue", "QueueFull", "QUEUED", "SENT", "FAILED", "ABORTED"]
 
 
-class QueueFull(Exception):
-    """The controller's transmit queue has no room for another frame."""
+class RequestState(str, Enum):
+    """Where a transmit request is: queued (pending or on the wire), sent, failed (one-shot
+    failure, latest start time passed, bus off at shutdown) or aborted. A str enum: it compares
+    equal to its value ('queued', 'sent', ...)."""
+
+    QUEUED = "queued"
+    SENT = "sent"
+    FAILED = "failed"
+    ABORTED = "aborted"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+# module constants: the engine compares states per frame, and a global is ~10x cheaper than an
+# Enum member lookup
+QUEUED = RequestState.QUEUED
+SENT = RequestState.SENT
+FAILED = RequestState.FAILED
+ABORTED = RequestState.ABORTED
+
+
+class RequestOwner(Protocol):
+    """The controller a request belongs to: it can take the request back (`TxRequest.cancel`)."""
+
+    name: str
+
+    def abort(self, req: "TxRequest") -> bool: ...
 
 
 class TxRequest:
     """One frame queued for transmission, with what happened to it.
 
-    ``state`` is 'queued', 'sent', 'failed' or 'aborted'; ``losses`` counts arbitration rounds
-    lost, ``retries`` retransmissions after errors; ``t_queued``/``t_done`` in ns.
+    ``state`` is a `RequestState`; ``losses`` counts arbitration rounds lost, ``retries``
+    retransmissions after errors. Times are the driver's (bus) clock in ns: ``t_queued``, ``sof``
+    (start of frame of the attempt that succeeded) and ``t_done`` (end of EOF, or the failure),
+    -1 until known. Per request: ``one_shot`` (no retransmission after a lost arbitration or an
+    error) and ``not_after`` (latest start time on the bus clock, or None; a frame that has not
+    started by then is withdrawn — TTCAN's transmit-enable window).
     """
 
-    __slots__ = ("node", "frame", "key", "seq", "t_queued", "t_done", "head_since", "losses",
-                 "retries", "state", "reason", "on_wire")
+    __slots__ = ("node", "frame", "key", "seq", "t_queued", "t_done", "sof", "head_since", "losses",
+                 "retries", "state", "reason", "on_wire", "one_shot", "not_after", "expiry")
 
-    def __init__(self, node: "Node", frame: Frame, seq: int, t_queued: int) -> None:
-        self.node = node
+    def __init__(self, node: RequestOwner, frame: Frame, seq: int, t_queued: int, one_shot: bool = False,
+                 not_after: int | None = None) -> None:
+        self.node: Any = node
         self.frame = frame
         self.key = frame.key
         self.seq = seq
         self.t_queued = t_queued
         self.t_done = -1
+        self.sof = -1
         self.head_since = -1
         self.losses = 0
         self.retries = 0
-        self.state = "queued"
+        self.state = QUEUED
         self.reason = ""
         self.on_wire = False
+        self.one_shot = one_shot
+        self.not_after = not_after
+        self.expiry: Any = None  # the driver's timer that withdraws it at not_after
 
     @property
     def done(self) -> bool:
         """True once the frame was sent, failed or was aborted."""
-        return self.state != "queued"
+        return self.state is not QUEUED
 
     def cancel(self) -> bool:
         """Abort the request if it is still queued and not on the wire; True if aborted."""
@@ -77,8 +112,11 @@ class TxQueue:
     """Interface of a transmit queue policy."""
 
     capacity: int
-    # set by PriorityQueue, whose push and pop the engine inlines on its hot path
-    _by_key: "dict[int, deque[TxRequest]] | None" = None
+    # set by PriorityQueue, whose push and pop the node inlines on its hot path (Node.send,
+    # Node.confirm): a FIFO per arbitration key, the heap of those keys, the number queued
+    fifos: "dict[int, deque[TxRequest]] | None" = None
+    keys: list[int]
+    size: int
 
     moved: list[TxRequest] = []
 
@@ -114,27 +152,27 @@ class PriorityQueue(TxQueue):
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
-        self._keys: list[int] = []  # heap of the keys with a FIFO in _by_key
-        self._by_key: dict[int, deque[TxRequest]] = {}
-        self._n = 0
+        self.keys: list[int] = []  # heap of the keys with a FIFO in fifos
+        self.fifos: dict[int, deque[TxRequest]] = {}
+        self.size = 0
 
     def push(self, req: TxRequest) -> bool:
-        if self._n >= self.capacity:
+        if self.size >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
-        dq = self._by_key.get(req.key)
+        dq = self.fifos.get(req.key)
         if dq is None:
-            dq = self._by_key[req.key] = deque()
-            heapq.heappush(self._keys, req.key)
+            dq = self.fifos[req.key] = deque()
+            heapq.heappush(self.keys, req.key)
         dq.append(req)
-        self._n += 1
+        self.size += 1
         return False
 
     def head(self) -> TxRequest | None:
-        keys = self._keys
-        by = self._by_key
+        keys = self.keys
+        by = self.fifos
         while keys:
             dq = by[keys[0]]
-            while dq and dq[0].state != "queued":
+            while dq and dq[0].state is not QUEUED:
                 dq.popleft()
             if dq:
                 return dq[0]
@@ -142,18 +180,18 @@ class PriorityQueue(TxQueue):
         return None
 
     def remove(self, req: TxRequest) -> bool:
-        dq = self._by_key.get(req.key)
+        dq = self.fifos.get(req.key)
         if dq and dq[0] is req:
             dq.popleft()
         # otherwise left in place and skipped by head() once its state is not 'queued'
-        self._n -= 1
+        self.size -= 1
         return True
 
     def __len__(self) -> int:
-        return self._n
+        return self.size
 
     def pending(self) -> list[TxRequest]:
-        return [r for dq in self._by_key.values() for r in dq if r.state == "queued"]
+        return [r for dq in self.fifos.values() for r in dq if r.state is QUEUED]
 
 
 class FifoQueue(TxQueue):
@@ -162,18 +200,18 @@ class FifoQueue(TxQueue):
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
         self._q: deque[TxRequest] = deque()
-        self._n = 0
+        self.size = 0
 
     def push(self, req: TxRequest) -> bool:
-        if self._n >= self.capacity:
+        if self.size >= self.capacity:
             raise QueueFull(f"transmit queue full ({self.capacity} frames)")
         self._q.append(req)
-        self._n += 1
+        self.size += 1
         return False
 
     def head(self) -> TxRequest | None:
         q = self._q
-        while q and q[0].state != "queued":
+        while q and q[0].state is not QUEUED:
             q.popleft()
         return q[0] if q else None
 
@@ -181,14 +219,14 @@ class FifoQueue(TxQueue):
         q = self._q
         if q and q[0] is req:
             q.popleft()
-        self._n -= 1
+        self.size -= 1
         return True
 
     def __len__(self) -> int:
-        return self._n
+        return self.size
 
     def pending(self) -> list[TxRequest]:
-        return [r for r in self._q if r.state == "queued"]
+        return [r for r in self._q if r.state is QUEUED]
 
 
 class MailboxQueue(TxQueue):

@@ -13,15 +13,28 @@ driver turns received frames into `Received`, and frames handed to the bus into 
   does the real arbitration (hardware), or none (vcan, virtual).
 - ``pace_bitrate`` makes the driver hand frames no faster than the wire would carry them at
   that bitrate (useful on ``virtual``, which has no wire time).
-- A transmission counts as done (`TxDone`) when ``bus.send`` returns; a `can.CanError` from it
-  is a retransmission 1 ms later (or `TxFailed` for a one-shot node).
+- A transmission counts as done (`TxDone`, stamped when ``bus.send`` returns — the earliest the
+  driver knows the frame is on its way) ; a `can.CanError` from it is a retransmission 1 ms
+  later (or `TxFailed` for a one-shot request). A request with a latest start time (``not_after``)
+  that has not been handed to the bus by then is withdrawn (`TxFailed`).
 - Timers run on one scheduler thread with the wall clock in ns since the driver started. Every
   node callback runs on that thread; from another thread use `submit` or hold `lock`.
+
+What this driver can and cannot know (``capabilities``, see `stack.controller.contract`): received
+frames carry the bus's receive timestamp when it is a wall-clock time (SocketCAN's kernel stamp,
+canstack's end-of-frame time), and their start of frame is estimated from it minus the frame's
+length at the bitrate given (``bitrate`` or ``pace_bitrate``) — exact on the canstack interface,
+whose timestamps are the end of EOF. Arbitration happens in the controller underneath, so no
+`ArbitrationLost`. Error counters and states are the bus underneath's: when it reports them as
+SocketCAN error frames (controller state, TEC/REC in data[6]/[7], bus off, restarted), the
+node's TEC/REC follow and `ErrorStateChanged` fires with the same meaning as on the simulated
+bus; otherwise they stay at 0.
 """
 
 from __future__ import annotations
 
 import heapq
+import itertools
 import threading
 import time
 from collections import deque
@@ -29,10 +42,21 @@ from typing import Any, Callable
 
 import can
 
+from stack.controller.confinement import BUS_OFF, BUS_OFF_LIMIT, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS
+from stack.controller.contract import Timer
+from stack.controller.node import Node
+from stack.controller.queues import QUEUED
+from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
-from stack.controller.node import Node, Timer
 
-__all__ = ["PyCanDriver", "RETRY_NS"]
+__all__ = ["PyCanDriver", "RETRY_NS", "decode_error_frame"]
+
+# SocketCAN error frames (linux/can/error.h): class bits in the identifier, details in the data
+CAN_ERR_CRTL = 0x004
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CNT = 0x200
+CAN_ERR_CRTL_ACTIVE = 0x40  # data[1]: back to error active
 
 SEND_FAILURES_REPORTED = 20  # a request whose send failed this often is reported in `errors`
 RETRY_NS = 1_000_000
@@ -55,20 +79,23 @@ class PyCanDriver:
                 return can.Bus(interface=interface, channel=channel, **bus_kwargs)
         if pace_bitrate is not None and not 1_000 <= pace_bitrate <= 1_000_000:
             raise ValueError(f"pace_bitrate {pace_bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+        bitrate = bus_kwargs.get("bitrate")
+        rate = pace_bitrate or (bitrate if isinstance(bitrate, int) and 1_000 <= bitrate <= 1_000_000 else None)
         self._factory = bus_factory
         self.pace_bitrate = pace_bitrate
+        self.bit_ns: float | None = 1e9 / rate if rate else None
+        self.capabilities = frozenset({"bus-time", "one-shot", "latest-start", "error-frames"}
+                                      | ({"sof-estimate"} if rate else set()))
         self.nodes: list[Node] = []
         self.buses: dict[Node, can.BusABC] = {}
         self._owned: set[can.BusABC] = set()
-        self.rounds = 0  # no arbitration rounds are visible from here (Node reads it)
-        self._rec_nonzero: dict[Node, None] = {}
-        self._log: tuple[()] = ()  # no lazy delivery log here: receptions go straight to the node
-        self._log_base = 0  # Node's fault-confinement bookkeeping
+        self.rounds = 0  # arbitration happens in the controller underneath: no rounds seen here
+        self.delivered = 0  # receptions go straight to the node: no lazy log
         self.lock = threading.RLock()
         self._t0 = time.monotonic_ns()
         self._epoch0 = time.time()  # the wall-clock time of _t0, to read the buses' timestamps
         self._timers: list[tuple[int, int, Timer]] = []
-        self._seq = 0
+        self.seqs = itertools.count(1)  # requests and timers (the contract's `seqs`)
         self._ready: deque[Node] = deque()
         self._inbox: deque[tuple[int, Node, can.Message]] = deque()
         self._wake = threading.Event()
@@ -99,7 +126,8 @@ class PyCanDriver:
             node.bus = self
             self.nodes.append(node)
             self.buses[node] = can_bus
-            node._update_head()
+            node.on_bus = True
+            node.update_head()
         if self._threads:
             self._start_reader(node)
         return node
@@ -113,8 +141,7 @@ class PyCanDriver:
         """Run ``callback(*args)`` at driver time ``time_ns`` (thread-safe)."""
         t = Timer(int(time_ns), callback, args)
         with self.lock:
-            self._seq += 1
-            heapq.heappush(self._timers, (t.time, self._seq, t))
+            heapq.heappush(self._timers, (t.time, next(self.seqs), t))
         self._wake.set()
         return t
 
@@ -126,31 +153,42 @@ class PyCanDriver:
         """Run ``fn(*args)`` on the scheduler thread as soon as possible (thread-safe)."""
         return self.call_at(0, fn, args)
 
-    @property
-    def _now(self) -> int:  # read by Node.send for the request's queue time
-        return time.monotonic_ns() - self._t0
-
-    def _next_seq(self) -> int:
-        self._seq += 1
-        return self._seq
-
-    def _state_changed(self, node: Node, old: Any, new: Any, t: int) -> None:
-        pass  # the bus's controller does fault confinement; nothing to reschedule here
-
-    _contenders = None  # Node.send calls _offer (SimBus lets it push onto its heap directly)
-
-    def _offer(self, node: Node, req: Any) -> None:
+    def offer(self, node: Node, req: Any) -> None:
+        """``node`` offers a new head: hand it to the bus at the next turn of the loop."""
         self._ready.append(node)
         self._wake.set()
 
-    def _sync(self, node: Node) -> None:
-        pass  # receptions are delivered eagerly
+    def sync(self, node: Node) -> None:
+        """Nothing to catch up: receptions are delivered at once."""
 
-    def _reclassify(self, node: Node) -> None:
-        pass
+    def node_changed(self, node: Node) -> None:
+        """Nothing to reclassify: every node is read and written the same way."""
 
-    def _filters_changed(self, node: Node) -> None:
-        pass  # acceptance filtering is the node's (software), as in simulation
+    def filters_changed(self, node: Node) -> None:
+        """Nothing to do: acceptance filtering is the node's (software), as in simulation."""
+
+    def counters_changed(self, node: Node) -> None:
+        """Nothing to do: the counters come from the bus's error frames."""
+
+    def state_changed(self, node: Node, old: Any, new: Any, t: int) -> None:
+        """A node bus off hands no frames to its bus until it recovers."""
+        if new is BUS_OFF:
+            node.on_bus = False
+        elif old is BUS_OFF:
+            node.on_bus = True
+            if node.head is not None:
+                self.offer(node, node.head)
+
+    def start_recovery(self, node: Node) -> None:
+        """Rule 12 as far as this driver can time it: 128 × 11 bit times from now (at the
+        bitrate given; 1 ms without one), unless the bus reports the restart first."""
+        bits = RECOVERY_OCCURRENCES * RECOVERY_RECESSIVE_BITS
+        delay = int(bits * self.bit_ns) if self.bit_ns else 1_000_000
+        self.call_at(self.now() + delay, self._recover, (node,))
+
+    def _recover(self, node: Node) -> None:
+        if node.state is BUS_OFF:
+            node.recovered(self.now())
 
     # ------------------------------------------------------------------ running
     def start(self) -> "PyCanDriver":
@@ -254,15 +292,40 @@ class PyCanDriver:
             self.errors.append(f"{getattr(fn, '__qualname__', fn)}: {type(exc).__name__}: {exc}")
 
     def _receive(self, t: int, node: Node, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self._error_frame(t, node, msg)
+            return
         try:
             frame = Frame.from_message(msg)
         except ValueError:
             self.rx_ignored += 1
             return
-        node.deliver(t, frame, None)
+        node.deliver(t, frame, None, self._sof(t, frame))
         reply = node.remote_reply(frame)
-        if reply is not None:
+        if reply is not None and node.on_bus:
             node.send(reply)
+
+    def _sof(self, t_end: int, frame: Frame) -> int:
+        """Start of frame estimated from its end: the frame's stuffed length at the bitrate."""
+        return -1 if self.bit_ns is None else t_end - round(frame.bits.length * self.bit_ns)
+
+    def _error_frame(self, t: int, node: Node, msg: can.Message) -> None:
+        """The bus underneath reports its controller's error state: the node's counters and
+        state follow it (rules 9-11 through `Node.set_counters`, rule 12 through `recovered`)."""
+        info = decode_error_frame(msg)
+        if info is None:
+            self.rx_ignored += 1
+            return
+        if info["restarted"] or info["active"]:
+            if node.state is BUS_OFF:
+                node.recovered(t)
+        if info["counters"] is not None:
+            tec, rec = info["counters"]
+            if info["bus_off"]:
+                tec = max(tec, BUS_OFF_LIMIT)
+            node.set_counters(tec, rec, t)
+        elif info["bus_off"]:
+            node.set_counters(max(node.tec, BUS_OFF_LIMIT), node.rec, t)
 
     def _transmit(self) -> int | None:
         """Hand the heads of ready nodes to their buses, lowest arbitration key first; returns
@@ -275,9 +338,11 @@ class PyCanDriver:
             heads = sorted((n.head.key, n.head.seq, n) for n in nodes if n.head is not None)
             for i, (_, _, node) in enumerate(heads):
                 req = node.head
-                if req is None or req.state != "queued" or req.on_wire:
+                if req is None or req.state is not QUEUED or req.on_wire or not node.on_bus:
                     continue
                 now = self.now()
+                if req.not_after is not None and now > req.not_after:
+                    continue  # its latest start passed: the node's expiry timer withdraws it
                 if self.pace_bitrate is not None and now < self._busy_until:
                     ready.extend(h[2] for h in heads[i:])
                     return self._busy_until
@@ -296,20 +361,36 @@ class PyCanDriver:
         try:
             self.buses[node].send(frame.to_message(timestamp=time.time()), timeout=0.1)
         except can.CanError as exc:
-            if node.one_shot:
+            if req.one_shot:
                 self._retry.pop(req, None)
-                node.fail(req, now, f"send failed (one-shot): {exc}")
+                node.fail(req, self.now(), f"send failed (one-shot): {exc}")
             else:
-                req.retries += 1
-                node.retransmissions += 1
+                self._retry[req] = now + RETRY_NS
+                node.retry(req)  # counted as a retransmission and offered again
                 if req.retries == SEND_FAILURES_REPORTED:  # not congestion any more: say so, once
                     self.errors.append(f"{node.name}: send keeps failing ({req.retries} tries): {exc}")
-                self._retry[req] = now + RETRY_NS
-                self._ready.append(node)
             return
         if self.pace_bitrate is not None:
-            from stack.wire.coding import INTERMISSION_BITS
-
             self._busy_until = max(now, self._busy_until) + (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // self.pace_bitrate
         self._retry.pop(req, None)
-        node.confirm(req, now)
+        done = self.now()  # bus.send returned: the earliest the driver knows the frame left
+        nxt = node.confirm(req, done, self._sof(done, frame))
+        if nxt is not None:
+            self.offer(node, nxt)
+
+
+def decode_error_frame(msg: can.Message) -> dict[str, Any] | None:
+    """What a SocketCAN error frame (linux/can/error.h) says about the controller's state: the
+    counters (``CAN_ERR_CNT``: TEC in data[6], REC in data[7]), bus off (``CAN_ERR_BUSOFF``),
+    restarted after bus off (``CAN_ERR_RESTARTED``), back to error active (``CAN_ERR_CRTL`` with
+    ``CAN_ERR_CRTL_ACTIVE`` in data[1]). None when it carries none of these."""
+    if not msg.is_error_frame:
+        return None
+    cls = msg.arbitration_id
+    data = bytes(msg.data or b"")
+    counters = (data[6], data[7]) if cls & CAN_ERR_CNT and len(data) >= 8 else None
+    info = {"counters": counters, "bus_off": bool(cls & CAN_ERR_BUSOFF), "restarted": bool(cls & CAN_ERR_RESTARTED),
+            "active": bool(cls & CAN_ERR_CRTL and len(data) >= 2 and data[1] & CAN_ERR_CRTL_ACTIVE)}
+    if counters is None and not (info["bus_off"] or info["restarted"] or info["active"]):
+        return None
+    return info

@@ -147,8 +147,8 @@ def test_rule_7_success_decrements_tec():
 
 def test_rule_8_reception_decrements_rec_and_caps_above_127():
     bus, a, b, c, fi = three()
-    b._set_counters(0, 5, 0)
-    c._set_counters(0, 140, 0)
+    b.set_counters(0, 5, 0)
+    c.set_counters(0, 140, 0)
     for _ in range(2):
         a.send(F)
     bus.run()
@@ -221,7 +221,7 @@ def test_state_changes_inside_a_long_episode_happen_at_their_bit_times():
 def test_rule_12_recovery_after_128_times_11_recessive_bits():
     bus = SimBus(500_000)
     a, b = bus.node("a"), bus.node("b")
-    a._set_counters(256, 0, 0)
+    a.set_counters(256, 0, 0)
     t_off = bus.now()
     changes = []
     a.listen(ErrorStateChanged, changes.append)
@@ -233,7 +233,7 @@ def test_rule_12_recovery_after_128_times_11_recessive_bits():
 def test_rule_12_manual_recovery_waits_for_the_host():
     bus = SimBus(500_000)
     a, b = bus.node("a", auto_recovery=False), bus.node("b")
-    a._set_counters(256, 0, 0)
+    a.set_counters(256, 0, 0)
     bus.run(until=10_000_000)
     assert a.state is ErrorState.BUS_OFF
     a.recover()
@@ -248,7 +248,7 @@ def test_recovery_counts_frame_ends_under_traffic():
     a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
     b.listen(__import__("stack.controller.events", fromlist=["TxDone"]).TxDone, lambda ev: b.send(ev.frame))
     b.send(Frame(0x100, bytes(8)))
-    a._set_counters(256, 0, 0)
+    a.set_counters(256, 0, 0)
     bus.run(frames=100)
     assert a.state is ErrorState.BUS_OFF
     bus.run(frames=40)
@@ -276,7 +276,7 @@ def test_inconsistent_omission_at_last_but_one_eof_bit():
 
 def test_passive_receiver_error_does_not_destroy_the_frame():
     bus, a, b, c, fi = three()
-    b._set_counters(0, 130, 0)  # error passive
+    b.set_counters(0, 130, 0)  # error passive
     fi.flip(can_id=0x123, field="data", bit=9, nodes=["b"])
     a.send(F)
     bus.run()
@@ -286,7 +286,7 @@ def test_passive_receiver_error_does_not_destroy_the_frame():
 def test_error_passive_transmitter_suspends_8_bits():
     bus = SimBus(500_000)
     a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
-    a._set_counters(130, 0, 0)
+    a.set_counters(130, 0, 0)
     a.send(Frame(0x100, b"\x01"))
     a.send(Frame(0x100, b"\x02"))
     b.send(Frame(0x200, b"\x03"))
@@ -403,7 +403,7 @@ def test_suspended_passive_node_does_not_lose_arbitration():
     bus = SimBus(500_000)
     a, b = bus.node("a", one_shot=True), bus.node("b")
     bus.node("c")
-    a._set_counters(130, 0, 0)
+    a.set_counters(130, 0, 0)
     a.send(Frame(0x300, b"\x01"))
     a.send(Frame(0x301, b"\x02"))  # a is suspended when b's frame goes: not a loss
     b.send_periodic(Frame(0x400, b"\x03"), 10_000_000, offset=0, count=1)
@@ -414,7 +414,7 @@ def test_suspended_passive_node_does_not_lose_arbitration():
 def test_identical_frames_from_two_senders_are_not_received_by_either():
     bus = SimBus(500_000)
     a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
-    b._set_counters(0, 5, 0)
+    b.set_counters(0, 5, 0)
     a.send(F)
     b.send(F)
     bus.run()
