@@ -364,114 +364,139 @@ def _start_overload(v: _View) -> None:
 
 
 def _step(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | None:
-    ph = v.phase
+    """One bit for one node: it drove ``driven`` and perceives ``p``; the handler of its phase
+    decides what that means. Returns the error it detected, if any."""
+    handler = _PHASE_STEP.get(v.phase)
+    return None if handler is None else handler(v, b, driven, p)
+
+
+def _step_frame(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | None:
+    """Inside the frame: a transmitter checks what it reads back (bit error, lost arbitration,
+    ACK error, success at the last EOF bit); a receiver feeds its decoder (and drives the ACK)."""
     out = v.out
-    if ph == FRAME:
-        dec = v.dec
-        if v.role == "tx":
-            res = dec.feed(p)  # keeps a receiver's view in case arbitration is lost
-            if driven != p:
-                if b == v.ack_slot and driven == 1 and p == 0:
-                    pass  # acknowledged
-                elif driven == 1 and p == 0 and b <= v.arb_end:
-                    if b in v.stuff:
-                        return _error_detected(v, b, "stuff-arbitration", Field.ID, b, b)
-                    v.role = "rx"
-                    out.role = "rx"
-                    out.lost_arbitration = True
-                    if res is not None:
-                        return _rx_result(v, b, res)
-                    return None
-                else:
-                    fld, idx = v.req.frame.bits.field_at(b) if b < len(v.bits) else (Field.EOF, 0)
-                    return _error_detected(v, b, "bit", fld, idx if idx is not None else 0, b)
-            elif b == v.ack_slot and p == 1:
-                return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)
-            if b == v.eof_last:
-                out.success = True
-                # rule 7 at this bit: later increments (an overload episode) add to it
-                tec = after_tx_success(v.tec0 + out.tec_delta)
-                v.tec0 = out.tec0 = tec - out.tec_delta
-                v.phase = INTERMISSION
-                v.im_n = 0
-            return None
-        if not dec.in_frame:
-            if p == 1:
-                return None  # still idle: nothing started
-        if driven == 0 and p == 1:
-            # a receiver sending its dominant ACK reads recessive: a bit error (only a recessive
-            # bit read dominant in the ACK slot is exempt)
-            return _error_detected(v, b, "bit", Field.ACK_SLOT, 0, dec.position)
-        res = dec.feed(p)
-        if res is None:
-            return None
-        return _rx_result(v, b, res)
-    if ph == FLAG:
-        if v.flag_kind == "passive":
-            v.flag_levels.append(p)
-            if p == 0:
-                v.flag_had_dominant = True
-            lv = v.flag_levels
-            # a passive flag is complete after 6 consecutive bits of equal level
-            if len(lv) >= 6 and len(set(lv[-6:])) == 1:
-                _flag_done(v)
-            return None
-        if p == 1 and driven == 0:
-            # bit error while sending an active error flag or overload flag: rules 4 and 5, and
-            # a new error flag from the next bit — a passive one once the counters reached 128
-            # (rule 9), so a node whose transmitter cannot drive the bus stops after 16 of them
-            if v.role == "tx":
-                _bump(v, RULE_4_TEC, "rule 4")
+    dec = v.dec
+    if v.role == "tx":
+        res = dec.feed(p)  # keeps a receiver's view in case arbitration is lost
+        if driven != p:
+            if b == v.ack_slot and driven == 1 and p == 0:
+                pass  # acknowledged
+            elif driven == 1 and p == 0 and b <= v.arb_end:
+                if b in v.stuff:
+                    return _error_detected(v, b, "stuff-arbitration", Field.ID, b, b)
+                v.role = "rx"
+                out.role = "rx"
+                out.lost_arbitration = True
+                if res is not None:
+                    return _rx_result(v, b, res)
+                return None
             else:
-                _bump(v, RULE_5_REC, "rule 5")
-            if v.phase == FLAG:
-                v.flag_kind = "passive" if (v.passive or v.listen_only) else "active"
-                v.flag_n = 0
-                v.flag_levels = []
-                v.flag_had_dominant = False
-            return None
-        v.flag_n += 1
-        if v.flag_n >= 6:
+                fld, idx = v.req.frame.bits.field_at(b) if b < len(v.bits) else (Field.EOF, 0)
+                return _error_detected(v, b, "bit", fld, idx if idx is not None else 0, b)
+        elif b == v.ack_slot and p == 1:
+            return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)
+        if b == v.eof_last:
+            out.success = True
+            # rule 7 at this bit: later increments (an overload episode) add to it
+            tec = after_tx_success(v.tec0 + out.tec_delta)
+            v.tec0 = out.tec0 = tec - out.tec_delta
+            v.phase = INTERMISSION
+            v.im_n = 0
+        return None
+    if not dec.in_frame:
+        if p == 1:
+            return None  # still idle: nothing started
+    if driven == 0 and p == 1:
+        # a receiver sending its dominant ACK reads recessive: a bit error (only a recessive
+        # bit read dominant in the ACK slot is exempt)
+        return _error_detected(v, b, "bit", Field.ACK_SLOT, 0, dec.position)
+    res = dec.feed(p)
+    if res is None:
+        return None
+    return _rx_result(v, b, res)
+
+
+def _step_flag(v: _View, b: int, driven: int, p: int) -> None:
+    """Sending an error or overload flag: a passive flag ends after 6 equal bits; a dominant
+    flag bit read recessive is rules 4/5 and a new flag."""
+    if v.flag_kind == "passive":
+        v.flag_levels.append(p)
+        if p == 0:
+            v.flag_had_dominant = True
+        lv = v.flag_levels
+        # a passive flag is complete after 6 consecutive bits of equal level
+        if len(lv) >= 6 and len(set(lv[-6:])) == 1:
             _flag_done(v)
         return None
-    if ph == AFTER_FLAG:
-        if p == 0:
-            if v.first_after and v.role == "rx" and v.flag_kind != "overload":
-                _bump(v, RULE_2_REC, "rule 2")
-            v.first_after = False
-            v.dom_run += 1
-            if v.dom_run >= DOMINANT_BITS_TOLERATED and (v.dom_run - DOMINANT_BITS_TOLERATED) % RULE_6_STEP == 0:
-                _bump(v, RULE_6_STEP, "rule 6")
-            return None
-        v.first_after = False
-        v.phase = DELIM
-        v.delim_n = 1
+    if p == 1 and driven == 0:
+        # bit error while sending an active error flag or overload flag: rules 4 and 5, and
+        # a new error flag from the next bit — a passive one once the counters reached 128
+        # (rule 9), so a node whose transmitter cannot drive the bus stops after 16 of them
+        if v.role == "tx":
+            _bump(v, RULE_4_TEC, "rule 4")
+        else:
+            _bump(v, RULE_5_REC, "rule 5")
+        if v.phase == FLAG:
+            v.flag_kind = "passive" if (v.passive or v.listen_only) else "active"
+            v.flag_n = 0
+            v.flag_levels = []
+            v.flag_had_dominant = False
         return None
-    if ph == DELIM:
-        if p == 0:
-            if v.delim_n == 7:
-                _start_overload(v)  # dominant at the last delimiter bit: overload
-                return None
-            return _error_detected(v, b, "form", "ERROR_DELIM", v.delim_n, b)
-        v.delim_n += 1
-        if v.delim_n >= 8:
-            if v.flag_kind == "overload" and v.overloads < v.want_overloads:
-                _start_overload(v)  # a second requested overload frame, from the next bit
-            else:
-                v.phase = INTERMISSION
-                v.im_n = 0
-        return None
-    if ph == INTERMISSION:
-        if p == 0 and v.im_n < 2:
-            # dominant in the first two intermission bits: an overload frame (the limit of two
-            # applies to the ones a receiver asks for, not to these)
-            _start_overload(v)
-            return None
-        v.im_n += 1
-        if v.im_n >= 3:
-            v.phase = IDLE
-        return None
+    v.flag_n += 1
+    if v.flag_n >= 6:
+        _flag_done(v)
     return None
+
+
+def _step_after_flag(v: _View, b: int, driven: int, p: int) -> None:
+    """After its flag a node waits for recessive (the superposition of others' flags): rules
+    2 and 6 count the dominant bits; the first recessive bit starts the delimiter."""
+    if p == 0:
+        if v.first_after and v.role == "rx" and v.flag_kind != "overload":
+            _bump(v, RULE_2_REC, "rule 2")
+        v.first_after = False
+        v.dom_run += 1
+        if v.dom_run >= DOMINANT_BITS_TOLERATED and (v.dom_run - DOMINANT_BITS_TOLERATED) % RULE_6_STEP == 0:
+            _bump(v, RULE_6_STEP, "rule 6")
+        return None
+    v.first_after = False
+    v.phase = DELIM
+    v.delim_n = 1
+    return None
+
+
+def _step_delim(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | None:
+    """The 8-bit delimiter: dominant at its last bit is an overload, before it a form error."""
+    if p == 0:
+        if v.delim_n == 7:
+            _start_overload(v)  # dominant at the last delimiter bit: overload
+            return None
+        return _error_detected(v, b, "form", "ERROR_DELIM", v.delim_n, b)
+    v.delim_n += 1
+    if v.delim_n >= 8:
+        if v.flag_kind == "overload" and v.overloads < v.want_overloads:
+            _start_overload(v)  # a second requested overload frame, from the next bit
+        else:
+            v.phase = INTERMISSION
+            v.im_n = 0
+    return None
+
+
+def _step_intermission(v: _View, b: int, driven: int, p: int) -> None:
+    """Intermission: dominant in its first two bits is an overload condition; after 3 the node
+    is idle."""
+    if p == 0 and v.im_n < 2:
+        # dominant in the first two intermission bits: an overload frame (the limit of two
+        # applies to the ones a receiver asks for, not to these)
+        _start_overload(v)
+        return None
+    v.im_n += 1
+    if v.im_n >= 3:
+        v.phase = IDLE
+    return None
+
+
+_PHASE_STEP = {FRAME: _step_frame, FLAG: _step_flag, AFTER_FLAG: _step_after_flag, DELIM: _step_delim,
+               INTERMISSION: _step_intermission}
 
 
 def _flag_done(v: _View) -> None:

@@ -27,19 +27,17 @@ from __future__ import annotations
 
 import heapq
 import itertools
-from bisect import bisect_left
 import random
-from collections import Counter
-from operator import attrgetter, itemgetter
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable
 
-import can
 
 from stack.wire.coding import INTERMISSION_BITS
 from stack.controller.events import TxDone
 from stack.wire.frame import Frame
 from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
-from stack.bus.stats import IdStats
+from stack.bus.bitlevel import BitLevelAttempts
+from stack.bus.delivery import LOG_LIMIT, LazyDelivery
+from stack.bus.stats import BusStatistics, IdStats
 from stack.bus.trace import TraceRecord
 from stack.controller.node import Node, Timer
 from stack.controller.queues import QUEUED, TxRequest
@@ -49,14 +47,10 @@ __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 INF = float("inf")
 NEVER = 1 << 62  # a time no simulation reaches (ns: 146 years)
 _tuple_new = tuple.__new__
-_second = itemgetter(1)
-_third = itemgetter(2)
-_key_of = attrgetter("key")
 SUSPEND_BITS = 8
-LOG_LIMIT = 1 << 15
 
 
-class SimBus:
+class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
 
     ``record`` keeps a `TraceRecord` per bus event in ``trace``; ``seed`` seeds ``rng`` (used by
@@ -604,32 +598,6 @@ class SimBus:
                 continue
             n.lost_arbitration(now, h, wframe)
 
-    def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
-                  stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
-                  collision: bool = False,
-                  overload: dict[Node, int] | None = None, leave: dict[Node, int] | None = None) -> None:
-        """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
-        from stack.bus.attempt import simulate_attempt
-
-        nodes = [n for n in self.nodes if n.on_bus]
-        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
-        res.collision = collision
-        res.before = {n.name: n.state for n in nodes}  # the states the attempt was sent in
-        self._tx = (txs, now, res)
-        self._tx_end = now + self.bits_to_ns(res.bits)
-        # state changes inside the attempt happen at their bit times (rules 9 and 10 take effect
-        # at once); the counters' final values are applied when it completes
-        by_name = {n.name: n for n in nodes}
-        for name, o in res.outcomes.items():
-            for bit, dt, dr in o.trail:
-                if bit + 1 < res.bits:
-                    self.call_at(now + self.bits_to_ns(bit + 1), self._interim_counters,
-                                 (by_name[name], o.tec0 + dt, o.rec0 + dr))
-
-    def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
-        """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
-        node.set_counters(tec, rec, self._now)
-
     def _complete(self) -> None:
         txs, start, detail = self._tx
         self._tx = None
@@ -672,70 +640,6 @@ class SimBus:
         if frame.remote and self._rtr:
             self._auto_reply(frame, sender, self._rtr.get((frame.can_id, frame.extended), ()))
 
-    def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
-        """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,
-        transmitter outcomes, counter changes (rules 1-8) and the resulting states (9-12)."""
-        outcomes = res.outcomes
-        by_name = {n.name: n for n in self.nodes}
-        self.busy_ns += idle - start
-        self._idle_at = idle
-        self._recessive_events += 1
-        winner = res.winner
-        # receivers that accepted (at the last-but-one EOF bit) keep the frame whatever happens next
-        accepted = [(by_name[name], o) for name, o in outcomes.items() if o.accepted]
-        sender = (winner or txs[0]).node if txs else None
-        if accepted or winner is not None:
-            self._flush_for_direct()
-        for node, o in accepted:
-            t_acc = start + self.bits_to_ns(o.accept_bit + 2)
-            node.deliver(t_acc, o.frame, sender, start)
-        for q in txs:  # self-reception: each transmitter that succeeded gets its own copy
-            o = outcomes.get(q.node.name)
-            if o is not None and o.success and q.node.receive_own_messages:
-                q.node.deliver(end, q.frame, q.node, start)
-        if winner is not None:
-            self.frames_ok += 1
-        else:
-            self.error_frames += 1
-        # counters: the error increments (rules 1-6) on the bases of rules 7 and 8
-        before = getattr(res, "before", None) or {name: by_name[name].state for name in outcomes}
-        for name, o in outcomes.items():
-            node = by_name[name]
-            # the bases carry rules 7 and 8 applied at the bit where they happened
-            node.set_counters(o.tec0 + o.tec_delta, o.rec0 + o.rec_delta, end)
-        for q in txs:
-            node = q.node
-            o = outcomes.get(node.name)
-            q.on_wire = False
-            if o is not None and o.success:
-                self._tx_success(q, end, idle, start, passive=before[node.name] is PASSIVE, rule7=False)
-                continue
-            if o is not None and o.lost_arbitration:  # a flipped bit made it lose: not an error of its own
-                q.losses += 1
-                node.rounds_lost += 1
-                q.head_since = self.rounds
-                if q.one_shot:
-                    node.fail(q, end, "arbitration lost (one-shot)")
-                elif node.offered is q:
-                    self.offer(node, q)
-                continue
-            if q.state is not QUEUED:
-                continue
-            if before.get(node.name) is PASSIVE or node.state is PASSIVE:
-                self._suspend(node, idle)  # it transmitted as (or is now) error passive
-            if q.one_shot:
-                kind = o.detected[0] if o is not None and o.detected else "error"
-                node.fail(q, end, f"{kind} error (one-shot)")
-            elif node.state is BUS_OFF:
-                pass  # stays queued; offered again after recovery
-            else:
-                node.retry(q)
-        if winner is not None and winner.frame.remote and self._rtr:
-            self._auto_reply(winner.frame, sender, [n for n, o in accepted])
-        if self.record:
-            changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
-            self._record_bitlevel(txs, start, end, res, changes)
-
     def _auto_reply(self, frame: Frame, sender: Node | None, receivers: Iterable[Node]) -> None:
         """Mailboxes configured for automatic replies answer a remote frame they received."""
         key = (frame.can_id, frame.extended)
@@ -765,46 +669,6 @@ class SimBus:
         nxt = q.node.confirm(q, end, sof, rule7=rule7)
         if nxt is not None:
             self.offer(q.node, nxt)
-
-    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any,
-                         changes: dict[str, tuple[ErrorState, ErrorState]]) -> None:
-        first = res.first_error
-        detail: dict[str, Any] = {}
-        if changes:
-            detail["states"] = " ".join(f"{n}:{a.value}->{b.value}" for n, (a, b) in sorted(changes.items()))
-        if first is not None:
-            detail.update(error=first[0], field=first[1], bit=first[3])
-        detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
-        detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes
-                                      if n.name in res.outcomes)
-        detail["detected_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.detected))
-        detail["rules"] = ";".join(f"{n}:{','.join(o.rules)}" for n, o in sorted(res.outcomes.items()) if o.rules)
-        detail["roles"] = ",".join(f"{n}:{o.role}" for n, o in sorted(res.outcomes.items()))
-        acc = sorted(n for n, o in res.outcomes.items() if o.accepted)
-        if acc:
-            detail["accepted_by"] = ",".join(acc)
-        if getattr(res, "collision", False):
-            detail["frames"] = " / ".join(repr(q.frame) for q in txs)
-        kind = "frame" if res.winner is not None else ("collision" if detail.get("frames") else "error")
-        w = res.winner or txs[0] if txs else None
-        if w is None:
-            from stack.wire.frame import Frame as _F
-            rec = TraceRecord(kind, start, end, "", _F(0), res.bits, 0, start, detail)
-        else:
-            # the sender: every transmitter that got its frame through (identical frames from
-            # several nodes), else every one that tried
-            ok = [q.node.name for q in txs if getattr(res.outcomes.get(q.node.name), "success", False)]
-            names = ok if res.winner is not None and ok else [q.node.name for q in txs]
-            rec = TraceRecord(kind, start, end, "+".join(names), w.frame, res.bits,
-                              w.losses, w.t_queued, detail if (first or kind != "frame") else None)
-        self.trace.append(rec)
-        for cb in self._bus_listeners:
-            cb(rec)
-
-    def _flush_for_direct(self) -> None:
-        """Bring every buffering node up to date so a direct delivery lands in order."""
-        if self._log:
-            self._flush()
 
     # ------------------------------------------------------------------ fault confinement
     def state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:
@@ -852,164 +716,3 @@ class SimBus:
             node.recovered(self._now)  # back to error active: state_changed puts it on the bus
         else:
             self.call_at(self._now + self.bits_to_ns((RECOVERY_OCCURRENCES - done) * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,))
-
-    # ------------------------------------------------------------------ lazy reception
-    def sync(self, node: Node) -> None:
-        """Bring a buffering node's FIFO and counters up to date from the delivery log."""
-        log = self._log
-        i = node.rx_cursor - self._log_base
-        if i >= len(log) or node not in self._lazy:
-            node.rx_cursor = self._log_base + len(log)
-            return
-        entries = log[i:] if i > 0 else log
-        node.rx_cursor = self._log_base + len(log)
-        node.absorb(entries)
-
-    def _receivers_of(self, frame: Frame) -> tuple[Node, ...]:
-        """Nodes whose acceptance filters pass this arbitration key (cached until filters change)."""
-        r = self._key_receivers.get(frame.key)
-        if r is None:
-            r = tuple(n for n in self.nodes if n.acceptance.accepts(frame))
-            self._key_receivers[frame.key] = r
-        return r
-
-    def _flush(self) -> None:
-        """Hand the delivery log to every buffering node, then drop it.
-
-        Work is per delivery that lands in a FIFO, plus per distinct identifier and receiver:
-        the log is indexed by identifier once, each node walks only the positions of the
-        identifiers its filters pass until its FIFO is full, and counts the rest as overruns by
-        bisection. A thousand filtered nodes therefore cost about what ten do.
-        """
-        log = self._log
-        base = self._log_base
-        end = base + len(log)
-        lazy = {n for n in self._lazy if n.rx_cursor < end}
-        # nodes that read nothing since the last flush and whose FIFO is full only count
-        # overruns: tallied per (identifier, sender) pair with C-level counting
-        full = {n for n in lazy if n.rx_cursor == base and n.rx_free <= 0}
-        total = len(log)
-        per_sender: Counter[Node] | None = None
-        if full:
-            # nodes that accept every identifier need only the count per sender (one C pass);
-            # filtered ones the count per (identifier, sender)
-            everything = [n for n in full if n.acceptance.accepts_all]
-            if everything:
-                per_sender = Counter(map(_third, log))
-                for node in everything:
-                    node.count_overruns(total if node.receive_own_messages else total - per_sender.get(node, 0))
-            filtered = full.difference(everything)
-            if filtered:
-                frames = list(map(_second, log))
-                keys = list(map(_key_of, frames))
-                pairs = Counter(zip(keys, map(_third, log)))
-                sample = dict(zip(keys, frames))
-                tally: dict[Node, int] = {}
-                for (k, sender), c in pairs.items():
-                    for node in self._receivers_of(sample[k]):
-                        if node in filtered and (node is not sender or node.receive_own_messages):
-                            tally[node] = tally.get(node, 0) + c
-                for node, c in tally.items():
-                    node.count_overruns(c)
-            lazy -= full
-        if lazy and any(not n.receive_own_messages for n in lazy):
-            # a node that only sent (and does not receive its own frames) has nothing to take
-            if per_sender is None:
-                per_sender = Counter(map(_third, log))
-            lazy = {n for n in lazy if n.receive_own_messages or per_sender.get(n, 0) != total}
-        if not lazy:  # nobody else needs the entries one by one
-            self._log_base = end
-            self._log = []
-            for node in self._lazy:
-                node.rx_cursor = end
-            return
-        by_key: dict[int, list[int]] = {}
-        by_sender: dict[Node, list[int]] = {}
-        first: dict[int, Frame] = {}
-        for idx, e in enumerate(log):
-            k = e[1].key
-            lst = by_key.get(k)
-            if lst is None:
-                by_key[k] = [idx]
-                first[k] = e[1]
-            else:
-                lst.append(idx)
-            s_lst = by_sender.get(e[2])
-            if s_lst is None:
-                by_sender[e[2]] = [idx]
-            else:
-                s_lst.append(idx)
-        node_lists: dict[Node, list[list[int]]] = {}
-        for k, lst in by_key.items():
-            for node in self._receivers_of(first[k]):
-                if node in lazy:
-                    node_lists.setdefault(node, []).append(lst)
-        for node in self._lazy:
-            lists = node_lists.get(node)
-            if lists:
-                self._absorb_indexed(node, log, lists, node.rx_cursor - base, by_sender.get(node, ()))
-        self._log_base = base + len(log)
-        self._log = []
-        for node in self._lazy:
-            node.rx_cursor = self._log_base
-
-    def _absorb_indexed(self, node: Node, log: list[tuple[int, Frame, Node]], lists: list[list[int]],
-                        start: int, own_positions: Iterable[int]) -> None:
-        """The log positions of the identifiers ``node``'s filters pass go to its FIFO
-        (`Node.absorb_positions`); once it is full the rest are counted as overruns by
-        bisection, without a walk."""
-        merged = lists[0] if len(lists) == 1 else heapq.merge(*lists)
-        stop_at = node.absorb_positions(log, (i for i in merged if i >= start))
-        if stop_at is None:
-            return
-        rest = sum(len(lst) - bisect_left(lst, stop_at) for lst in lists)
-        if not node.receive_own_messages:
-            acc = node.acceptance.accepts
-            rest -= sum(1 for i in own_positions if i >= stop_at and acc(log[i][1]))
-        node.count_overruns(rest)
-
-    # ------------------------------------------------------------------ results
-    @property
-    def elapsed(self) -> int:
-        """Virtual time since the start of the simulation, ns."""
-        return self._now
-
-    def bus_load(self) -> float:
-        """Fraction of elapsed time the bus was not idle (frames and error frames with their
-        intermission), 0..1."""
-        return self.busy_ns / self._now if self._now else 0.0
-
-    def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
-        """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""
-        self._bus_listeners.append(callback)
-
-    def messages(self, channel: Any = None) -> Iterator[can.Message]:
-        """The trace as python-can messages (error attempts as error frames)."""
-        ch = self.name if channel is None else channel
-        for rec in self.trace:
-            yield rec.to_message(ch)
-
-    def save_trace(self, path: str) -> int:
-        """Write the trace with python-can's writer for the file's suffix (.asc, .blf, .log,
-        .csv, .trc, .mf4 ...); returns the number of messages written."""
-        from stack.bus.trace import save_messages
-
-        return save_messages(self.messages(), path)
-
-    def summary(self) -> dict[str, Any]:
-        """Bus load, frame and error counts, per-ID latency and per-node counters."""
-        return {
-            "bitrate": self.bitrate,
-            "elapsed_s": self._now / 1e9,
-            "frames": self.frames_ok,
-            "error_frames": self.error_frames,
-            "collisions": self.collisions,
-            "bus_load": self.bus_load(),
-            "ids": {
-                (f"0x{s.can_id:08X}" if s.extended else f"0x{s.can_id:03X}"): {
-                    "count": s.count, "latency_min_us": s.min / 1e3, "latency_mean_us": s.mean / 1e3,
-                    "latency_max_us": s.max / 1e3, "arbitration_losses": s.losses}
-                for _, s in sorted(self.id_stats.items())
-            },
-            "nodes": {n.name: n.counters() for n in self.nodes},
-        }

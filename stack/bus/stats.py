@@ -1,8 +1,18 @@
-"""Statistics the simulated bus keeps as it runs (streaming: constant memory per identifier)."""
+"""Statistics the simulated bus keeps as it runs (streaming: constant memory per identifier) and
+the results it reports (bus load, summary, the trace through python-can's writers)."""
 
 from __future__ import annotations
 
-__all__ = ["IdStats"]
+from typing import TYPE_CHECKING, Any, Callable, Iterator
+
+import can
+
+from stack.bus.trace import TraceRecord, save_messages
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stack.controller.node import Node
+
+__all__ = ["IdStats", "BusStatistics"]
 
 
 class IdStats:
@@ -33,3 +43,62 @@ class IdStats:
     def mean(self) -> float:
         """Mean latency in ns."""
         return self.total / self.count if self.count else 0.0
+
+
+class BusStatistics:
+    """The results of `stack.bus.sim.SimBus` (a mixin over the counters the bus keeps)."""
+
+    bitrate: int
+    name: str
+    nodes: "list[Node]"
+    trace: list[TraceRecord]
+    frames_ok: int
+    error_frames: int
+    collisions: int
+    busy_ns: int
+    id_stats: dict[int, IdStats]
+    _now: int
+    _bus_listeners: list[Callable[[TraceRecord], Any]]
+
+    @property
+    def elapsed(self) -> int:
+        """Virtual time since the start of the simulation, ns."""
+        return self._now
+
+    def bus_load(self) -> float:
+        """Fraction of elapsed time the bus was not idle (frames and error frames with their
+        intermission), 0..1."""
+        return self.busy_ns / self._now if self._now else 0.0
+
+    def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
+        """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""
+        self._bus_listeners.append(callback)
+
+    def messages(self, channel: Any = None) -> Iterator[can.Message]:
+        """The trace as python-can messages (error attempts as error frames)."""
+        ch = self.name if channel is None else channel
+        for rec in self.trace:
+            yield rec.to_message(ch)
+
+    def save_trace(self, path: str) -> int:
+        """Write the trace with python-can's writer for the file's suffix (.asc, .blf, .log,
+        .csv, .trc, .mf4 ...); returns the number of messages written."""
+        return save_messages(self.messages(), path)
+
+    def summary(self) -> dict[str, Any]:
+        """Bus load, frame and error counts, per-ID latency and per-node counters."""
+        return {
+            "bitrate": self.bitrate,
+            "elapsed_s": self._now / 1e9,
+            "frames": self.frames_ok,
+            "error_frames": self.error_frames,
+            "collisions": self.collisions,
+            "bus_load": self.bus_load(),
+            "ids": {
+                (f"0x{s.can_id:08X}" if s.extended else f"0x{s.can_id:03X}"): {
+                    "count": s.count, "latency_min_us": s.min / 1e3, "latency_mean_us": s.mean / 1e3,
+                    "latency_max_us": s.max / 1e3, "arbitration_losses": s.losses}
+                for _, s in sorted(self.id_stats.items())
+            },
+            "nodes": {n.name: n.counters() for n in self.nodes},
+        }

@@ -1,0 +1,156 @@
+"""The simulated bus's side of an attempt replayed bit by bit (`stack.bus.attempt`): starting it,
+the counters at state boundaries inside it, and applying its outcome — deliveries, transmitter
+results, fault confinement (rules 1-8 as counted, 9-12 through the node), trace records."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Iterable
+
+from stack.bus.attempt import simulate_attempt
+from stack.bus.trace import TraceRecord
+from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
+from stack.controller.queues import QUEUED, TxRequest
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stack.controller.node import Node
+
+__all__ = ["BitLevelAttempts"]
+
+
+class BitLevelAttempts:
+    """Bit-level attempts of `stack.bus.sim.SimBus` (a mixin: the bus's scheduling calls
+    ``_bitlevel`` to start one and ``_complete_bitlevel`` when it ends)."""
+
+    nodes: "list[Node]"
+    trace: list[TraceRecord]
+    _now: int
+    _tx: Any
+    _tx_end: int
+
+    def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
+                  stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
+                  collision: bool = False,
+                  overload: dict[Node, int] | None = None, leave: dict[Node, int] | None = None) -> None:
+        """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
+        nodes = [n for n in self.nodes if n.on_bus]
+        res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
+        res.collision = collision
+        res.before = {n.name: n.state for n in nodes}  # the states the attempt was sent in
+        self._tx = (txs, now, res)
+        self._tx_end = now + self.bits_to_ns(res.bits)
+        # state changes inside the attempt happen at their bit times (rules 9 and 10 take effect
+        # at once); the counters' final values are applied when it completes
+        by_name = {n.name: n for n in nodes}
+        for name, o in res.outcomes.items():
+            for bit, dt, dr in o.trail:
+                if bit + 1 < res.bits:
+                    self.call_at(now + self.bits_to_ns(bit + 1), self._interim_counters,
+                                 (by_name[name], o.tec0 + dt, o.rec0 + dr))
+
+    def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
+        """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
+        node.set_counters(tec, rec, self._now)
+
+    def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
+        """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,
+        transmitter outcomes, counter changes (rules 1-8) and the resulting states (9-12)."""
+        outcomes = res.outcomes
+        by_name = {n.name: n for n in self.nodes}
+        self.busy_ns += idle - start
+        self._idle_at = idle
+        self._recessive_events += 1
+        winner = res.winner
+        # receivers that accepted (at the last-but-one EOF bit) keep the frame whatever happens next
+        accepted = [(by_name[name], o) for name, o in outcomes.items() if o.accepted]
+        sender = (winner or txs[0]).node if txs else None
+        if accepted or winner is not None:
+            self._flush_for_direct()
+        for node, o in accepted:
+            t_acc = start + self.bits_to_ns(o.accept_bit + 2)
+            node.deliver(t_acc, o.frame, sender, start)
+        for q in txs:  # self-reception: each transmitter that succeeded gets its own copy
+            o = outcomes.get(q.node.name)
+            if o is not None and o.success and q.node.receive_own_messages:
+                q.node.deliver(end, q.frame, q.node, start)
+        if winner is not None:
+            self.frames_ok += 1
+        else:
+            self.error_frames += 1
+        # counters: the error increments (rules 1-6) on the bases of rules 7 and 8
+        before = getattr(res, "before", None) or {name: by_name[name].state for name in outcomes}
+        for name, o in outcomes.items():
+            node = by_name[name]
+            # the bases carry rules 7 and 8 applied at the bit where they happened
+            node.set_counters(o.tec0 + o.tec_delta, o.rec0 + o.rec_delta, end)
+        for q in txs:
+            node = q.node
+            o = outcomes.get(node.name)
+            q.on_wire = False
+            if o is not None and o.success:
+                self._tx_success(q, end, idle, start, passive=before[node.name] is PASSIVE, rule7=False)
+                continue
+            if o is not None and o.lost_arbitration:  # a flipped bit made it lose: not an error of its own
+                q.losses += 1
+                node.rounds_lost += 1
+                q.head_since = self.rounds
+                if q.one_shot:
+                    node.fail(q, end, "arbitration lost (one-shot)")
+                elif node.offered is q:
+                    self.offer(node, q)
+                continue
+            if q.state is not QUEUED:
+                continue
+            if before.get(node.name) is PASSIVE or node.state is PASSIVE:
+                self._suspend(node, idle)  # it transmitted as (or is now) error passive
+            if q.one_shot:
+                kind = o.detected[0] if o is not None and o.detected else "error"
+                node.fail(q, end, f"{kind} error (one-shot)")
+            elif node.state is BUS_OFF:
+                pass  # stays queued; offered again after recovery
+            else:
+                node.retry(q)
+        if winner is not None and winner.frame.remote and self._rtr:
+            self._auto_reply(winner.frame, sender, [n for n, o in accepted])
+        if self.record:
+            changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
+            self._record_bitlevel(txs, start, end, res, changes)
+
+    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any,
+                         changes: dict[str, tuple[ErrorState, ErrorState]]) -> None:
+        first = res.first_error
+        detail: dict[str, Any] = {}
+        if changes:
+            detail["states"] = " ".join(f"{n}:{a.value}->{b.value}" for n, (a, b) in sorted(changes.items()))
+        if first is not None:
+            detail.update(error=first[0], field=first[1], bit=first[3])
+        detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
+        detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes
+                                      if n.name in res.outcomes)
+        detail["detected_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.detected))
+        detail["rules"] = ";".join(f"{n}:{','.join(o.rules)}" for n, o in sorted(res.outcomes.items()) if o.rules)
+        detail["roles"] = ",".join(f"{n}:{o.role}" for n, o in sorted(res.outcomes.items()))
+        acc = sorted(n for n, o in res.outcomes.items() if o.accepted)
+        if acc:
+            detail["accepted_by"] = ",".join(acc)
+        if getattr(res, "collision", False):
+            detail["frames"] = " / ".join(repr(q.frame) for q in txs)
+        kind = "frame" if res.winner is not None else ("collision" if detail.get("frames") else "error")
+        w = res.winner or txs[0] if txs else None
+        if w is None:
+            from stack.wire.frame import Frame as _F
+            rec = TraceRecord(kind, start, end, "", _F(0), res.bits, 0, start, detail)
+        else:
+            # the sender: every transmitter that got its frame through (identical frames from
+            # several nodes), else every one that tried
+            ok = [q.node.name for q in txs if getattr(res.outcomes.get(q.node.name), "success", False)]
+            names = ok if res.winner is not None and ok else [q.node.name for q in txs]
+            rec = TraceRecord(kind, start, end, "+".join(names), w.frame, res.bits,
+                              w.losses, w.t_queued, detail if (first or kind != "frame") else None)
+        self.trace.append(rec)
+        for cb in self._bus_listeners:
+            cb(rec)
+
+    def _flush_for_direct(self) -> None:
+        """Bring every buffering node up to date so a direct delivery lands in order."""
+        if self._log:
+            self._flush()
