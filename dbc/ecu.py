@@ -20,9 +20,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 import cantools
 
-from stack.controller.events import Received
-from stack.wire.frame import Frame
-from stack.controller.node import QueueFull
+from stack import Frame, NodeAPI, QueueFull, Received
 
 from .checks import checks_from_attributes
 from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
@@ -406,7 +404,7 @@ class Ecu:
     not applied unless ``accept_failed``.
     """
 
-    def __init__(self, db: cantools.database.can.Database | str | Path, name: str, node: Any, *,
+    def __init__(self, db: cantools.database.can.Database | str | Path, name: str, node: NodeAPI, *,
                  clamp: bool = False, checks: Iterable[Any] | None = None, start: bool = True,
                  accept_failed: bool = False) -> None:
         if not isinstance(db, cantools.database.can.Database):

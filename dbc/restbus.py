@@ -19,8 +19,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 import cantools
 
-from stack.controller.events import Received
-from stack.wire.frame import Frame
+from stack import Frame, Received
 
 from .ecu import Ecu, _pgn, node_names
 from .errors import UnknownNameError, load_database
