@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from stack.phy.waveform import (MAX_RENDER_SAMPLES, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
+from stack.cli import SAMPLE_POINT_HELP, parse_sample_point
+from stack.phy.waveform import (MAX_RENDER_SAMPLES, BitReceiver, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
                                  runs_to_raw, write_raw, write_vcd)
 
 __all__ = ["register"]
@@ -50,6 +51,9 @@ def _format_table(recs: Sequence[RxRecord]) -> str:
 
 
 def _cmd_decode(args: argparse.Namespace) -> int:
+    if args.samplerate:
+        # the options' own rules (samples a bit, sample point, SJW) before a large file is read
+        BitReceiver(args.bitrate, args.samplerate, sample_point=args.sample_point, sjw=args.sjw)
     recs = decode_file(
         args.file, args.bitrate, channel=args.channel, samplerate=args.samplerate,
         sample_point=args.sample_point, sjw=args.sjw, retry=not args.no_retry,
@@ -109,7 +113,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("file", help="sigrok session (.sr), VCD, or raw file of one byte per sample")
     p.add_argument("--bitrate", type=_positive_float, required=True, help="nominal bit rate, bit/s")
     p.add_argument("--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)")
-    p.add_argument("--sample-point", type=float, default=87.5, help="sample point, %% of the bit (default 87.5)")
+    p.add_argument("--sample-point", type=parse_sample_point, default=87.5, help=SAMPLE_POINT_HELP + "; default 87.5")
     p.add_argument("--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))")
     p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")
     p.add_argument("--no-retry", action="store_true", help="do not retry failed frames at other sample points")
