@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
 from typing import Sequence
 
-__all__ = ["CliError", "main", "parse_int"]
+__all__ = ["CliError", "main", "parse_int", "parse_sample_point"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -47,6 +48,24 @@ def parse_int(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
+
+
+def parse_sample_point(text: str) -> float:
+    """A sample point in percent of the bit time; a number between 0 and 1 is read as a
+    fraction of the bit (0.875 = 87.5 %), as controller data sheets and the kernel's
+    ``sample-point 0.875`` write it. Whether it is a valid sample point (50..<100 %) is the
+    timing rules' business, which name it."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number (percent, e.g. 87.5, or a fraction, 0.875)") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a sample point is a percentage 50..<100 (or a fraction 0.5..<1)")
+    return v * 100 if v < 1 else v
+
+
+#: help text of every --sample-point option
+SAMPLE_POINT_HELP = "sample point, %% of the bit (a fraction 0 < x < 1 is read as one: 0.875 = 87.5 %%)"
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
