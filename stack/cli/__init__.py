@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Sequence
 
-__all__ = ["CliError", "main", "parse_int", "parse_sample_point"]
+__all__ = ["CliError", "main", "parse_int", "parse_sample_point", "version", "format_id", "plural"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -31,6 +31,23 @@ SUBCOMMAND_MODULES = [
 SUBCOMMANDS = {"demo": "stack.cli.demo", "frame": "stack.cli.demo", "bittiming": "stack.cli.bittiming",
                "sync": "stack.cli.sync", "decode": "stack.cli.waveform", "render": "stack.cli.waveform",
                "serve": "stack.cli.serve"}
+
+
+#: The version when no distribution metadata is installed (a checkout run with PYTHONPATH);
+#: kept equal to pyproject.toml's by a test.
+__version__ = "0.1.0"
+
+
+def version() -> str:
+    """canstack's version: the installed distribution's metadata, else this package's
+    ``__version__``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("canstack")
+    except PackageNotFoundError:
+        return __version__
 
 
 class CliError(Exception):
@@ -64,6 +81,17 @@ def parse_sample_point(text: str) -> float:
     return v * 100 if v < 1 else v
 
 
+def format_id(can_id: int, extended: bool, remote: bool = False) -> str:
+    """An identifier as every text output writes it: 0x-hex, 3 digits standard, 8 extended,
+    ' RTR' for a remote frame. (JSON output carries the integer: ``"id": 193``.)"""
+    return (f"0x{can_id:08X}" if extended else f"0x{can_id:03X}") + (" RTR" if remote else "")
+
+
+def plural(n: int, word: str) -> str:
+    """'1 frame', '2 frames': a count with its noun in the right number."""
+    return f"{n:,} {word}{'' if n == 1 else 's'}"
+
+
 #: help text of every --sample-point option
 SAMPLE_POINT_HELP = "sample point, %% of the bit (a fraction 0 < x < 1 is read as one: 0.875 = 87.5 %%)"
 
@@ -72,6 +100,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser with every available subcommand registered, or only ``command``'s module
     when it names one of stack's own subcommands."""
     parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
+    parser.add_argument("--version", action="store_true", help="print canstack's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     if command in SUBCOMMANDS:
@@ -96,6 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `canstack` console script."""
     try:
         args_list = list(sys.argv[1:] if argv is None else argv)
+        if args_list[:1] == ["--version"]:
+            print(f"canstack {version()}")
+            return 0
         first = next((a for a in args_list if not a.startswith("-")), None)
         parser = build_parser(first)
         args = parser.parse_args(args_list)

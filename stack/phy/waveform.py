@@ -67,6 +67,7 @@ __all__ = [
     "frames_from_jsonl",
     "record_to_json",
     "IDLE_BITS",
+    "missing_input",
 ]
 
 #: Recessive bits that make the bus idle for a receiver that has lost track of the traffic:
@@ -420,6 +421,20 @@ def read_vcd(
     return Capture(b"".join(parts), rate, chan_name, str(path), native)
 
 
+def missing_input(path: str | Path, what: str = "file") -> str:
+    """Why an input file cannot be opened, in words: a directory, a path through a file, or no
+    such file (the OS's own message says 'Not a directory' without saying which part)."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{p}: is a directory, not a {what}"
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        return f"{p}: {str(parent)!r} is a file, not a directory"
+    return f"{p}: no such {what}"
+
+
 def read_capture(
     path: str | Path,
     channel: str | int | None = None,
@@ -430,7 +445,7 @@ def read_capture(
     starts with a VCD keyword is VCD, anything else is raw samples (which need a samplerate)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"{path}: no such file")
+        raise ValueError(missing_input(path, "capture file"))
     with open(path, "rb") as fh:
         head = fh.read(4096)
     if head[:4] == b"PK\x03\x04":
