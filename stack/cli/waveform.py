@@ -30,7 +30,7 @@ def _positive_float(text: str) -> float:
 
 
 def _format_table(recs: Sequence[RxRecord]) -> str:
-    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':3} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
+    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':4} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
     for r in recs:
         ident = "-" if r.can_id is None else format_id(r.can_id, r.extended)
         fmt = ("ext" if r.extended else "std") + ("R" if r.remote else "")
@@ -40,7 +40,7 @@ def _format_table(recs: Sequence[RxRecord]) -> str:
         ok = lambda b: "ok " if b else "ERR"  # noqa: E731
         crc_ok = ok(r.crc_ok) if r.crc is not None else " - "
         row = (
-            f"{r.t:12.6f}  {ident:>10}  {fmt:3} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
+            f"{r.t:12.6f}  {ident:>10}  {fmt:4} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
             f"{ok(r.form_ok)}  {'yes' if r.ack else 'no'}"
         )
         if r.error is not None:

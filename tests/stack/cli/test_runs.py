@@ -259,3 +259,14 @@ def test_restbus_duration_is_bounded_on_the_simulated_bus(capsys):
     rc, _, err = _run(capsys, "restbus", str(db), "--duration", "1e9")
     _one_line(rc, err)
     assert "at most 3600 s" in err
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["frame", "--id", "0x20000000", "--extended"], "out of range for an extended (29-bit) frame"),
+    (["frame", "--id", "0x800"], "out of range for a standard (11-bit) frame"),
+    (["frame", "--id", "0x1", "--remote", "--data", "01"], "a remote frame carries no data (got 1 byte);"),
+])
+def test_wording(capsys, argv, message):
+    rc, _, err = _run(capsys, *argv)
+    _one_line(rc, err)
+    assert message in err

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+import re
 import zipfile
 
 import pytest
@@ -139,3 +141,41 @@ def test_sample_point_as_a_fraction(tmp_path, capsys):
     rc, _, err = _cli(["decode", str(raw), "--bitrate", "500000", "--samplerate", "8e6", "--sample-point", "1"], capsys)
     _one_line(rc, err)
     assert "sample point 1 %: must be 50 <= sample point < 100" in err
+
+
+def test_decode_shows_ids_as_0x_hex_in_text_and_integers_in_json(tmp_path, capsys):
+    raw = tmp_path / "two.bin"
+    frames = [Frame(0x0C1, b"\x01"), Frame(0x18FEF100, b"", extended=True), Frame(0x700, remote=True, dlc=2)]
+    write_raw(raw, render_samples(frames, 500_000, 8_000_000))
+    rc, out, _ = _cli(["decode", str(raw), "--bitrate", "500000", "--samplerate", "8e6"], capsys)
+    assert rc == 0
+    assert re.findall(r"^ +[0-9.]+ +(0x[0-9A-F]+) +(std|ext|stdR) ", out, re.M) == [
+        ("0x0C1", "std"), ("0x18FEF100", "ext"), ("0x700", "stdR")]
+    assert out.rstrip().endswith("3 frames, 0 error records")
+    rc, out, _ = _cli(["decode", str(raw), "--bitrate", "500000", "--samplerate", "8e6", "--json"], capsys)
+    assert [json.loads(line)["id"] for line in out.splitlines()] == [0x0C1, 0x18FEF100, 0x700]
+
+
+@pytest.mark.parametrize("make,needle", [
+    (lambda t: t, "is a directory, not a capture file"),
+    (lambda t: t / "afile" / "x.sr", "'{t}/afile' is a file, not a directory"),
+    (lambda t: t / "none.sr", "none.sr: no such capture file"),
+])
+def test_missing_inputs_say_what_is_wrong(tmp_path, capsys, make, needle):
+    (tmp_path / "afile").write_text("x")
+    rc, _, err = _cli(["decode", str(make(tmp_path)), "--bitrate", "125000"], capsys)
+    _one_line(rc, err)
+    assert needle.format(t=tmp_path) in err
+
+
+def test_render_checks_its_output_first_and_says_what_it_wrote(tmp_path, capsys):
+    src = tmp_path / "f.jsonl"
+    src.write_text('{"id": 291, "data": "1122"}\n')
+    rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8e6", "--vcd", str(tmp_path / "no" / "o.vcd"),
+                       str(src)], capsys)
+    _one_line(rc, err)
+    assert "--vcd" in err and "does not exist" in err
+    out_path = tmp_path / "o.raw"
+    rc, out, _ = _cli(["render", "--bitrate", "500000", "--samplerate", "8e6", "--raw", str(out_path), str(src)], capsys)
+    n = out_path.stat().st_size  # one byte a sample
+    assert rc == 0 and out == f"render: 1 frame, {n:,} samples ({n / 8e6:.6g} s at 8e+06 samples/s) written to {out_path}\n"
