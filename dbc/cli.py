@@ -221,7 +221,9 @@ def restbus_command(args: argparse.Namespace) -> int:
         sims = ", ".join(rb.ecus)
         total = sum(st[0] for st in stats.values())
         dut = f", {shown} from DUT {args.dut}" if args.dut else ""
-        print(f"simulated: {sims}; {plural(total, 'frame')} on the bus{dut} in {ran:g} s")
+        skipped = rb.skipped_summary()
+        print(f"simulated: {sims}; {plural(total, 'frame')} on the bus{dut} in {ran:g} s"
+              + (f"; {skipped.split(' (')[0]}" if skipped else ""))
     if not complete:
         print(f"canstack: interrupted at {ran:.3f} s of {args.duration:g} s", file=sys.stderr)
         return 130
