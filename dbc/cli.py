@@ -10,8 +10,7 @@ import time
 from typing import Any
 
 from stack.cli import CliError, format_id, plural
-from stack.cli.demo import trace_note
-from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, writing
+from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, trace_note, trc_dropped, writing
 
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value
@@ -184,7 +183,7 @@ def restbus_command(args: argparse.Namespace) -> int:
         ran = bus.now() / 1e9
         if args.trace:
             n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
-            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, bus)}", file=info)
+            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}", file=info)
     else:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
         failure: str | None = None
@@ -211,7 +210,8 @@ def restbus_command(args: argparse.Namespace) -> int:
 
             n = writing(args.trace, "--trace", lambda: save_messages(
                 (r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace))
-            print(f"trace: {plural(n, 'record')} written to {args.trace}", file=info)
+            dropped = sum(1 for r in rb.records if r.frame.remote)
+            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, dropped)}", file=info)
         if failure is not None:
             raise CliError(failure)
     if not args.json:

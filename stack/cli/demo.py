@@ -10,7 +10,8 @@ from typing import Any
 
 from stack.wire.coding import INTERMISSION_BITS, worst_case_length
 from stack.cli import CliError, format_id, parse_int, plural
-from stack.cli.runs import MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced, writing
+from stack.cli.runs import (MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced,
+                            trace_note, trc_dropped, writing)
 from stack.wire.frame import Frame, arbitration_key
 from stack.bus.sim import SimBus
 
@@ -205,7 +206,7 @@ def _demo(args: argparse.Namespace) -> int:
     if args.trace:
         n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
         if not args.json:
-            print(f"\ntrace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, bus)}")
+            print(f"\ntrace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}")
     if args.vcd:
         n = writing(args.vcd, "--vcd", lambda: write_trace_vcd(bus, args.vcd))
         if not args.json:
@@ -214,15 +215,6 @@ def _demo(args: argparse.Namespace) -> int:
         print(f"canstack: interrupted at {bus.now() / 1e9:.3f} s of {args.duration:g} s", file=sys.stderr)
         return 130
     return 0
-
-
-def trace_note(path: str, bus: SimBus) -> str:
-    """What a trace format leaves out, said once: python-can's .trc writer drops remote and
-    error frames (and warns for each one)."""
-    if not str(path).lower().endswith(".trc"):
-        return ""
-    dropped = sum(1 for r in bus.trace if r.kind != "frame" or r.frame.remote)
-    return f" ({plural(dropped, 'remote or error frame')} left out: .trc cannot hold them)" if dropped else ""
 
 
 def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:

@@ -14,10 +14,10 @@ import threading
 from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
 
-from stack.cli import CliError
+from stack.cli import CliError, plural
 
 __all__ = ["check_output", "check_trace_output", "check_plot_output", "writing", "run_sliced", "show_progress",
-           "WRITER_EXTRAS", "MAX_SIM_SECONDS"]
+           "WRITER_EXTRAS", "MAX_SIM_SECONDS", "trace_note", "trc_dropped"]
 
 T = TypeVar("T")
 
@@ -89,6 +89,19 @@ def writing(path: str, option: str, write: Callable[[], T]) -> T:
     except OSError as exc:
         reason = exc.strerror or str(exc)
         raise CliError(f"{option} {path!r}: cannot write: {reason}") from None
+
+
+def trace_note(path: str, dropped: int) -> str:
+    """What a trace format left out, said once: python-can's .trc writer holds no remote or
+    error frames (``dropped`` of them were in the run)."""
+    if not str(path).lower().endswith(".trc") or not dropped:
+        return ""
+    return f" ({plural(dropped, 'remote or error frame')} left out: .trc cannot hold them)"
+
+
+def trc_dropped(bus: Any) -> int:
+    """Remote and error frames in a simulated trace: what a .trc file cannot hold."""
+    return sum(1 for r in bus.trace if r.kind != "frame" or r.frame.remote)
 
 
 def show_progress(requested: bool | None) -> bool:

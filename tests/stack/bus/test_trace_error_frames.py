@@ -120,7 +120,8 @@ def test_error_frame_hand_worked_local_crc_error():
     # b alone sees a flipped data bit: a CRC error found by a receiver (no PROT_TX), location the
     # CRC sequence 0x08; b: REC 1 (rule 1) + 8 (rule 2) = 9 (tests/stack/bus/test_fault_confinement)
     bus = SimBus(500_000)
-    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    a = bus.node("a")
+    bus.node("b"), bus.node("c")
     FaultInjector(bus).flip(can_id=0x123, field="data", bit=9, nodes=["b"])
     a.send(Frame(0x123, b"\x55\xaa"))
     bus.run(frames=1)

@@ -11,7 +11,6 @@ import json
 import os
 import re
 import signal
-import sys
 from pathlib import Path
 
 try:
@@ -185,7 +184,7 @@ def test_plot_without_matplotlib_is_refused_before_the_run(monkeypatch, capsys, 
 
 @pytest.mark.parametrize("make,needle", [
     (lambda t: str(t), "is a directory, not a file"),
-    (lambda t: str(t / "missing" / "x.asc"), f"does not exist"),
+    (lambda t: str(t / "missing" / "x.asc"), "does not exist"),
     (lambda t: str(t / "afile" / "x.asc"), "afile' is a file, not a directory"),
 ])
 def test_bad_output_paths_name_the_problem(capsys, tmp_path, make, needle):
