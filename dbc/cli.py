@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from typing import Any
 
-from stack.cli import CliError
+from stack.cli import CliError, format_id, plural
+from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, trace_note, trc_dropped, writing
 
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value
@@ -24,7 +26,9 @@ def register(subparsers: Any) -> None:
                     "interaction layer; print what the DUT sends, decoded (--json: every frame).")
     p.add_argument("dbc", metavar="DBC", help="database file (DBC, or anything cantools loads)")
     p.add_argument("--dut", metavar="NODE", help="device under test: not simulated (default: none, simulate all)")
-    p.add_argument("--duration", type=float, default=10.0, metavar="S", help="seconds to run (default 10)")
+    p.add_argument("--duration", type=float, default=10.0, metavar="S",
+                   help=f"seconds to run (default 10; the simulated bus at most {MAX_SIM_SECONDS:g}; Ctrl-C stops "
+                        "early and prints the summary so far)")
     p.add_argument("--bus", choices=["sim"], default=None, help="the built-in simulated bus (default)")
     p.add_argument("--interface", metavar="NAME", help="python-can interface (socketcan, canstack, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, bus0, ...)")
@@ -32,8 +36,12 @@ def register(subparsers: Any) -> None:
                    help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
                         "connection (default: the interface's own)")
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
-    p.add_argument("--trace", metavar="FILE", help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4)")
-    p.add_argument("--json", action="store_true", help="one JSON object per frame on the bus, per line")
+    p.add_argument("--trace", metavar="FILE", help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; "
+                   ".mf4 needs the mf4 extra, .trc holds no remote or error frames)")
+    p.add_argument("--json", action="store_true",
+                   help="one JSON object per frame on the bus, per line (id as an integer)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)")
     p.set_defaults(func=restbus_command)
 
 
@@ -72,22 +80,26 @@ def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> An
     return driver.PyCanDriver(interface=interface, channel=channel, **kw)
 
 
-def _run_driver(bus: Any, duration: float) -> float:
-    """Run the driver for ``duration`` s of wall clock, or until it records an error (a lost
-    connection: every receive fails from then on); returns the seconds it ran."""
+def _run_driver(bus: Any, duration: float) -> tuple[float, bool]:
+    """Run the driver for ``duration`` s of wall clock, until it records an error (a lost
+    connection: every receive fails from then on), or until Ctrl-C; returns the seconds it ran
+    and whether it ran the whole duration (False after Ctrl-C, whose frames are kept)."""
     errors = getattr(bus, "errors", None)
     if errors is None or not (hasattr(bus, "start") and hasattr(bus, "stop")):
         bus.run(duration)
-        return duration
+        return duration, True
     start = time.monotonic()
     end = start + duration
+    complete = True
     bus.start()
     try:
         while not errors and (left := end - time.monotonic()) > 0:
             time.sleep(min(left, 0.05))
+    except KeyboardInterrupt:
+        complete = False
     finally:
         bus.stop()
-    return time.monotonic() - start
+    return time.monotonic() - start, complete
 
 
 def _driver_error(bus: Any, interface: str, channel: str | None, ran: float) -> str | None:
@@ -101,25 +113,30 @@ def _driver_error(bus: Any, interface: str, channel: str | None, ran: float) -> 
 
 
 def _line(rec: BusRecord) -> str:
-    ident = f"0x{rec.frame.can_id:08X}" if rec.frame.extended else f"0x{rec.frame.can_id:03X}"
+    ident = format_id(rec.frame.can_id, rec.frame.extended, rec.frame.remote)
     sigs = " ".join(f"{k}={json_value(v)}" for k, v in rec.signals.items())
     return f"{rec.time / 1e9:12.6f}  {rec.sender:<8} {ident}  {rec.name or '?':<20} {sigs}"
 
 
 def restbus_command(args: argparse.Namespace) -> int:
-    """Run the rest-bus simulation the arguments describe; 0 on success."""
-    if args.duration <= 0:
-        raise CliError(f"--duration {args.duration}: must be > 0 seconds")
+    """Run the rest-bus simulation the arguments describe; 0 on success, 130 when Ctrl-C stopped
+    it (the summary so far and the trace are still written)."""
+    if not (0 < args.duration < math.inf):
+        raise CliError(f"--duration {args.duration:g}: must be a number of seconds > 0")
+    if args.interface is None and args.duration > MAX_SIM_SECONDS:
+        raise CliError(f"--duration {args.duration:g}: the simulated bus runs at most {MAX_SIM_SECONDS:g} s "
+                       "(on a python-can bus any duration runs, until Ctrl-C)")
     if args.interface is not None and args.bus is not None:
         raise CliError("give either --bus sim or --interface/--channel, not both")
     if args.channel is not None and args.interface is None:
         raise CliError("--channel needs --interface")
-    if args.trace:
-        from stack.bus.trace import check_suffix
-
-        check_suffix(args.trace)
+    if args.trace is not None:
+        check_trace_output(args.trace)
     db = load_database(args.dbc)
     out = sys.stdout
+    # informational lines go with the summary on stdout, as `demo` prints them; with --json,
+    # stdout is one JSON object per frame and they go to stderr
+    info = sys.stderr if args.json else sys.stdout
     shown = 0
     stats: dict[tuple[str, str], list[Any]] = {}
 
@@ -129,7 +146,7 @@ def restbus_command(args: argparse.Namespace) -> int:
         st[2] = rec.time
         st[3] = rec
 
-    def _summary(rb: RestBus, duration: float) -> str:
+    def _summary() -> str:
         lines = [f"{'sender':<10} {'message':<22} {'frames':>6} {'period ms':>9}  last values"]
         for (sender, name), (n, first, last, rec) in sorted(stats.items()):
             period = f"{(last - first) / (n - 1) / 1e6:9.2f}" if n > 1 else f"{'-':>9}"
@@ -145,30 +162,41 @@ def restbus_command(args: argparse.Namespace) -> int:
             out.write(_line(rec) + "\n")
             shown += 1
 
+    def _check_something_to_simulate(rb: RestBus) -> None:
+        skipped = rb.skipped_summary()
+        if rb.sent_messages == 0 and skipped is not None:
+            raise CliError(f"{args.dbc}: nothing to simulate: {skipped}")
+        if skipped is not None:
+            # a warning on stderr in every mode, so that a JSON consumer sees it too
+            print(f"canstack: warning: {args.dbc}: {skipped}", file=sys.stderr)
+
+    complete = True
     if args.interface is None:
         from stack.bus.sim import SimBus
 
         bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
         rb = RestBus(db, bus, dut=args.dut, records=False)
+        _check_something_to_simulate(rb)
         rb.on_record(_count)
         rb.on_record(emit)
-        bus.run(until=int(args.duration * 1e9))
+        complete = run_sliced(bus, int(args.duration * 1e9), progress=args.progress, desc="restbus")
+        ran = bus.now() / 1e9
         if args.trace:
-            n = bus.save_trace(args.trace)
-            if not args.json:
-                print(f"trace: {n} records written to {args.trace}", file=sys.stderr)
+            n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
+            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}", file=info)
     else:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
         failure: str | None = None
         try:
             rb = RestBus(db, bus, dut=args.dut, records=bool(args.trace), start=False)
+            _check_something_to_simulate(rb)
             rb.on_record(_count)
             rb.on_record(emit)
             if hasattr(bus, "submit"):
                 bus.submit(rb.start)  # ECU timers start on the driver's scheduler thread
             else:
                 rb.start()
-            ran = _run_driver(bus, args.duration)
+            ran, complete = _run_driver(bus, args.duration)
             rb.stop()
             failure = _driver_error(bus, args.interface, args.channel, ran)
         finally:
@@ -180,13 +208,23 @@ def restbus_command(args: argparse.Namespace) -> int:
         if args.trace:
             from stack.bus.trace import save_messages
 
-            save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace)
+            n = writing(args.trace, "--trace", lambda: save_messages(
+                (r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace))
+            dropped = sum(1 for r in rb.records if r.frame.remote)
+            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, dropped)}", file=info)
         if failure is not None:
             raise CliError(failure)
     if not args.json:
-        print(_summary(rb, args.duration))
+        if not complete:
+            print(f"interrupted at {ran:.3f} s of {args.duration:g} s: the summary so far")
+        print(_summary())
         sims = ", ".join(rb.ecus)
         total = sum(st[0] for st in stats.values())
         dut = f", {shown} from DUT {args.dut}" if args.dut else ""
-        print(f"simulated: {sims}; {total} frames on the bus{dut} in {args.duration:g} s", file=sys.stderr)
+        skipped = rb.skipped_summary()
+        print(f"simulated: {sims}; {plural(total, 'frame')} on the bus{dut} in {ran:g} s"
+              + (f"; {skipped.split(' (')[0]}" if skipped else ""))
+    if not complete:
+        print(f"canstack: interrupted at {ran:.3f} s of {args.duration:g} s", file=sys.stderr)
+        return 130
     return 0

@@ -34,7 +34,26 @@ __all__ = [
     "node_names",
     "initial_values",
     "frame_id_of",
+    "unsupported_reason",
+    "SKIP_KINDS",
 ]
+
+#: Why a database message cannot be a CAN 2.0 frame, as `unsupported_reason` names it, in the
+#: order messages are summarised.
+SKIP_KINDS = ("CAN FD", "longer than 8 bytes", "container")
+
+
+def unsupported_reason(m: Any) -> tuple[str, str] | None:
+    """Why a cantools message cannot be sent or received as a CAN 2.0 frame (a data field of at
+    most 8 bytes, ISO 11898-1 classical frames): (kind, explanation), kind one of `SKIP_KINDS`;
+    None when it can."""
+    if m.is_container:
+        return "container", "container message (AUTOSAR): not a CAN 2.0 frame"
+    if m.is_fd:
+        return "CAN FD", f"CAN FD frame ({m.length} byte{'s' if m.length != 1 else ''}): not a CAN 2.0 frame"
+    if m.length > 8:
+        return "longer than 8 bytes", f"{m.length} bytes: a CAN 2.0 frame carries at most 8"
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -461,11 +480,8 @@ class Ecu:
 
     @staticmethod
     def _unsupported(m: Any) -> str | None:
-        if m.is_container:
-            return "container message (AUTOSAR): not a CAN 2.0 frame"
-        if m.length > 8 or m.is_fd:
-            return f"{m.length} bytes (CAN FD): a CAN 2.0 frame carries at most 8"
-        return None
+        why = unsupported_reason(m)
+        return None if why is None else why[1]
 
     # ------------------------------------------------------------------ names
     @property

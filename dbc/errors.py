@@ -88,14 +88,17 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
     the reason names; otherwise none.
     """
     p = str(path)
+    _refuse_binary(p)
     try:
         db = cantools.database.load_file(p, strict=strict)
     except FileNotFoundError:
         raise DbcLoadError(p, None, "no such file") from None
     except IsADirectoryError:
         raise DbcLoadError(p, None, "is a directory, not a database file") from None
+    except NotADirectoryError:
+        raise DbcLoadError(p, None, f"{_file_on_the_way(p)!r} is a file, not a directory") from None
     except (cantools.database.errors.Error, cantools.errors.Error, ValueError, UnicodeDecodeError) as exc:
-        reason = " ".join(str(exc).split())
+        reason = _printable(" ".join(str(exc).split()))
         if reason.startswith('DBC: "') and reason.endswith('"'):
             reason = reason[6:-1]
         line: int | None = None
@@ -114,6 +117,35 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
     if not isinstance(db, cantools.database.can.Database):
         raise DbcLoadError(p, None, f"not a CAN database ({type(db).__name__})")
     return db
+
+
+def _file_on_the_way(path: str) -> str:
+    """The part of ``path`` that is a file where a directory should be."""
+    parent = Path(path).parent
+    while parent != parent.parent and not parent.is_file():
+        parent = parent.parent
+    return str(parent)
+
+
+def _refuse_binary(path: str) -> None:
+    """Every format cantools reads (DBC, KCD, ARXML, SYM) is text: a NUL byte means a binary
+    file, whose parse error would quote raw bytes to the terminal."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(65536)
+    except OSError:
+        return  # cantools' own open reports it (no such file, a directory, ...)
+    nul = head.find(b"\0")
+    if nul >= 0:
+        raise DbcLoadError(path, None, f"not a database file: binary content (a NUL byte at offset {nul}); "
+                                       "DBC, KCD, ARXML and SYM files are text")
+
+
+def _printable(text: str, limit: int = 300) -> str:
+    """A parser's message made safe for one terminal line: control characters escaped, and cut
+    to ``limit`` characters (it may quote a long stretch of the file)."""
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return out if len(out) <= limit else out[:limit] + "..."
 
 
 def _lines(path: str) -> list[str]:

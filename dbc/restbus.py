@@ -21,7 +21,7 @@ import cantools
 
 from stack import Frame, Received
 
-from .ecu import Ecu, _pgn, node_names
+from .ecu import SKIP_KINDS, Ecu, _pgn, node_names, unsupported_reason
 from .errors import UnknownNameError, load_database
 
 __all__ = ["RestBus", "BusRecord", "json_value", "MONITOR_NAME"]
@@ -89,6 +89,13 @@ class RestBus:
                 raise UnknownNameError("node", n, names)
         self.dut = dut
         self.bus = bus
+        #: messages of the database that no node can send or decode on a CAN 2.0 bus:
+        #: name -> kind (one of dbc.ecu.SKIP_KINDS: CAN FD, longer than 8 bytes, container)
+        self.skipped: dict[str, str] = {}
+        for m in db.messages:
+            why = unsupported_reason(m)
+            if why is not None:
+                self.skipped[m.name] = why[0]
         self.ecus: dict[str, Ecu] = {}
         for n in chosen:
             self.ecus[n] = Ecu(db, n, bus.node(n), checks=checks, start=False)
@@ -116,6 +123,21 @@ class RestBus:
             self.monitor.subscribe(self._on_frame)
         if start:
             self.start()
+
+    @property
+    def sent_messages(self) -> int:
+        """How many database messages the simulated ECUs send (each message once per sender)."""
+        return sum(len(e.tx_messages) for e in self.ecus.values())
+
+    def skipped_summary(self) -> str | None:
+        """One sentence saying how many of the database's messages were skipped and why
+        (``"331 of 331 messages skipped: 331 CAN FD"``); None when none was."""
+        if not self.skipped:
+            return None
+        counts = [(k, sum(1 for v in self.skipped.values() if v == k)) for k in SKIP_KINDS]
+        why = ", ".join(f"{n} {k}" for k, n in counts if n)
+        total = len(self.db.messages)
+        return f"{len(self.skipped)} of {total} message{'s' if total != 1 else ''} skipped: {why} (a CAN 2.0 bus carries classical frames of at most 8 bytes)"
 
     def start(self) -> None:
         """Start every simulated ECU's interaction layer."""

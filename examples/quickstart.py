@@ -1,9 +1,15 @@
 """A first scenario on the simulated bus: three ECUs, one of them with a faulty receiver.
 
-Run:  python examples/quickstart.py
+Run:  python examples/quickstart.py [TRACE_FILE]
 It prints the frames of the first 5 ms, the per-identifier latency and arbitration losses, and
-what fault confinement made of the noisy node; then writes the trace to quickstart.asc.
+what fault confinement made of the noisy node; then writes the trace to TRACE_FILE (any suffix
+python-can writes: .asc, .blf, .log, ...), by default quickstart.asc in a new temporary directory,
+so that running it leaves nothing behind in the current one.
 """
+
+import sys
+import tempfile
+from pathlib import Path
 
 from stack.controller.events import ErrorStateChanged
 from stack.bus.faults import FaultInjector
@@ -35,4 +41,6 @@ for ident, st in summary["ids"].items():
     print(f"{ident}: {st['count']} frames, latency {st['latency_min_us']:.0f}..{st['latency_max_us']:.0f} us")
 print("dash:", dash.counters(), dash.state)
 print("frames waiting in dash's FIFO:", len([f for f in iter(dash.recv, None)]))
-bus.save_trace("quickstart.asc")
+trace = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="canstack-")) / "quickstart.asc"
+n = bus.save_trace(str(trace))
+print(f"trace: {n} records written to {trace}")

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
 from typing import Sequence
 
-__all__ = ["CliError", "main", "parse_int"]
+__all__ = ["CliError", "main", "parse_int", "parse_sample_point", "version", "format_id", "plural"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -30,6 +31,23 @@ SUBCOMMAND_MODULES = [
 SUBCOMMANDS = {"demo": "stack.cli.demo", "frame": "stack.cli.demo", "bittiming": "stack.cli.bittiming",
                "sync": "stack.cli.sync", "decode": "stack.cli.waveform", "render": "stack.cli.waveform",
                "serve": "stack.cli.serve"}
+
+
+#: The version when no distribution metadata is installed (a checkout run with PYTHONPATH);
+#: kept equal to pyproject.toml's by a test.
+__version__ = "0.1.0"
+
+
+def version() -> str:
+    """canstack's version: the installed distribution's metadata, else this package's
+    ``__version__``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("canstack")
+    except PackageNotFoundError:
+        return __version__
 
 
 class CliError(Exception):
@@ -49,10 +67,40 @@ def parse_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
 
 
+def parse_sample_point(text: str) -> float:
+    """A sample point in percent of the bit time; a number between 0 and 1 is read as a
+    fraction of the bit (0.875 = 87.5 %), as controller data sheets and the kernel's
+    ``sample-point 0.875`` write it. Whether it is a valid sample point (50..<100 %) is the
+    timing rules' business, which name it."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number (percent, e.g. 87.5, or a fraction, 0.875)") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a sample point is a percentage 50..<100 (or a fraction 0.5..<1)")
+    return v * 100 if v < 1 else v
+
+
+def format_id(can_id: int, extended: bool, remote: bool = False) -> str:
+    """An identifier as every text output writes it: 0x-hex, 3 digits standard, 8 extended,
+    ' RTR' for a remote frame. (JSON output carries the integer: ``"id": 193``.)"""
+    return (f"0x{can_id:08X}" if extended else f"0x{can_id:03X}") + (" RTR" if remote else "")
+
+
+def plural(n: int, word: str) -> str:
+    """'1 frame', '2 frames': a count with its noun in the right number."""
+    return f"{n:,} {word}{'' if n == 1 else 's'}"
+
+
+#: help text of every --sample-point option
+SAMPLE_POINT_HELP = "sample point, %% of the bit (a fraction 0 < x < 1 is read as one: 0.875 = 87.5 %%)"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser with every available subcommand registered, or only ``command``'s module
     when it names one of stack's own subcommands."""
     parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
+    parser.add_argument("--version", action="store_true", help="print canstack's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     if command in SUBCOMMANDS:
@@ -77,6 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `canstack` console script."""
     try:
         args_list = list(sys.argv[1:] if argv is None else argv)
+        if args_list[:1] == ["--version"]:
+            print(f"canstack {version()}")
+            return 0
         first = next((a for a in args_list if not a.startswith("-")), None)
         parser = build_parser(first)
         args = parser.parse_args(args_list)

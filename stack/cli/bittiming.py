@@ -7,6 +7,7 @@ import json
 import math
 from typing import Any
 
+from stack.cli import SAMPLE_POINT_HELP, parse_sample_point
 from stack.phy.bittiming import (CONTROLLERS, BusDelays, ControllerLimits, format_hz, all_timings, controller_limits,
                                  format_solution, parse_limits, solve)
 
@@ -37,7 +38,8 @@ def add_timing_arguments(p: argparse.ArgumentParser) -> None:
     """The options shared by `bittiming` and `sync`: clock, bitrate, sample point, controller, sjw."""
     p.add_argument("--clock", type=_positive_int, required=True, help="controller clock in Hz")
     p.add_argument("--bitrate", type=_positive_int, required=True, help="bitrate in bit/s")
-    p.add_argument("--sample-point", type=_number, help="sample point in percent (default: CiA 75/80/87.5)")
+    p.add_argument("--sample-point", type=parse_sample_point,
+                   help=SAMPLE_POINT_HELP + "; default: CiA 75/80/87.5 %%")
     p.add_argument("--controller", default="sja1000", help=f"register limits: {', '.join(CONTROLLERS)}")
     p.add_argument("--limits", help="custom limits 'tseg1=1..16,tseg2=1..8,sjw=4,brp=1..64[,brp_inc=1]'")
     p.add_argument("--sjw", type=_positive_int, help="synchronisation jump width in tq (default: kernel's)")

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 from typing import Any
 
-
 from stack.wire.coding import INTERMISSION_BITS, worst_case_length
-from stack.cli import CliError, parse_int
-from stack.wire.frame import Frame
+from stack.cli import CliError, format_id, parse_int, plural
+from stack.cli.runs import (MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced,
+                            trace_note, trc_dropped, writing)
+from stack.wire.frame import Frame, arbitration_key
 from stack.bus.sim import SimBus
 
-__all__ = ["register", "build_demo", "format_summary"]
+__all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json", "id_rows"]
 
 MS = 1_000_000
 
@@ -48,11 +51,12 @@ def build_demo(bus: SimBus) -> None:
     tester.send_periodic(Frame(0x700, remote=True, dlc=2), 50 * MS, offset=7 * MS)
 
 
-def build_fault_demo(bus: SimBus) -> list[tuple[int, dict[str, tuple[int, int]]]]:
+def build_fault_demo(bus: SimBus, sample_every: int | None = MS // 2) -> list[tuple[int, dict[str, tuple[int, int]]]]:
     """The fault demo: three ECUs; from 100 to 250 ms ecu2's receiver picks up noise (local bit errors)
     and it goes error passive; from 400 ms its transmitter is disconnected (stuck recessive) and
     it goes bus off; the fault clears at 410 ms and it recovers (rule 12). Returns the TEC/REC
-    samples (every 0.5 ms) the plot is drawn from."""
+    samples the plot is drawn from, one every ``sample_every`` ns (None: no samples; a long run
+    takes them further apart so that they do not grow without bound)."""
     from stack.bus.faults import FaultInjector
 
     ecus = [bus.node(n) for n in ("ecu1", "ecu2", "ecu3")]
@@ -69,9 +73,10 @@ def build_fault_demo(bus: SimBus) -> list[tuple[int, dict[str, tuple[int, int]]]
 
     def sample() -> None:
         samples.append((bus.now(), {e.name: (e.tec, e.rec) for e in ecus}))
-        bus.call_later(MS // 2, sample)
+        bus.call_later(sample_every, sample)
 
-    bus.call_at(0, sample)
+    if sample_every is not None:
+        bus.call_at(0, sample)
     return samples
 
 
@@ -98,43 +103,51 @@ def plot_counters(samples: list[tuple[int, dict[str, tuple[int, int]]]], path: s
     ax2.set_xlabel("time (ms)")
     fig.suptitle("canstack fault demo: fault confinement counters")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    # without a suffix matplotlib would write PATH.png: write the file that was named
+    fig.savefig(path, dpi=100, format=None if Path(path).suffix else "png")
     plt.close(fig)
 
 
+def id_rows(bus: SimBus) -> list[tuple[str, dict[str, Any]]]:
+    """Per-identifier statistics, one row per arbitration key in arbitration order: a remote
+    frame and a data frame with the same identifier are two rows (they are two frames on the
+    wire), labelled by `stack.cli.format_id`."""
+    rows = []
+    for key, st in sorted(bus.id_stats.items()):
+        remote = key == arbitration_key(st.can_id, st.extended, True)
+        rows.append((format_id(st.can_id, st.extended, remote), {
+            "id": st.can_id, "extended": st.extended, "remote": remote, "count": st.count,
+            "latency_min_us": st.min / 1e3, "latency_mean_us": st.mean / 1e3, "latency_max_us": st.max / 1e3,
+            "arbitration_losses": st.losses}))
+    return rows
+
+
+def summary_json(bus: SimBus) -> dict[str, Any]:
+    """`SimBus.summary` with the per-identifier table of `id_rows` (remote and data frames of
+    one identifier apart, each with its integer ``id``)."""
+    s = bus.summary()
+    s["ids"] = dict(id_rows(bus))
+    return s
+
+
 def format_summary(bus: SimBus) -> str:
-    """A readable summary: bus load, per-ID latency and arbitration losses, node counters."""
+    """A readable summary: bus load, per-ID latency and arbitration losses (one row per frame
+    kind on the wire: the rows add up to the frame count), node counters."""
     s = bus.summary()
     lines = [
         f"bus {bus.name}: {bus.bitrate // 1000} kbit/s, {s['elapsed_s']:.3f} s simulated, "
         f"{s['frames']} frames, {s['error_frames']} error frames, bus load {100 * s['bus_load']:.1f} %",
         "",
-        f"{'ID':>10}  {'frames':>6}  {'latency min/mean/max (us)':>27}  {'arb. losses':>11}",
+        f"{'ID':>14}  {'frames':>6}  {'latency min/mean/max (us)':>27}  {'arb. losses':>11}",
     ]
-    for ident, st in s["ids"].items():
+    for label, st in id_rows(bus):
         lat = f"{st['latency_min_us']:.0f} / {st['latency_mean_us']:.0f} / {st['latency_max_us']:.0f}"
-        lines.append(f"{ident:>10}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
+        lines.append(f"{label:>14}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
     lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'arb.lost':>8} {'retx':>5} {'overrun':>7} {'TEC':>4} {'REC':>4}"]
     for name, c in s["nodes"].items():
         lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['arbitration_lost']:>8} "
                      f"{c['retransmissions']:>5} {c['rx_overruns']:>7} {c['txerr']:>4} {c['rxerr']:>4}")
     return "\n".join(lines)
-
-
-def _check_output(path: str, option: str) -> None:
-    """An output file named on the command line: checked before a run, so that a long
-    simulation does not end in an error with nothing written."""
-    import os
-
-    if not path:
-        raise CliError(f"{option} needs a file name")
-    if os.path.isdir(path):
-        raise CliError(f"{option} {path!r} is a directory, not a file")
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise CliError(f"{option} {path!r}: directory {parent!r} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise CliError(f"{option} {path!r}: directory {parent!r} is not writable")
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -149,30 +162,37 @@ def _demo(args: argparse.Namespace) -> int:
         kw = {} if args.bitrate is None else {"bitrate": args.bitrate}
         print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration, **kw))
         return 0
-    for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--plot", args.plot)):
-        if val is not None:
-            _check_output(val, opt)
-    if args.trace:
-        from stack.bus.trace import check_suffix
-        check_suffix(args.trace)
     if args.plot and not args.faults:
         raise CliError("--plot draws the fault demo's counters: use it with --faults")
-    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=True)
+    # every output is checked before the run: a long simulation must not end in an error
+    if args.trace is not None:
+        check_trace_output(args.trace)
+    if args.vcd is not None:
+        check_output(args.vcd, "--vcd")
+    if args.plot is not None:
+        check_plot_output(args.plot)
+    until = int(args.duration * 1e9)
+    # the trace records (one per frame) are kept only when a file is made from them; the
+    # summary comes from the bus's streaming statistics, constant in memory
+    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace or args.vcd))
+    samples: list[tuple[int, dict[str, tuple[int, int]]]] = []
+    changes: list[Any] = []
     if args.faults:
         from stack.controller.events import ErrorStateChanged
 
-        samples = build_fault_demo(bus)
-        changes: list[ErrorStateChanged] = []
+        # the plot's samples: every 0.5 ms, further apart on a long run (at most ~20,000)
+        every = max(MS // 2, until // 20_000) if args.plot else None
+        samples = build_fault_demo(bus, sample_every=every)
         for n in bus.nodes:
             n.listen(ErrorStateChanged, changes.append)
-        duration = args.duration
-        bus.run(until=int(duration * 1e9))
     else:
         build_demo(bus)
-        bus.run(until=int(args.duration * 1e9))
+    complete = run_sliced(bus, until, progress=args.progress, desc="demo")
     if args.json:
-        print(json.dumps(bus.summary(), indent=2))
+        print(json.dumps(summary_json(bus), indent=2))
     else:
+        if not complete:
+            print(f"interrupted at {bus.now() / 1e9:.3f} s of {args.duration:g} s: the summary so far\n")
         if args.faults:
             print("state changes (fault confinement):")
             for ev in changes:
@@ -180,17 +200,20 @@ def _demo(args: argparse.Namespace) -> int:
             print()
         print(format_summary(bus))
     if args.plot:
-        plot_counters(samples, args.plot)
+        writing(args.plot, "--plot", lambda: plot_counters(samples, args.plot))
         if not args.json:
             print(f"\nplot: TEC/REC over time written to {args.plot}")
     if args.trace:
-        n = bus.save_trace(args.trace)
+        n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
         if not args.json:
-            print(f"\ntrace: {n} records written to {args.trace}")
+            print(f"\ntrace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}")
     if args.vcd:
-        n = write_trace_vcd(bus, args.vcd)
+        n = writing(args.vcd, "--vcd", lambda: write_trace_vcd(bus, args.vcd))
         if not args.json:
-            print(f"waveform: CAN_RX of {n} frames written to {args.vcd} (GTKWave, PulseView)")
+            print(f"waveform: CAN_RX of {plural(n, 'frame')} written to {args.vcd} (GTKWave, PulseView)")
+    if not complete:
+        print(f"canstack: interrupted at {bus.now() / 1e9:.3f} s of {args.duration:g} s", file=sys.stderr)
+        return 130
     return 0
 
 
@@ -214,8 +237,8 @@ def _duration(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v <= 3600:
-        raise argparse.ArgumentTypeError(f"{v}: the duration must be > 0 and at most 3600 s")
+    if not 0 < v <= MAX_SIM_SECONDS:
+        raise argparse.ArgumentTypeError(f"{v:g}: the duration must be > 0 and at most {MAX_SIM_SECONDS:g} s")
     return v
 
 
@@ -262,29 +285,42 @@ def _frame(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `demo` and `frame`."""
-    p = sub.add_parser("demo", help="run the demo network on the simulated bus and print a summary")
-    p.add_argument("--duration", type=_duration, default=1.0, help="simulated seconds (default 1)")
+    p = sub.add_parser(
+        "demo", help="run the demo network on the simulated bus and print a summary",
+        description="Simulate five ECUs (periodic traffic at several priorities, a J1939-style extended "
+        "message, a burst every 50 ms and a remote request answered by a mailbox) and print the bus load, "
+        "per-identifier latency and arbitration losses, and each node's counters. With --faults, three "
+        "ECUs instead, one of which goes error passive, bus off, and recovers. Ctrl-C stops the run and "
+        "prints the summary so far.")
+    p.add_argument("--duration", type=_duration, default=1.0, metavar="S",
+                   help=f"simulated seconds, at most {MAX_SIM_SECONDS:g} (default 1)")
     p.add_argument("--bitrate", type=_bitrate, default=None,
                    help="bit/s (default 500000; on --interface, passed to the bus when given)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated bus (the same seed gives the same trace)")
+    p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4; "
+                   ".mf4 needs the mf4 extra, .trc holds no remote or error frames)")
     p.add_argument("--vcd", metavar="FILE", help="write the bus as a CAN_RX waveform (VCD, 16 samples a bit)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (identifiers as integers)")
     p.add_argument("--faults", action="store_true",
                    help="the fault demo: a node goes error passive, bus off, and recovers")
     p.add_argument("--plot", metavar="PNG", help="with --faults: plot TEC/REC over time (needs the plot extra)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: on a terminal, for runs over 2 s)")
     p.add_argument("--interface", help="run the same nodes on a python-can bus instead (e.g. socketcan, "
                                        "virtual, canstack); wall-clock time")
     p.add_argument("--channel", help="the python-can channel (e.g. vcan0)")
     p.set_defaults(func=_demo, duration_given=False)
 
-    p = sub.add_parser("frame", help="show a frame's bits on the wire: stuffing, CRC, length")
+    p = sub.add_parser(
+        "frame", help="show a frame's bits on the wire: stuffing, CRC, length",
+        description="Build a CAN 2.0 frame and show its bit stream SOF..EOF field by field with the stuff "
+        "bits marked, its CRC-15, its exact stuffed length and the worst case for its data length.")
     p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")
-    p.add_argument("--data", default="", help="data bytes as hex")
+    p.add_argument("--data", default="", help="data bytes as hex, e.g. 4001087500000000 (spaces allowed)")
     p.add_argument("--extended", action="store_true", help="29-bit identifier")
     p.add_argument("--remote", action="store_true", help="remote frame (give --dlc)")
     p.add_argument("--dlc", type=parse_int, default=None, help="DLC 0..15 (default: data length)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print bits, crc, length and stuff bits as JSON")
     p.set_defaults(func=_frame)
 
 

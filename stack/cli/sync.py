@@ -9,6 +9,7 @@ import math
 from dataclasses import replace
 from typing import Any
 
+from stack.cli import CliError
 from stack.cli.bittiming import add_timing_arguments, limits_from_args
 from stack.phy.bittiming import BusDelays, Solution, solve
 from stack.phy.sync import (BUS_LENGTH_FRAMES, DEFAULT_PHASES, ack_exchange, arbitration_exchange, max_bus_length_simulated,
@@ -39,6 +40,34 @@ def _length(text: str) -> float:
     if not (math.isfinite(v) and v >= 0):
         raise argparse.ArgumentTypeError(f"{text!r}: needs a finite number >= 0")
     return v
+
+
+#: Finest bisection the scan accepts: a drift of 0.01 ppm moves a 160-bit frame's last sample
+#: by 1.6e-6 of a bit, far below any time quantum, and keeps the bisection a few dozen steps.
+MIN_RESOLUTION_PPM = 0.01
+
+
+def _count(text: str) -> int:
+    """A whole number, also written as 1e3."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v == int(v) and v >= 1):
+        raise argparse.ArgumentTypeError(f"{text!r}: needs a whole number >= 1")
+    return int(v)
+
+
+def _check_scan(steps: int, resolution: float, lo: float, hi: float) -> None:
+    """The drift scan's size, bounded before it starts: a scan step finer than the bisection's
+    resolution finds nothing the bisection would not (and --steps 1e9 would scan for days); a
+    resolution below MIN_RESOLUTION_PPM, or below a float's spacing, never ends."""
+    if not (math.isfinite(resolution) and resolution >= MIN_RESOLUTION_PPM):
+        raise CliError(f"--resolution {resolution:g} ppm: must be at least {MIN_RESOLUTION_PPM:g} ppm")
+    most = max(1, int((hi - lo) / resolution))
+    if steps > most:
+        raise CliError(f"--steps {steps}: a scan step of {(hi - lo) / steps:.3g} ppm is finer than --resolution "
+                       f"{resolution:g} ppm; at most {most} steps over {lo:g}..{hi:g} ppm")
 
 
 def _run_bus_length(args: argparse.Namespace, sol: Solution) -> int:
@@ -88,6 +117,7 @@ def _run(args: argparse.Namespace) -> int:
             sol.bitrate_nominal, sol.sample_point_nominal,
         )
     lo, hi = args.drift_ppm
+    _check_scan(args.steps, args.resolution, lo, hi)
     res = max_drift(sol, lo, hi, steps=args.steps, resolution_ppm=args.resolution)
     if args.json:
         print(json.dumps(res.as_dict(), indent=2))
@@ -129,8 +159,10 @@ def register(subparsers: Any) -> None:
     add_timing_arguments(p)
     p.add_argument("--drift-ppm", type=_drift_range, default=(0.0, 20_000.0), help="range LOW..HIGH in ppm (0..20000)")
     p.add_argument("--samples", type=int, choices=(1, 3), default=1, help="samples per bit (1 or 3)")
-    p.add_argument("--steps", type=int, default=10, help="scan intervals before bisection (10)")
-    p.add_argument("--resolution", type=float, default=10.0, help="bisection resolution in ppm (10)")
+    p.add_argument("--steps", type=_count, default=10,
+                   help="scan intervals before bisection (10; at most (HIGH - LOW) / --resolution)")
+    p.add_argument("--resolution", type=float, default=10.0,
+                   help=f"bisection resolution in ppm (10; at least {MIN_RESOLUTION_PPM:g})")
     p.add_argument("--bus-length", type=_length,
                    help="instead of the drift scan: simulate the ACK round trip and arbitration at this bus "
                    "length (m) and report the largest length that works against the Prop_Seg formula")

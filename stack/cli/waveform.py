@@ -10,7 +10,9 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from stack.phy.waveform import (MAX_RENDER_SAMPLES, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
+from stack.cli import SAMPLE_POINT_HELP, format_id, parse_sample_point, plural
+from stack.cli.runs import check_output, writing
+from stack.phy.waveform import (MAX_RENDER_SAMPLES, BitReceiver, missing_input, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
                                  runs_to_raw, write_raw, write_vcd)
 
 __all__ = ["register"]
@@ -28,9 +30,9 @@ def _positive_float(text: str) -> float:
 
 
 def _format_table(recs: Sequence[RxRecord]) -> str:
-    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':3} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
+    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':4} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
     for r in recs:
-        ident = "-" if r.can_id is None else (f"{r.can_id:08X}" if r.extended else f"{r.can_id:03X}")
+        ident = "-" if r.can_id is None else format_id(r.can_id, r.extended)
         fmt = ("ext" if r.extended else "std") + ("R" if r.remote else "")
         dlc = "-" if r.dlc is None else str(r.dlc)
         data = "remote" if r.remote else r.data.hex(" ")
@@ -38,18 +40,21 @@ def _format_table(recs: Sequence[RxRecord]) -> str:
         ok = lambda b: "ok " if b else "ERR"  # noqa: E731
         crc_ok = ok(r.crc_ok) if r.crc is not None else " - "
         row = (
-            f"{r.t:12.6f}  {ident:>10}  {fmt:3} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
+            f"{r.t:12.6f}  {ident:>10}  {fmt:4} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
             f"{ok(r.form_ok)}  {'yes' if r.ack else 'no'}"
         )
         if r.error is not None:
             row += f"  {r.error}" + (" [error flag]" if r.error_flag else "")
         lines.append(row)
     good = sum(1 for r in recs if r.ok)
-    lines.append(f"{good} frames, {len(recs) - good} error records")
+    lines.append(f"{plural(good, 'frame')}, {plural(len(recs) - good, 'error record')}")
     return "\n".join(lines)
 
 
 def _cmd_decode(args: argparse.Namespace) -> int:
+    if args.samplerate:
+        # the options' own rules (samples a bit, sample point, SJW) before a large file is read
+        BitReceiver(args.bitrate, args.samplerate, sample_point=args.sample_point, sjw=args.sjw)
     recs = decode_file(
         args.file, args.bitrate, channel=args.channel, samplerate=args.samplerate,
         sample_point=args.sample_point, sjw=args.sjw, retry=not args.no_retry,
@@ -64,12 +69,14 @@ def _cmd_decode(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
+    target, option = (args.vcd, "--vcd") if args.vcd else (args.raw, "--raw")
+    check_output(target, option)
     src = Path(args.frames)
     if str(src) == "-":
         text = sys.stdin.read().splitlines()
     else:
         if not src.is_file():
-            raise ValueError(f"{src}: no such frames file")
+            raise ValueError(missing_input(src, "frames file"))
         try:
             text = src.read_text(encoding="utf-8").splitlines()
         except UnicodeDecodeError as exc:
@@ -85,16 +92,18 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if span * args.samplerate > MAX_RENDER_SAMPLES:
         raise ValueError(f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
                          f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)")
-    runs, _, _ = render_edges(
+    runs, total, _ = render_edges(
         frames, args.bitrate, args.samplerate, times=times, drift=args.drift, jitter=args.jitter, seed=args.seed
     )
     if args.vcd:
-        write_vcd(
+        writing(args.vcd, "--vcd", lambda: write_vcd(
             args.vcd, runs, args.samplerate, name=args.name,
             comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s, {args.samplerate:g} samples/s",
-        )
+        ))
     else:
-        write_raw(args.raw, runs_to_raw(runs, args.raw_bit))
+        writing(args.raw, "--raw", lambda: write_raw(args.raw, runs_to_raw(runs, args.raw_bit)))
+    print(f"render: {plural(len(frames), 'frame')}, {plural(total, 'sample')} "
+          f"({total / args.samplerate:.6g} s at {args.samplerate:g} samples/s) written to {target}")
     return 0
 
 
@@ -109,11 +118,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("file", help="sigrok session (.sr), VCD, or raw file of one byte per sample")
     p.add_argument("--bitrate", type=_positive_float, required=True, help="nominal bit rate, bit/s")
     p.add_argument("--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)")
-    p.add_argument("--sample-point", type=float, default=87.5, help="sample point, %% of the bit (default 87.5)")
+    p.add_argument("--sample-point", type=parse_sample_point, default=87.5, help=SAMPLE_POINT_HELP + "; default 87.5")
     p.add_argument("--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))")
     p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")
     p.add_argument("--no-retry", action="store_true", help="do not retry failed frames at other sample points")
-    p.add_argument("--json", action="store_true", help="one JSON object per frame per line")
+    p.add_argument("--json", action="store_true",
+                   help="one JSON object per frame per line (id as an integer; the table shows 0x-hex)")
     p.set_defaults(func=_cmd_decode)
 
     r = subparsers.add_parser(

@@ -20,7 +20,7 @@ on a tie the first found — the smallest prescaler (Linux >= 5.19; ``legacy`` f
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import can
@@ -53,6 +53,7 @@ __all__ = [
     "check_timing",
     "solve",
     "all_timings",
+    "longest_bus",
     "format_solution",
 ]
 
@@ -640,6 +641,68 @@ def _no_timing(clock: int, bitrate: int, rejected: dict[str, str]) -> BitTimingE
     raise AssertionError  # pragma: no cover
 
 
+def longest_bus(
+    clock: int,
+    bitrate: int,
+    sample_point: float | None = None,
+    limits: str | ControllerLimits = "sja1000",
+    sjw: int | None = None,
+    delays: BusDelays | None = None,
+    min_tolerance: float | None = None,
+    legacy: bool = False,
+) -> Solution | None:
+    """The timing `solve` finds for the longest bus it can find one for (its
+    ``max_bus_length`` is that length), with ``delays``' cable and node delays; None when there
+    is none even for a bus of 0 m.
+
+    Rule Prop_Seg >= 2 x (bus + transceiver + comparator delays): a longer bus only ever needs
+    a longer Prop_Seg, so the lengths `solve` succeeds for are an interval from 0 and bisection
+    finds its end; the timing found just inside it covers the longest bus exactly."""
+    base = delays or BusDelays()
+
+    def at(length: float) -> Solution | None:
+        _, best, _ = _candidates(clock, bitrate, sample_point, limits, sjw, replace(base, bus_length_m=length),
+                                 min_tolerance, legacy)
+        return best
+
+    best = at(0.0)
+    if best is None or math.isinf(best.max_bus_length):
+        return best
+    lo, hi = 0.0, best.max_bus_length * 2 + 1.0
+    while at(hi) is not None:  # a node delay of 0 and a long bit: the first guess may fit
+        lo, hi = hi, hi * 2
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        if at(mid) is None:
+            hi = mid
+        else:
+            lo = mid
+    return at(lo)
+
+
+def _no_timing_for_bus(clock: int, bitrate: int, delays: BusDelays | None, error: BitTimingError,
+                       **kw: Any) -> BitTimingError:
+    """When the bus length is what stops every timing, the message states the longest bus a
+    timing covers, instead of one candidate's negative Phase_Seg1."""
+    if error.rule != RULE_PROP_SEG or delays is None or delays.round_trip_ns <= 0:
+        return error
+    sol = longest_bus(clock, bitrate, delays=delays, **kw)
+    d = delays
+    if sol is None:
+        if d.node_delay_ns <= 0:
+            return error
+        return BitTimingError(
+            RULE_PROP_SEG,
+            f"no bit timing for {bitrate} bit/s with a {format_hz(clock)} clock: the node delays alone "
+            f"({d.node_delay_ns:g} ns one way, {2 * d.node_delay_ns:g} ns round trip) need a longer Prop_Seg "
+            "than any timing leaves, whatever the bus length")
+    return BitTimingError(
+        RULE_PROP_SEG,
+        f"no bit timing for {bitrate} bit/s with a {format_hz(clock)} clock covers a {d.bus_length_m:g} m bus: "
+        f"the longest is {sol.max_bus_length:.1f} m (brp {sol.brp}, prop_seg {sol.prop_seg} of tseg1 {sol.tseg1} tq "
+        f"of {sol.tq_ns:g} ns; cable {d.cable_delay_ns_per_m:g} ns/m, node delay {d.node_delay_ns:g} ns)")
+
+
 def solve(
     clock: int,
     bitrate: int,
@@ -659,7 +722,9 @@ def solve(
     Raises `BitTimingError` naming the rule when no timing passes."""
     _, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy)
     if best is None:
-        raise _no_timing(clock, bitrate, rejected)
+        raise _no_timing_for_bus(clock, bitrate, delays, _no_timing(clock, bitrate, rejected),
+                                 sample_point=sample_point, limits=limits, sjw=sjw,
+                                 min_tolerance=min_tolerance, legacy=legacy)
     return best
 
 
@@ -680,7 +745,9 @@ def all_timings(
     cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy,
                                         every_split=True)
     if best is None:
-        raise _no_timing(clock, bitrate, rejected)
+        raise _no_timing_for_bus(clock, bitrate, delays, _no_timing(clock, bitrate, rejected),
+                                 sample_point=sample_point, limits=limits, sjw=sjw,
+                                 min_tolerance=min_tolerance, legacy=legacy)
     seen: set[tuple[int, int, int]] = set()
     ranked: list[Solution] = []
     for c in sorted(cands, key=lambda c: (c.solution is not best, c.bitrate_error, c.sample_point_error, -c.solution.nbt)):

@@ -39,6 +39,7 @@ import math
 import random
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -66,6 +67,7 @@ __all__ = [
     "frames_from_jsonl",
     "record_to_json",
     "IDLE_BITS",
+    "missing_input",
 ]
 
 #: Recessive bits that make the bus idle for a receiver that has lost track of the traffic:
@@ -73,6 +75,10 @@ __all__ = [
 IDLE_BITS = 11
 
 MAX_RENDER_SAMPLES = 400_000_000  # a rendered waveform is built in memory: one byte a sample
+#: Longest bit, in samples, the receiver and the renderer accept: the two options are checked
+#: one by one (positive, finite), but their ratio can still overflow (1e300 samples/s at
+#: 1e-10 bit/s); a frame of bits this long would span 4.4e10 samples, far beyond any capture.
+MAX_SAMPLES_PER_BIT = 1e9
 _DOMINANT = b"\x00"
 _RECESSIVE = b"\x01"
 
@@ -171,7 +177,7 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
             raise ValueError(f"{path}: not a sigrok session file (zip without 'metadata')")
         cp = configparser.ConfigParser(interpolation=None)
         try:
-            cp.read_string(zf.read("metadata").decode("utf-8", "replace"))
+            cp.read_string(_read_member(zf, path, "metadata").decode("utf-8", "replace"))
         except configparser.Error as exc:
             first = str(exc).splitlines()[0]
             raise ValueError(f"{path}: sigrok metadata is not an ini file ({first})") from None
@@ -182,7 +188,6 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
         base = sec.get("capturefile", "logic-1")
         try:
             unitsize = int(sec.get("unitsize", "1"))
-            total = int(sec.get("total probes", "0"))
         except ValueError as exc:
             raise ValueError(f"{path}: sigrok metadata: {exc}") from None
         if not 1 <= unitsize <= 8:
@@ -190,12 +195,20 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
         if "samplerate" not in sec:
             raise ValueError(f"{path}: sigrok metadata gives no samplerate")
         rate = _parse_samplerate(sec["samplerate"])
+        # a sample of ``unitsize`` bytes holds 8 x unitsize channels: a probe numbered beyond
+        # that has no data in the file, and sizing the channel list by it would let one
+        # metadata line allocate gigabytes ('probe999999999')
+        width = 8 * unitsize
         probes: dict[int, str] = {}
         for key, value in sec.items():
             m = re.fullmatch(r"probe(\d+)", key)
             if m:
-                probes[int(m.group(1)) - 1] = value
-        width = max(total, max(probes, default=-1) + 1, 8 * unitsize)
+                num = int(m.group(1))
+                if not 1 <= num <= width:
+                    raise ValueError(
+                        f"{path}: sigrok metadata names {key!r}, but a sample of unitsize {unitsize} "
+                        f"holds {width} channels (probe1..probe{width})")
+                probes[num - 1] = value
         chan_names: list[Any] = [probes.get(i) for i in range(width)]
         bit = _select_channel(chan_names, channel, str(path))
         if base in names:
@@ -206,10 +219,20 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
             parts = [n for _, n in nums]
         if not parts:
             raise ValueError(f"{path}: sigrok session without sample data ('{base}' or '{base}-N')")
-        raw = b"".join(zf.read(p) for p in parts)
+        raw = b"".join(_read_member(zf, path, p) for p in parts)
     if unitsize > 1:
         raw = raw[bit // 8 :: unitsize]
     return Capture(raw.translate(_bit_table(bit % 8)), rate, chan_names[bit], str(path))
+
+
+def _read_member(zf: zipfile.ZipFile, path: Path, member: str) -> bytes:
+    """One member of a session archive; a damaged member (CRC mismatch, bad deflate data, cut
+    short) is a ValueError naming the file and the member, since the archive's directory being
+    intact says nothing about the data behind it."""
+    try:
+        return zf.read(member)
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as exc:
+        raise ValueError(f"{path}: sigrok session member {member!r} is damaged ({exc})") from None
 
 
 def read_raw(path: str | Path, samplerate: float | None, channel: str | int | None = None) -> Capture:
@@ -247,7 +270,24 @@ def read_raw(path: str | Path, samplerate: float | None, channel: str | int | No
 
 
 class _ChannelError(ValueError):
-    """A channel that is not in the file (raised through the VCD reader's error wrapping)."""
+    """A complete message about the file (a channel that is not in it, times that go
+    backwards), raised through the VCD reader's error wrapping unchanged."""
+
+
+def _approx(x: float | int | Fraction) -> str:
+    """A number for a message, 3 significant digits, also beyond the range of a float (a VCD
+    time is an integer of any size, its rate a fraction that may underflow)."""
+    q = Fraction(x)
+    if q == 0 or Fraction(1, 10**300) < abs(q) < 10**300:
+        return f"{float(q):.3g}"
+    return f"about 1e{len(str(abs(q.numerator))) - len(str(q.denominator))}"
+
+
+def _vcd_time(t: int) -> str:
+    """A VCD time stamp as written (#t), shortened when it has more digits than a message can
+    usefully show."""
+    digits = str(t)
+    return f"#{t}" if len(digits) <= 15 else f"#{digits[:6]}... ({len(digits)} digits)"
 
 
 _TS_EXP = {"s": 0, "ms": -3, "us": -6, "ns": -9, "ps": -12, "fs": -15}
@@ -276,13 +316,21 @@ def read_vcd(
     changes: list[tuple[int, int]] = []
     want: str | None = None
     now = 0
+    now_line = 0
     level = 1
     try:
         with open(path, "rb") as fh:
             for tok in tokenize(fh):
                 kind = tok.kind
                 if kind is TokenKind.CHANGE_TIME:
+                    # IEEE 1364 dumps times in increasing order; a reader that accepted a step
+                    # back would silently draw the changes after it at the wrong place
+                    if tok.data < now:
+                        raise _ChannelError(
+                            f"{path} line {tok.span.start.line}: time {_vcd_time(tok.data)} is earlier than {_vcd_time(now)} "
+                            f"(line {now_line}): VCD times must not decrease")
                     now = tok.data
+                    now_line = tok.span.start.line
                 elif kind is TokenKind.CHANGE_SCALAR:
                     if tok.data.id_code == want:
                         v = 0 if tok.data.value == "0" else 1
@@ -329,24 +377,37 @@ def read_vcd(
     if not changes:
         raise ValueError(f"{path}: signal {chan_name!r} has no value changes")
     end = max(now, changes[-1][0])
+    # exact arithmetic until the sample count is known to be sane: a change time of 1e309
+    # units is a valid VCD integer, but as a float its rate underflows to 0 (or its ratio to
+    # the bitrate overflows)
+    native: float | None = None
     if samplerate:
-        step = 1 / (Fraction(samplerate).limit_denominator(10**6) * timescale)
-        rate = float(samplerate)
+        rate_q = Fraction(samplerate).limit_denominator(10**6)
+        step = 1 / (rate_q * timescale)
     else:
         g = end
         for t, _ in changes:
             g = math.gcd(g, t)
         step = Fraction(g or 1)
-        rate = float(1 / (step * timescale))
-        native = rate
-        if bitrate and rate < 16 * bitrate:
+        rate_q = 1 / (step * timescale)
+        native_q = rate_q
+        if bitrate and rate_q < 16 * Fraction(bitrate):
             # an edge-exact signal stays exact at any integer multiple of its rate
-            k = math.ceil(16 * bitrate / rate)
+            k = math.ceil(16 * Fraction(bitrate) / rate_q)
             step /= k
-            rate *= k
+            rate_q *= k
     total = math.ceil(end / step)
     if total > 400_000_000:
-        raise ValueError(f"{path}: {total} samples at {rate:g} Hz is too many: give a lower --samplerate")
+        raise ValueError(
+            f"{path}: the signal runs to time {_vcd_time(end)} ({_approx(end * timescale)} s): {_approx(total)} samples at "
+            f"{_approx(rate_q)} Hz, more than 400,000,000 (cut the recording, or give a lower --samplerate)")
+    rate = float(rate_q)
+    if not 0 < rate < math.inf:
+        raise ValueError(
+            f"{path}: the change times give a sample period of {_approx(step * timescale)} s, "
+            f"{_approx(rate_q)} samples/s, which is no usable rate: give --samplerate")
+    if not samplerate:
+        native = float(native_q)
     parts: list[bytes] = []
     pos = 0
     level = 1  # before the first value change the bus counts as idle (recessive)
@@ -357,7 +418,21 @@ def read_vcd(
             pos = idx
         level = v
     parts.append((_RECESSIVE if level else _DOMINANT) * max(1, total - pos))
-    return Capture(b"".join(parts), rate, chan_name, str(path), None if samplerate else native)
+    return Capture(b"".join(parts), rate, chan_name, str(path), native)
+
+
+def missing_input(path: str | Path, what: str = "file") -> str:
+    """Why an input file cannot be opened, in words: a directory, a path through a file, or no
+    such file (the OS's own message says 'Not a directory' without saying which part)."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{p}: is a directory, not a {what}"
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        return f"{p}: {str(parent)!r} is a file, not a directory"
+    return f"{p}: no such {what}"
 
 
 def read_capture(
@@ -370,7 +445,7 @@ def read_capture(
     starts with a VCD keyword is VCD, anything else is raw samples (which need a samplerate)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"{path}: no such file")
+        raise ValueError(missing_input(path, "capture file"))
     with open(path, "rb") as fh:
         head = fh.read(4096)
     if head[:4] == b"PK\x03\x04":
@@ -420,6 +495,11 @@ def render_edges(
         raise ValueError(
             f"samplerate {samplerate:.10g} Hz gives {samplerate / bitrate:.9g} samples per bit at "
             f"{bitrate:.10g} bit/s: at least 2 are needed"
+        )
+    if not samplerate / bitrate <= MAX_SAMPLES_PER_BIT:
+        raise ValueError(
+            f"samplerate {samplerate:.10g} Hz gives {samplerate / bitrate:.3g} samples per bit at "
+            f"{bitrate:.10g} bit/s: at most {MAX_SAMPLES_PER_BIT:.0e} can be rendered (check the two rates)"
         )
     if not -0.2 < drift < 0.2:
         raise ValueError(f"drift {drift}: must be within +-0.2 (a fraction of the bit time)")
@@ -690,8 +770,13 @@ class BitReceiver:
                 f"bitrate {bitrate:.10g} bit/s with samplerate {samplerate:.10g} Hz gives {spb:.9g} samples "
                 "per bit: at least 2 are needed to decode"
             )
+        if not spb <= MAX_SAMPLES_PER_BIT:
+            raise ValueError(
+                f"bitrate {bitrate:.10g} bit/s with samplerate {samplerate:.10g} Hz gives {spb:.3g} samples "
+                f"per bit: at most {MAX_SAMPLES_PER_BIT:.0e} can be decoded (check the two rates)"
+            )
         if not 50 <= sample_point < 100:
-            raise ValueError(f"sample point {sample_point} %: must be 50 <= sample point < 100")
+            raise ValueError(f"sample point {sample_point:g} %: must be 50 <= sample point < 100")
         if not 8 <= tq_per_bit <= 25:
             raise ValueError(f"{tq_per_bit} time quanta per bit: a CAN bit time has 8..25")
         phase_seg2 = tq_per_bit * (100 - sample_point) / 100

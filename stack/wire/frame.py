@@ -81,9 +81,9 @@ class Frame:
             raise TypeError(f"identifier must be an int, got {can_id!r}")
         limit = EXTENDED_ID_MAX if extended else STANDARD_ID_MAX
         if not 0 <= can_id <= limit:
-            fmt = "extended (29-bit)" if extended else "standard (11-bit)"
+            fmt = "an extended (29-bit)" if extended else "a standard (11-bit)"
             raise ValueError(
-                f"identifier {_hex(can_id)} out of range for a {fmt} frame: must be 0..0x{limit:X}"
+                f"identifier {_hex(can_id)} out of range for {fmt} frame: must be 0..0x{limit:X}"
             )
         try:
             payload = bytes(data)
@@ -91,7 +91,7 @@ class Frame:
             raise ValueError(f"data {data!r} is not a sequence of bytes 0..255: {exc}") from None
         if remote and payload:
             raise ValueError(
-                f"a remote frame carries no data (got {len(payload)} bytes); "
+                f"a remote frame carries no data (got {len(payload)} byte{'s' if len(payload) != 1 else ''}); "
                 "give the requested length as dlc"
             )
         if len(payload) > 8:
