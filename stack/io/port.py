@@ -169,19 +169,32 @@ class Port:
         back, at run time, as a controller is re-initialised in the other mode: frames still
         queued are aborted when it goes listen-only (a frame already on the wire finishes);
         the mode applies from the next frame on the bus."""
+        sim = self.runner.sim
+
+        def abort_queued() -> None:
+            node = self.node
+            if self.closed or not node.listen_only:
+                return
+            on_wire = False
+            for req in node.pending():
+                if req.on_wire:
+                    on_wire = True
+                else:
+                    node.abort(req)
+            if on_wire:  # look again just after the bus's next event: the frame's end, at the latest
+                sim.call_at(sim.next_event_time() + 1, abort_queued)
+
         def switch() -> None:
             node = self.node
             if self.closed or node.listen_only == on:
                 return
-            sim = self.runner.sim
-            if on:
-                for req in node.pending():
-                    node.abort(req)
             # off the wire and back at the same instant: the bus re-reads the node's mode
             # (who acknowledges) through its public API; nothing is missed in between
             sim.disconnect(node)
             node.listen_only = on
             sim.reconnect(node)
+            if on:  # a frame on the wire that fails is not retransmitted: aborted at its end
+                abort_queued()
         if wait:
             self.runner.call(switch)
         else:

@@ -344,6 +344,19 @@ def test_going_passive_aborts_the_frames_still_queued():
         lone.shutdown()
 
 
+def test_going_passive_while_the_own_frame_is_on_the_wire_stops_its_retransmission():
+    lone = can.Bus(interface="canstack", channel=chan(), bitrate=1_000, flush_timeout=0)  # ~60 ms per attempt
+    try:
+        lone.send(msg(0x1, b""))
+        time.sleep(0.01)  # the first attempt is on the wire; nobody will acknowledge it
+        lone.state = can.BusState.PASSIVE
+        assert wait_for(lambda: lone.last_tx_error, "aborted", timeout=1.0) == "aborted"
+        time.sleep(0.15)  # two more attempts' time: none is made
+        assert lone.tec <= 8  # at most the one ACK error of the attempt already on the wire (rule 3)
+    finally:
+        lone.shutdown()
+
+
 def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(tmp_path, server):
     asc = tmp_path / "rec.asc"
     proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive",
