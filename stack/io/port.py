@@ -117,7 +117,9 @@ class Port:
             self.owner.tx_finished(None)
 
     def _on_txfailed(self, ev: TxFailed) -> None:
-        if ev.reason != "aborted" and not self.closed:  # a one-shot failure, not the host's abort
+        # a failed attempt (the engine's reasons end "(one-shot)"); not the host's abort nor a
+        # frame withdrawn at its latest start time: those never reached the wire
+        if ev.reason.endswith("(one-shot)") and not self.closed:
             self.owner.tx_error(ev.time, ev.reason, self.node.tec, self.node.rec)
         if ev.request in self._credit:
             self._credit.discard(ev.request)
