@@ -10,12 +10,36 @@ from stack.io.serve import BusServer
 
 __all__ = ["register"]
 
+DEFAULT_PORT = 29536
+
+DESCRIPTION = f"""\
+Run one simulated CAN bus paced to the wall clock and share it with other processes: each
+client is a node with its own controller; arbitration, ACK and timing happen here, so programs
+in several processes contend as on a real bus. Clients join with python-can:
+
+  can.Bus(interface="canstack", channel="tcp://127.0.0.1:{DEFAULT_PORT}/bus0")   (--listen)
+  can.Bus(interface="canstack", channel="unix:///path/to/socket/bus0")     (--unix /path/to/socket)
+
+A plain channel such as "bus0" is NOT this bus: it is a bus private to the process that opens
+it. Clients joining and leaving are logged (node name and peer). Stop with Ctrl-C.
+"""
+
 
 def _parse_listen(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not 0 <= int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"--listen {text!r}: expected HOST:PORT, e.g. 127.0.0.1:29536")
+        raise argparse.ArgumentTypeError(f"--listen {text!r}: expected HOST:PORT, e.g. 127.0.0.1:{DEFAULT_PORT}")
     return host.strip("[]") or "127.0.0.1", int(port)
+
+
+def _duration(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--duration {text!r}: expected seconds, e.g. 60") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"--duration {text!r}: must be more than 0 seconds")
+    return v
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -23,11 +47,11 @@ def _serve(args: argparse.Namespace) -> int:
 
     if args.listen and args.unix:
         raise CliError("canstack serve: give --listen or --unix, not both")
-    listen = args.listen if args.listen or args.unix else ("127.0.0.1", 29536)
+    listen = args.listen if args.listen or args.unix else ("127.0.0.1", DEFAULT_PORT)
     try:
         server = BusServer(args.bitrate, name=args.name, listen=listen, unix=args.unix,
                            allow_remote=args.allow_remote)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         raise CliError(f"canstack serve: {exc}") from None
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     print(f"serving {args.name} at {args.bitrate} bit/s on {server.url}", flush=True)
@@ -54,12 +78,23 @@ def register(sub: argparse._SubParsersAction) -> None:
             raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
         return v
 
-    p = sub.add_parser("serve", help="serve a simulated bus in real time to python-can clients")
-    p.add_argument("--bitrate", type=bitrate, default=500_000, help="bit/s (default 500000)")
+    p = sub.add_parser("serve", help="serve a simulated bus in real time to python-can clients in other processes",
+                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--bitrate", type=bitrate, default=500_000,
+                   help="the bus's bit rate in bit/s, 1000..1000000 (default 500000); a client that asks for "
+                        "another one is refused")
     p.add_argument("--listen", type=_parse_listen, metavar="HOST:PORT",
-                   help="TCP address (default 127.0.0.1:29536; port 0 picks a free one)")
-    p.add_argument("--unix", metavar="PATH", help="serve on a unix socket instead")
-    p.add_argument("--name", default="bus0", help="bus name clients give in the channel (default bus0)")
-    p.add_argument("--allow-remote", action="store_true", help="allow a non-loopback listen address")
-    p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
+                   help=f"serve over TCP at this address (default 127.0.0.1:{DEFAULT_PORT}; port 0 picks a free "
+                        "one, printed at start); clients use channel tcp://HOST:PORT/NAME")
+    p.add_argument("--unix", metavar="PATH",
+                   help="serve on a unix socket at this absolute path instead; clients use channel "
+                        "unix://PATH/NAME (a stale socket left there is replaced, nothing else is)")
+    p.add_argument("--name", default="bus0",
+                   help="the bus name clients give at the end of the channel (default bus0); 1..64 of "
+                        "A-Z a-z 0-9 _ . -")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="allow a --listen address other than loopback (the bus has no authentication: "
+                        "anyone who reaches the port can join and send)")
+    p.add_argument("--duration", type=_duration, default=None, metavar="SECONDS",
+                   help="stop after this many seconds (default: run until Ctrl-C)")
     p.set_defaults(func=_serve)

@@ -1,2 +1,4 @@
-"""Nodes and buses outside the process: the python-can driver, the python-can interface plugin
-with its real-time runner, and `canstack serve` (one simulated bus shared by processes)."""
+"""Nodes and buses outside the process: the python-can driver (`driver`), the python-can
+interface plugin (`pycan`) and `canstack serve` (`serve`: protocol, server, client), both built
+on a client's node on a real-time simulated bus (`port`, `runner`); `discovery` lets a process
+see the buses served on its machine."""

@@ -1,18 +1,24 @@
-"""The simulated bus as a python-can interface: ``can.Bus(interface="canstack", channel="bus0")``.
+"""The simulated bus as a python-can interface: ``can.Bus(interface="canstack", channel=...)``.
 
-Each `CanstackBus` is a node with its own software controller on a shared `SimBus` named by the
-channel. The `SimBus` runs in real time on one thread, the `RealTimeRunner`: virtual ns = wall ns
-since the bus started, so a frame arrives after its real wire time, contending frames are
-arbitrated bit by bit and acknowledged by the other nodes. All engine calls happen on the runner
-thread (the engine is not thread-safe); `CanstackBus` instances post commands to it through a
-deque and an event, and the runner hands received frames back through a queue per bus.
+Each `CanstackBus` is a node with its own software controller on a simulated bus that runs in
+real time (`stack.io.runner.RealTimeRunner`: virtual ns = wall ns since the bus started), so a
+frame arrives after its real wire time, contending frames are arbitrated bit by bit and
+acknowledged by the other nodes. The node's engine side is a `stack.io.port.Port` (in process)
+or a `stack.io.serve.RemotePort` (a served bus); this module is the python-can plugin only.
 
 Channel forms:
 
-- ``"bus0"`` — a bus in this process (created by the first Bus that names it, gone when the last
-  one shuts down);
+- ``"bus0"`` — a bus **private to this process** (created by the first Bus that names it, gone
+  when the last one shuts down). Another process that opens ``"bus0"`` gets a bus of its own and
+  sees nothing of this one. When a ``canstack serve`` runs on this machine, opening a plain-named
+  bus warns once per process (`PrivateBusWarning`) and names the served channel;
 - ``"tcp://127.0.0.1:PORT/bus0"`` and ``"unix:///path/to/socket/bus0"`` — a bus served by
-  ``canstack serve`` in another process (see `stack.serve`).
+  ``canstack serve``, shared by every process that connects to it (see `stack.io.serve`).
+
+python-can behaviour kept as on SocketCAN: ``shutdown()`` delivers what was sent (it waits for
+queued frames, see `CanstackBus`); a failed one-shot transmission arrives at the sender's
+``recv`` as an error frame with SocketCAN's error classes; ``bus.state = can.BusState.PASSIVE``
+makes the node listen-only at run time (``ACTIVE`` undoes it).
 
 The interface is registered under the python-can entry point group ``can.interface`` by the
 installed distribution; importing this module also registers it in python-can's table, so a
@@ -26,6 +32,8 @@ import os
 import queue
 import re
 import threading
+import time
+import warnings
 from typing import Any, Callable, Sequence
 
 import can
@@ -35,37 +43,40 @@ from can.broadcastmanager import (
     RestartableCyclicTaskABC,
 )
 
-from stack.controller.events import Received, TxDone, TxFailed
-from stack.wire.frame import Frame
-from stack.controller.node import ErrorState, Node, NodeError, QueueFull
+from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
+from stack.io.discovery import local_servers
+from stack.io.port import NODE_OPTIONS, Port, check_filters
 from stack.io.runner import (BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner,
                              running_buses)
+from stack.io.serve.client import RemotePort
+from stack.wire.frame import Frame
 
 __all__ = [
     "CanstackBus",
     "RealTimeRunner",
     "CanstackCyclicTask",
     "InvalidFrame",
+    "PrivateBusWarning",
     "register_interface",
     "running_buses",
     "frame_of",
+    "error_frame_of",
 ]
 
 LOG = logging.getLogger("stack.io.pycan")
 
-_STATE_MAP = {
-    ErrorState.ACTIVE: can.BusState.ACTIVE,
-    ErrorState.WARNING: can.BusState.ACTIVE,
-    ErrorState.PASSIVE: can.BusState.PASSIVE,
-    ErrorState.BUS_OFF: can.BusState.ERROR,
-}
-_NODE_OPTIONS = ("queue", "mailboxes", "abort", "tx_queue_size", "listen_only", "one_shot")
-_BOOL_OPTIONS = ("abort", "listen_only", "one_shot")
+_BOOL_OPTIONS = ("abort", "listen_only", "one_shot", "receive_own_messages", "ignore_rx_error_frames")
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
+_PASSED_TO_EVERY_INTERFACE = ("data_bitrate", "app_name", "serial", "poll_interval", "single_handle")
 
 
 class InvalidFrame(can.CanOperationError):
     """A message python-can accepts but CAN 2.0 does not (FD, more than 8 bytes, error frame)."""
+
+
+class PrivateBusWarning(UserWarning):
+    """A plain channel name opened a bus private to this process while a ``canstack serve`` runs
+    on this machine: the served bus may have been meant."""
 
 
 def register_interface() -> None:
@@ -115,121 +126,45 @@ def frame_of(msg: can.Message) -> Frame:
     return f
 
 
-# ---------------------------------------------------------------------------------- ports
-class _LocalPort:
-    """A `CanstackBus`'s node on an in-process real-time bus (engine side on the runner)."""
-
-    native_periodic = True
-
-    def __init__(self, owner: "CanstackBus", name: str, bitrate: int | None, node_name: str | None,
-                 config: dict[str, Any]) -> None:
-        self.owner = owner
-        self.runner = acquire_runner(name, bitrate)
-        self.bitrate = self.runner.bitrate
-        self.epoch0 = self.runner.epoch0
-        self.t0_ns = self.runner.t0_ns
-        self._credit_reqs: set[Any] = set()
-        self._tasks: set[Any] = set()
-        try:
-            self.node: Node = self.runner.call(lambda: self._attach(node_name, config))
-        except BaseException:
-            release_runner(self.runner)
-            raise
-        self.node_name = self.node.name
-
-    def _attach(self, node_name: str | None, config: dict[str, Any]) -> Node:
-        sim = self.runner.sim
-        if node_name is None:
-            node_name = sim.free_name("node")
-        elif node_name in {n.name for n in sim.nodes}:
-            raise can.CanInitializationError(f"a node named {node_name!r} is already on bus {sim.name!r}")
-        try:
-            node = sim.node(node_name, **config)
-        except (ValueError, TypeError) as exc:
-            raise can.CanInitializationError(f"canstack node options: {exc}") from None
-        self.node = node
-        node.subscribe(self._on_rx)
-        node.listen(TxDone, self._on_txdone)
-        node.listen(TxFailed, self._on_txfailed)
-        self.runner._ports.append(self)
-        return node
-
-    # runner-thread callbacks
-    def _on_rx(self, ev: Received) -> None:
-        self.owner._deliver(ev.time, ev.frame, True)
-
-    def _on_txdone(self, ev: TxDone) -> None:
-        if self.owner.receive_own_messages and self.node.acceptance.accepts(ev.frame):
-            self.owner._deliver(ev.time, ev.frame, False)
-        if ev.request in self._credit_reqs:
-            self._credit_reqs.discard(ev.request)
-            self.owner._tx_finished(None)
-
-    def _on_txfailed(self, ev: TxFailed) -> None:
-        if ev.request in self._credit_reqs:
-            self._credit_reqs.discard(ev.request)
-            self.owner._tx_finished(ev.reason)
-
-    def _mirror_state(self) -> None:
-        n = self.node
-        self.owner._set_state(n.state, n.tec, n.rec)
-
-    def _closed_by_runner(self, reason: str) -> None:
-        self.owner._port_lost(reason)
-
-    # caller-thread API
-    def send(self, frame: Frame) -> None:
-        """Queue ``frame`` on the node (on the runner thread)."""
-        def cmd() -> None:
-            try:
-                req = self.node.send(frame)
-            except (QueueFull, NodeError) as exc:
-                self.owner._tx_finished(str(exc))
-                return
-            if req.state == "queued":
-                self._credit_reqs.add(req)
-            else:
-                self.owner._tx_finished(None if req.state == "sent" else req.reason)
-        self.runner.post(cmd)
-
-    def set_filters(self, filters: Any) -> None:
-        """Set the node's acceptance filters (python-can format)."""
-        self.runner.call(lambda: self.node.set_filters(filters))
-
-    def start_periodic(self, make: Callable[[], Frame], period_ns: int, count: int | None) -> Any:
-        """Start a cyclic transmission on the simulation clock; returns its engine task."""
-        def start() -> Any:
-            t = self.node.send_periodic(make, period_ns, count=count)
-            self._tasks.add(t)
-            return t
-        return self.runner.call(start)
-
-    def stop_periodic(self, task: Any) -> None:
-        """Stop a cyclic transmission."""
-        def stop() -> None:
-            task.stop()
-            self._tasks.discard(task)
-        self.runner.post(stop)
-
-    def close(self) -> None:
-        """Leave the bus: the node is taken off the wire, its pending frames are dropped."""
-        def leave() -> None:
-            for t in list(self._tasks):
-                t.stop()
-            self._tasks.clear()
-            sim = self.runner.sim
-            for req in self.node.pending():
-                self.node.abort(req)
-            sim.disconnect(self.node)
-            if self in self.runner._ports:
-                self.runner._ports.remove(self)
-        try:
-            self.runner.call(leave, timeout=2.0)
-        except can.CanError:  # runner gone: nothing to leave
-            pass
-        release_runner(self.runner)
+# SocketCAN's error classes and details (linux/can/error.h), so that code written for SocketCAN
+# reads a failed one-shot transmission the same way here
+CAN_ERR_LOSTARB, CAN_ERR_PROT, CAN_ERR_ACK, CAN_ERR_BUSERROR, CAN_ERR_CNT = 0x002, 0x008, 0x020, 0x080, 0x200
+CAN_ERR_PROT_BIT, CAN_ERR_PROT_FORM, CAN_ERR_PROT_STUFF, CAN_ERR_PROT_TX = 0x01, 0x02, 0x04, 0x80
+CAN_ERR_PROT_LOC_CRC_SEQ, CAN_ERR_PROT_LOC_ACK = 0x08, 0x19
+_PROT_TYPE = {"bit": CAN_ERR_PROT_BIT, "form": CAN_ERR_PROT_FORM, "stuff": CAN_ERR_PROT_STUFF,
+              "stuff-arbitration": CAN_ERR_PROT_STUFF}
 
 
+def error_frame_of(reason: str, tec: int, rec: int, timestamp: float, channel: Any = None) -> can.Message:
+    """The error frame SocketCAN delivers for a failed transmission, from the engine's reason
+    ('arbitration lost (one-shot)', 'ack error (one-shot)', 'crc error (one-shot)', ...).
+
+    ``arbitration_id`` holds the error classes (as python-can shows a SocketCAN error frame):
+    CAN_ERR_LOSTARB (data[0] 0: bit unknown) for a lost arbitration; CAN_ERR_ACK with
+    CAN_ERR_PROT location ACK slot for a missing acknowledgement; CAN_ERR_PROT with the
+    protocol-violation type (bit, form, stuff; location CRC sequence for a CRC error) and
+    CAN_ERR_PROT_TX for other errors; always CAN_ERR_CNT with TEC in data[6] and REC in data[7].
+    """
+    data = bytearray(8)
+    kind = reason.split(" ", 1)[0].lower()
+    if reason.startswith("arbitration lost"):
+        classes = CAN_ERR_LOSTARB
+    elif kind == "ack":
+        classes = CAN_ERR_ACK | CAN_ERR_PROT | CAN_ERR_BUSERROR
+        data[2] = CAN_ERR_PROT_TX
+        data[3] = CAN_ERR_PROT_LOC_ACK
+    else:
+        classes = CAN_ERR_PROT | CAN_ERR_BUSERROR
+        data[2] = _PROT_TYPE.get(kind, 0) | CAN_ERR_PROT_TX
+        if kind == "crc":
+            data[3] = CAN_ERR_PROT_LOC_CRC_SEQ
+    data[6] = min(tec, 255)
+    data[7] = min(rec, 255)
+    return can.Message(timestamp=timestamp, arbitration_id=classes | CAN_ERR_CNT, is_extended_id=False,
+                       is_error_frame=True, dlc=8, data=bytes(data), channel=channel, check=False)
+
+
+# ---------------------------------------------------------------------------------- channels
 def _is_socket(path: str) -> bool:
     import stat
 
@@ -275,27 +210,202 @@ def _parse_channel(channel: Any) -> tuple[str, str, Any]:
         f"canstack channel {channel!r}: unknown form {scheme + '://'!r}; use a bus name, tcp:// or unix://")
 
 
+_warned_private = False
+_warn_lock = threading.Lock()
+
+
+def _warn_if_served(name: str) -> None:
+    """Warn once per process when a plain-named (private) bus opens while a `canstack serve`
+    runs on this machine: two processes on "bus0" silently see nothing of each other."""
+    global _warned_private
+    if _warned_private:
+        return
+    servers = local_servers()
+    if not servers:
+        return
+    with _warn_lock:
+        if _warned_private:
+            return
+        _warned_private = True
+    same = [s for s in servers if s["bus"] == name] or servers
+    url = same[0]["url"]
+    warnings.warn(
+        f"canstack channel {name!r} is a bus private to this process (other processes do not see it); "
+        f"canstack serve is running on this machine: to share its bus use channel={url!r}",
+        PrivateBusWarning, stacklevel=4)
+
+
+# ---------------------------------------------------------------------------------- the inbox
+class _Inbox:
+    """The python-can side of a port (a `stack.io.port.PortOwner`): received frames wait in a
+    queue for ``recv``, transmit credits in a counter, the node's state in attributes.
+
+    A credit is one frame in the controller's transmit queue: ``send`` takes one, the port's
+    ``tx_finished`` gives it back, so ``send`` waits for room as on a real controller, and
+    ``shutdown`` knows how many frames are still to go out.
+    """
+
+    def __init__(self, rx_fifo_size: int, credits: int, error_frames: bool) -> None:
+        self.rxq: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.rx_fifo_size = rx_fifo_size
+        self.rx_overruns = 0
+        self.error_frames = error_frames
+        self.state = ErrorState.ACTIVE
+        self.tec = 0
+        self.rec = 0
+        self.last_tx_error: str | None = None
+        self.lost_reason: str | None = None
+        self.size = credits
+        self.free = credits
+        self.cond = threading.Condition()
+
+    # PortOwner (runner or socket thread)
+    def deliver(self, t_ns: int, frame: Frame, is_rx: bool) -> None:
+        """Queue a received frame for ``recv`` (counted as an overrun when the FIFO is full)."""
+        if self.rxq.qsize() >= self.rx_fifo_size:
+            self.rx_overruns += 1
+            return
+        self.rxq.put((t_ns, frame, is_rx))
+
+    def tx_finished(self, error: str | None) -> None:
+        """Give a transmit credit back; remember why the frame was not sent, if it was not."""
+        if error is not None:
+            self.last_tx_error = error
+        with self.cond:
+            self.free += 1
+            self.cond.notify_all()
+
+    def tx_error(self, t_ns: int, reason: str, tec: int, rec: int) -> None:
+        """Queue the error frame of a failed one-shot transmission for ``recv``."""
+        self.last_tx_error = reason
+        if self.error_frames and self.rxq.qsize() < self.rx_fifo_size:
+            self.rxq.put((t_ns, None, (reason, tec, rec)))
+
+    def set_state(self, state: ErrorState, tec: int, rec: int) -> None:
+        """Mirror the node's fault-confinement state."""
+        self.state = state
+        self.tec = tec
+        self.rec = rec
+
+    def lost(self, reason: str) -> None:
+        """The bus is gone: wake ``recv``."""
+        self.lost_reason = reason
+        self.rxq.put(None)
+
+    # caller threads
+    def take(self, timeout: float | None) -> bool:
+        """Take a transmit credit, waiting up to ``timeout`` s (None: forever)."""
+        with self.cond:
+            if self.free > 0:
+                self.free -= 1
+                return True
+            if timeout is not None and timeout <= 0:
+                return False
+            if not self.cond.wait_for(lambda: self.free > 0, timeout):
+                return False
+            self.free -= 1
+            return True
+
+    def drain(self, can_drain: Callable[[], bool], timeout: float) -> int:
+        """Wait for every credit to come back, as long as frames keep going out: up to
+        ``timeout`` s for each next one, and only while ``can_drain()``. Returns the frames
+        still queued (0: all went out, or failed for reasons of their own)."""
+        last = -1
+        deadline = 0.0
+        while True:
+            # asked outside the lock: the answer comes from the runner thread, which needs the
+            # lock to give credits back
+            if not can_drain():
+                return self.size - self.free
+            with self.cond:
+                if self.free >= self.size:
+                    return 0
+                if self.free != last:  # progress: a frame completed
+                    last = self.free
+                    deadline = time.monotonic() + timeout
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return self.size - self.free
+                self.cond.wait(min(remaining, 0.05))
+                if self.free >= self.size:
+                    return 0
+
+
+def _config_value(key: str, value: Any) -> Any:
+    """python-can config files give every option as a string: read flags and counts."""
+    if not isinstance(value, str):
+        return value
+    if key in _BOOL_OPTIONS and value.lower() in _BOOL_WORDS:
+        return _BOOL_WORDS[value.lower()]
+    if key in ("mailboxes", "tx_queue_size", "rx_fifo_size") and value.strip().isdigit():
+        return int(value)
+    if key == "flush_timeout":
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
 # ---------------------------------------------------------------------------------- the bus
 class CanstackBus(can.BusABC):
     """A node with a software CAN controller on a canstack simulated bus (real time).
 
-    :param channel: bus name (``"bus0"``), ``"tcp://HOST:PORT/NAME"`` or ``"unix:///PATH/NAME"``.
+    :param channel: ``"bus0"`` (a bus private to this process), ``"tcp://HOST:PORT/NAME"`` or
+        ``"unix:///PATH/NAME"`` (a bus served by ``canstack serve``, shared between processes).
     :param bitrate: bit/s; the first node starts the bus at this rate (default 500000), later
         nodes must give the same or none. ``timing`` (a `can.BitTiming`) may be given instead.
     :param receive_own_messages: also receive the frames this node sent (``is_rx`` False).
     :param can_filters: python-can filters; applied by the node's acceptance filter.
     :param queue: transmit queue policy, 'priority' (default), 'fifo' or 'mailbox'.
-    :param mailboxes, abort: for the mailbox policy (see `stack.queues`).
+    :param mailboxes, abort: for the mailbox policy (see `stack.controller.queues`).
     :param tx_queue_size: frames the controller queues (default 1024); ``send`` waits for room.
     :param rx_fifo_size: received frames buffered until ``recv`` (default 65536); more are
         dropped and counted in ``rx_overruns``.
-    :param listen_only: no transmission and no ACK. :param one_shot: no retransmission.
-    :param node_name: the node's name on the bus (default ``nodeN``).
+    :param listen_only: no transmission and no ACK (``state`` PASSIVE; settable at run time).
+    :param one_shot: no retransmission; a failed frame arrives at ``recv`` as an error frame
+        (SocketCAN's classes, see `error_frame_of`) unless ``ignore_rx_error_frames``, and is
+        named in ``last_tx_error``.
+    :param flush_timeout: ``shutdown`` waits for queued frames to go out while they keep going
+        out: up to this many seconds for each next one (default 1.0; 0 drops them at once). It
+        stops early when no other node could acknowledge them.
+    :param node_name: the node's name on the bus (default ``nodeN``, or ``clientN`` served).
     """
 
     def __init__(self, channel: Any = "bus0", can_filters: Any = None, *, bitrate: int | None = None,
                  receive_own_messages: bool = False, rx_fifo_size: int = 65536,
-                 node_name: str | None = None, timing: Any = None, **kwargs: Any) -> None:
+                 node_name: str | None = None, timing: Any = None, flush_timeout: float = 1.0,
+                 ignore_rx_error_frames: bool = False, **kwargs: Any) -> None:
+        opts = {k: _config_value(k, v) for k, v in dict(
+            kwargs, receive_own_messages=receive_own_messages, rx_fifo_size=rx_fifo_size,
+            flush_timeout=flush_timeout, ignore_rx_error_frames=ignore_rx_error_frames).items()}
+        bitrate = self._check_bitrate(bitrate, timing)
+        config = self._check_options(opts)
+        try:
+            filters = check_filters(can_filters)
+        except ValueError as exc:
+            raise can.CanInitializationError(f"can_filters: {exc}") from None
+        kind, name, addr = _parse_channel(channel)
+        self.channel = channel
+        self.channel_info = f"canstack {channel}"
+        self.receive_own_messages = bool(opts["receive_own_messages"])
+        self.rx_fifo_size: int = opts["rx_fifo_size"]
+        self.flush_timeout: float = opts["flush_timeout"]
+        self._listen_only = bool(config.get("listen_only", False))
+        self._inbox = _Inbox(self.rx_fifo_size, config.get("tx_queue_size", 1024),
+                             error_frames=not opts["ignore_rx_error_frames"])
+        self._runner: RealTimeRunner | None = None
+        self._port: Any = self._open_port(kind, name, addr, bitrate, node_name, config)
+        self.bitrate = self._port.bitrate
+        self.node_name = self._port.node_name
+        try:
+            super().__init__(channel, can_filters=filters)
+        except BaseException:
+            self._leave()
+            raise
+
+    @staticmethod
+    def _check_bitrate(bitrate: Any, timing: Any) -> int | None:
         if timing is not None:
             if not isinstance(timing, can.BitTiming):
                 raise can.CanInitializationError(f"timing {timing!r}: only a classic can.BitTiming fits a CAN 2.0 bus")
@@ -305,76 +415,90 @@ class CanstackBus(can.BusABC):
         if bitrate is not None:
             if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
                 raise can.CanInitializationError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-        if kwargs.pop("fd", False):
+        return bitrate
+
+    @staticmethod
+    def _check_options(opts: dict[str, Any]) -> dict[str, Any]:
+        """The node options out of ``opts`` (python-can's generic ones dropped); the rest checked."""
+        if opts.pop("fd", False):
             raise can.CanInitializationError("fd=True: a canstack bus is CAN 2.0 (classic) only")
-        if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
-            raise can.CanInitializationError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
-        if kwargs.get("data_bitrate") is not None:
+        if opts.get("data_bitrate") is not None:
             raise can.CanInitializationError(
-                f"data_bitrate {kwargs['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase")
-        config = {k: kwargs.pop(k) for k in _NODE_OPTIONS if k in kwargs}
-        for k, v in list(config.items()):  # python-can config files give every option as a string
-            if isinstance(v, str) and k in _BOOL_OPTIONS and v.lower() in _BOOL_WORDS:
-                config[k] = _BOOL_WORDS[v.lower()]
-            elif isinstance(v, str) and k in ("mailboxes", "tx_queue_size") and v.strip().isdigit():
-                config[k] = int(v)
-        for k in list(kwargs):  # options python-can's config files pass to every interface
-            if k in ("data_bitrate", "app_name", "serial", "poll_interval", "single_handle"):
-                kwargs.pop(k)
-        if kwargs:
+                f"data_bitrate {opts['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase")
+        for k in _PASSED_TO_EVERY_INTERFACE:  # options python-can's config files pass to every interface
+            opts.pop(k, None)
+        config = {k: opts.pop(k) for k in NODE_OPTIONS if k in opts}
+        known = {"receive_own_messages", "rx_fifo_size", "flush_timeout", "ignore_rx_error_frames"}
+        unknown = sorted(set(opts) - known)
+        if unknown:
             raise can.CanInitializationError(
-                f"unknown canstack option(s) {sorted(kwargs)}: allowed are bitrate, receive_own_messages, "
-                f"rx_fifo_size, node_name, {', '.join(_NODE_OPTIONS)}")
-        kind, name, addr = _parse_channel(channel)
-        self.channel = channel
-        self.channel_info = f"canstack {channel}"
-        self.receive_own_messages = bool(receive_own_messages)
-        self.rx_fifo_size = rx_fifo_size
-        self.rx_overruns = 0
-        self._rxq: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._ns_state = ErrorState.ACTIVE
-        self.tec = 0
-        self.rec = 0
-        self.last_tx_error: str | None = None
-        self._closed_reason: str | None = None
-        self._listen_only = bool(config.get("listen_only", False))
+                f"unknown canstack option(s) {unknown}: allowed are bitrate, timing, node_name, "
+                f"{', '.join(sorted(known))}, {', '.join(NODE_OPTIONS)}")
+        fifo = opts["rx_fifo_size"]
+        if isinstance(fifo, bool) or not isinstance(fifo, int) or fifo < 1:
+            raise can.CanInitializationError(f"rx_fifo_size {fifo!r} must be a positive int")
         qsize = config.get("tx_queue_size", 1024)
         if isinstance(qsize, bool) or not isinstance(qsize, int) or qsize < 1:
             raise can.CanInitializationError(f"tx_queue_size {qsize!r} must be a positive int")
-        self._tx_queue_size = qsize
-        self._credits = threading.Semaphore(qsize)
-        config["receive_own_messages"] = False  # own frames come from TxDone (is_rx False)
-        config["rx_fifo_size"] = 1  # frames go to subscription callbacks, never the node's FIFO
-        if kind == "local":
-            self._port: Any = _LocalPort(self, name, bitrate, node_name, config)
-        else:
-            from stack.io.serve import RemotePort
+        ft = opts["flush_timeout"]
+        if isinstance(ft, bool) or not isinstance(ft, (int, float)) or not 0 <= ft <= 3600:
+            raise can.CanInitializationError(f"flush_timeout {ft!r} must be a number of seconds in 0..3600")
+        for k in ("receive_own_messages", "ignore_rx_error_frames"):
+            if not isinstance(opts[k], bool):
+                raise can.CanInitializationError(f"{k} {opts[k]!r} must be True or False")
+        return config
 
-            self._port = RemotePort(self, kind, addr, name, bitrate, node_name, config)
-        self.bitrate = self._port.bitrate
-        self.node_name = self._port.node_name
-        super().__init__(channel, can_filters=can_filters)
+    def _open_port(self, kind: str, name: str, addr: Any, bitrate: int | None, node_name: str | None,
+                   config: dict[str, Any]) -> Any:
+        if kind != "local":
+            return RemotePort(self._inbox, kind, addr, name, bitrate, node_name, config, channel=self.channel,
+                              receive_own_messages=self.receive_own_messages)
+        _warn_if_served(name)
+        runner = acquire_runner(name, bitrate)
+        try:
+            port = Port(runner, self._inbox, node_name=node_name, prefix="node", config=config,
+                        receive_own_messages=self.receive_own_messages)
+        except ValueError as exc:
+            release_runner(runner)
+            raise can.CanInitializationError(f"canstack {exc}" if str(exc).startswith("node options")
+                                             else str(exc)) from None
+        except BaseException:
+            release_runner(runner)
+            raise
+        self._runner = runner
+        return port
 
-    # -- engine side (runner or socket thread) -------------------------------------------
-    def _deliver(self, t_ns: int, frame: Frame, is_rx: bool) -> None:
-        if self._rxq.qsize() >= self.rx_fifo_size:
-            self.rx_overruns += 1
-            return
-        self._rxq.put((t_ns, frame, is_rx))
+    def _leave(self) -> None:
+        self._port.close()
+        if self._runner is not None:
+            release_runner(self._runner)
+        self._inbox.rxq.put(None)
 
-    def _tx_finished(self, error: str | None) -> None:
-        if error is not None:
-            self.last_tx_error = error
-        self._credits.release()
+    # -- state mirrored from the node -----------------------------------------------------
+    @property
+    def tec(self) -> int:
+        """The node's transmit error counter (as Linux's txerr)."""
+        return self._inbox.tec
 
-    def _set_state(self, state: ErrorState, tec: int, rec: int) -> None:
-        self._ns_state = state
-        self.tec = tec
-        self.rec = rec
+    @property
+    def rec(self) -> int:
+        """The node's receive error counter (as Linux's rxerr)."""
+        return self._inbox.rec
 
-    def _port_lost(self, reason: str) -> None:
-        self._closed_reason = reason
-        self._rxq.put(None)
+    @property
+    def rx_overruns(self) -> int:
+        """Frames dropped because ``rx_fifo_size`` frames were waiting for ``recv``."""
+        return self._inbox.rx_overruns
+
+    @property
+    def last_tx_error(self) -> str | None:
+        """Why the last frame that was not sent was not (None until one failed)."""
+        return self._inbox.last_tx_error
+
+    @property
+    def error_state(self) -> ErrorState:
+        """The node's fault-confinement state (error-active, -warning, -passive, bus-off)."""
+        return self._inbox.state
 
     # -- python-can API ----------------------------------------------------------------
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -383,81 +507,95 @@ class CanstackBus(can.BusABC):
         `can.CanOperationError` when shut down, listen-only, bus off or the queue stays full."""
         if self._is_shutdown:
             raise can.CanOperationError(f"canstack bus {self.channel!r} is shut down: cannot send")
-        if self._closed_reason is not None:
-            raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {self._closed_reason}")
+        inbox = self._inbox
+        if inbox.lost_reason is not None:
+            raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
         frame = frame_of(msg)
         if self._listen_only:
-            raise can.CanOperationError("the node is listen-only: it cannot transmit")
-        if self._ns_state is ErrorState.BUS_OFF:
+            raise can.CanOperationError("the node is listen-only (BusState.PASSIVE): it cannot transmit")
+        if inbox.state is BUS_OFF:
             raise can.CanOperationError(
-                f"the node is bus off (TEC {self.tec}): it cannot transmit until it recovers")
-        if timeout is None:
-            ok = self._credits.acquire()
-        elif timeout <= 0:
-            ok = self._credits.acquire(blocking=False)
-        else:
-            ok = self._credits.acquire(timeout=timeout)
-        if not ok:
+                f"the node is bus off (TEC {inbox.tec}): it cannot transmit until it recovers")
+        if not inbox.take(timeout):
             raise can.CanOperationError(
-                f"transmit queue full ({self._tx_queue_size} frames) for {timeout} s: the bus is busier than "
+                f"transmit queue full ({inbox.size} frames) for {timeout} s: the bus is busier than "
                 "this node's traffic allows")
         self._port.send(frame)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         # after shutdown recv returns None (a Notifier thread still polling while its bus is
         # shut down, as cantools' Tester does at teardown, must not die with an exception)
+        inbox = self._inbox
         try:
-            item = self._rxq.get(timeout=timeout) if timeout is None or timeout > 0 else self._rxq.get_nowait()
+            item = inbox.rxq.get(timeout=timeout) if timeout is None or timeout > 0 else inbox.rxq.get_nowait()
         except queue.Empty:
             return None, True
         if item is None:
-            if self._closed_reason is not None:
-                raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {self._closed_reason}")
+            if inbox.lost_reason is not None:
+                raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
             return None, True
-        t_ns, frame, is_rx = item
-        msg = frame.to_message(timestamp=self._port.epoch0 + t_ns / 1e9, channel=self.channel)
-        msg.is_rx = is_rx
+        t_ns, frame, extra = item
+        timestamp = self._port.epoch0 + t_ns / 1e9
+        if frame is None:  # a failed one-shot transmission
+            return error_frame_of(*extra, timestamp=timestamp, channel=self.channel), True
+        msg = frame.to_message(timestamp=timestamp, channel=self.channel)
+        msg.is_rx = extra
         return msg, True
 
     def _apply_filters(self, filters: Any) -> None:
-        from stack.controller.filters import validate_filters
-
         try:
-            validate_filters(filters)
+            checked = check_filters(filters)
         except ValueError as exc:
             raise can.CanInitializationError(f"filters: {exc}") from None
-        self._port.set_filters(list(filters) if filters else None)
+        self._port.set_filters(checked)
 
     @property
     def state(self) -> can.BusState:
-        """ACTIVE (error active or warning), PASSIVE (error passive) or ERROR (bus off)."""
-        return _STATE_MAP[self._ns_state]
+        """ERROR when bus off; PASSIVE when listen-only or error passive; else ACTIVE."""
+        st = self._inbox.state
+        if st is BUS_OFF:
+            return can.BusState.ERROR
+        if self._listen_only or st is PASSIVE:
+            return can.BusState.PASSIVE
+        return can.BusState.ACTIVE
 
     @state.setter
     def state(self, new_state: can.BusState) -> None:
-        if new_state is not can.BusState.ACTIVE or self._listen_only:
-            raise NotImplementedError("a canstack node's mode is chosen when it is created (listen_only=True)")
-
-    @property
-    def error_state(self) -> ErrorState:
-        """The node's fault-confinement state (error-active, -warning, -passive, bus-off)."""
-        return self._ns_state
+        """PASSIVE makes the node listen-only (no ACK, no transmission; frames still queued are
+        aborted), ACTIVE makes it a normal node again; both apply at run time, from the next frame
+        on the bus. ERROR (bus off) is the controller's to reach, not the host's to set."""
+        if new_state not in (can.BusState.ACTIVE, can.BusState.PASSIVE):
+            raise can.CanOperationError(
+                f"bus state {new_state!r} cannot be set: use BusState.ACTIVE (normal) or BusState.PASSIVE "
+                "(listen-only); bus off is reached by fault confinement only")
+        if self._is_shutdown:
+            raise can.CanOperationError(f"canstack bus {self.channel!r} is shut down")
+        on = new_state is can.BusState.PASSIVE
+        self._port.set_listen_only(on)
+        self._listen_only = on
 
     def _send_periodic_internal(self, msgs: Sequence[can.Message] | can.Message, period: float,
                                 duration: float | None = None, autostart: bool = True,
                                 modifier_callback: Callable[[can.Message], None] | None = None,
                                 ) -> can.broadcastmanager.CyclicSendTaskABC:
-        if not getattr(self._port, "native_periodic", False):
+        if not getattr(self._port, "native_periodic", True):
             return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
         return CanstackCyclicTask(self, msgs, period, duration, autostart, modifier_callback)
 
     def shutdown(self) -> None:
-        """Leave the bus (the node goes off the wire) and stop periodic tasks."""
+        """Stop periodic tasks, let the frames still queued go out (see ``flush_timeout``), then
+        leave the bus: the node is removed and its name is free again."""
         if self._is_shutdown:
             return
         super().shutdown()
-        self._port.close()
-        self._rxq.put(None)
+        inbox = self._inbox
+        left = inbox.size - inbox.free
+        if left and inbox.lost_reason is None and self.flush_timeout > 0:
+            left = inbox.drain(self._port.can_drain, self.flush_timeout)
+        if left:
+            LOG.warning("canstack bus %r: %d queued frame(s) dropped at shutdown (%s)", self.channel, left,
+                        "not acknowledged or not sent in time" if self.flush_timeout > 0 else "flush_timeout=0")
+        self._leave()
 
     @staticmethod
     def _detect_available_configs() -> list[can.typechecking.AutoDetectedConfig]:

@@ -14,7 +14,8 @@ import can
 
 from stack.bus.sim import SimBus
 
-__all__ = ["RealTimeRunner", "acquire_runner", "release_runner", "running_buses", "BUS_NAME_RE", "DEFAULT_BITRATE"]
+__all__ = ["RealTimeRunner", "acquire_runner", "release_runner", "running_buses", "get_runner", "BUS_NAME_RE",
+           "DEFAULT_BITRATE"]
 
 LOG = logging.getLogger("stack.io.runner")
 
@@ -27,8 +28,12 @@ class RealTimeRunner:
     """A `SimBus` paced to the wall clock on its own thread.
 
     The loop advances the engine to the wall clock (``bus.run(until=wall_ns)``), runs the
-    commands posted by other threads, lets arbitration that became due start, and sleeps until
-    the engine's next event (``bus.next_event_time()``) or until a command wakes it.
+    commands posted by other threads, lets arbitration that became due start, lets each attached
+    port mirror its node's error state, and sleeps until the engine's next event
+    (``bus.next_event_time()``) or until a command wakes it.
+
+    A port (`stack.io.port.Port`) is anything with ``mirror_state()`` (called on the runner
+    thread after each step) and ``closed_by_runner(reason)`` (called if the engine fails).
     """
 
     def __init__(self, name: str, bitrate: int) -> None:
@@ -75,6 +80,16 @@ class RealTimeRunner:
             raise box[1]
         return box[0]
 
+    def add_port(self, port: Any) -> None:
+        """Have ``port`` mirror its node's state after each step (runner thread only)."""
+        # the list is replaced, never changed in place: a port may leave from inside the loop
+        # that walks it (a session closed from its own state callback)
+        self._ports = [*self._ports, port]
+
+    def remove_port(self, port: Any) -> None:
+        """Stop mirroring ``port`` (runner thread only; a port not attached is ignored)."""
+        self._ports = [p for p in self._ports if p is not port]
+
     def stop(self) -> None:
         """End the loop after the commands already posted."""
         self._stop = True
@@ -106,7 +121,7 @@ class RealTimeRunner:
                             LOG.exception("canstack bus %r: command failed", self.name)
                     sim.run(until=sim.now())  # arbitration that became due now
                 for p in self._ports:
-                    p._mirror_state()
+                    p.mirror_state()
                 if self._stop and not cmds:
                     break
                 nxt = sim.next_event_time()
@@ -117,7 +132,7 @@ class RealTimeRunner:
         except Exception:  # pragma: no cover - an engine failure is logged, the buses see shutdown
             LOG.exception("canstack bus %r: engine failure, the bus stops", self.name)
             for p in list(self._ports):
-                p._closed_by_runner("engine failure (see log)")
+                p.closed_by_runner("engine failure (see log)")
 
 
 _REGISTRY: dict[str, tuple[RealTimeRunner, int]] = {}
@@ -130,7 +145,19 @@ def running_buses() -> dict[str, int]:
         return {name: r.bitrate for name, (r, _) in _REGISTRY.items()}
 
 
+def get_runner(name: str) -> RealTimeRunner | None:
+    """The runner of the in-process bus ``name``, or None when no such bus runs."""
+    with _REGISTRY_LOCK:
+        entry = _REGISTRY.get(name)
+        return entry[0] if entry is not None else None
+
+
 def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
+    """The in-process bus ``name``, started at ``bitrate`` (default 500000) by its first user.
+
+    Each call takes a reference that `release_runner` gives back; the bus stops when the last
+    one is released. `can.CanInitializationError` when the bus runs at another bitrate.
+    """
     with _REGISTRY_LOCK:
         entry = _REGISTRY.get(name)
         if entry is not None:
@@ -150,6 +177,7 @@ def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
 
 
 def release_runner(runner: RealTimeRunner) -> None:
+    """Give back a reference taken by `acquire_runner`; the last one stops the bus."""
     with _REGISTRY_LOCK:
         entry = _REGISTRY.get(runner.name)
         if entry is None or entry[0] is not runner:

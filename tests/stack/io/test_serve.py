@@ -3,6 +3,7 @@ against dying and hostile clients, loopback-only by default."""
 
 import argparse
 import json
+import logging
 import os
 import signal
 import socket
@@ -284,3 +285,60 @@ def test_unix_channel_naming_the_socket_itself_says_to_add_the_bus_name(tmp_path
     with BusServer(500_000, unix=path, name="body"):
         with pytest.raises(can.CanInitializationError, match=r"is the socket itself; add the bus name"):
             can.Bus(interface="canstack", channel=f"unix://{path}")
+
+
+# ---------------------------------------------------------------------------- the command line
+def _cli(*args, timeout=20):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "stack.cli", "serve", *args], capture_output=True, text=True,
+                          env=env, timeout=timeout)
+
+
+def test_serve_help_describes_every_option_and_the_client_channels():
+    sub = argparse.ArgumentParser().add_subparsers()
+    register(sub)
+    serve = sub.choices["serve"]
+    helps = {a.dest: a.help for a in serve._actions if a.dest != "help"}
+    assert set(helps) == {"bitrate", "listen", "unix", "name", "allow_remote", "duration"}
+    assert all(h and h != argparse.SUPPRESS for h in helps.values()), helps
+    text = serve.format_help()
+    assert "tcp://127.0.0.1:29536/bus0" in text and "unix:///path/to/socket/bus0" in text
+    assert "private to the process" in text
+
+
+def test_serve_on_an_address_in_use_says_which_and_what_to_do():
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    port = busy.getsockname()[1]
+    try:
+        res = _cli("--listen", f"127.0.0.1:{port}")
+    finally:
+        busy.close()
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr and "[Errno" not in lines[0]
+    assert f"127.0.0.1:{port} is already in use" in lines[0] and "--listen HOST:0" in lines[0]
+
+
+def test_serve_on_a_unix_path_in_a_missing_directory_names_it(tmp_path):
+    path = tmp_path / "no-such-dir" / "bus.sock"
+    res = _cli("--unix", str(path))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr and "[Errno" not in lines[0]
+    assert str(path) in lines[0] and "does not exist" in lines[0]
+
+
+def test_clients_joining_and_leaving_are_logged_with_node_and_peer(server, caplog):
+    with caplog.at_level(logging.INFO, logger="stack.io.serve"):
+        bus = can.Bus(interface="canstack", channel=server.url, node_name="dash")
+        [peer] = [s.peer for s in server.sessions]
+        assert peer.startswith("127.0.0.1:")
+        bus.shutdown()
+        end = time.monotonic() + 2.0
+        while not any("left" in r.getMessage() for r in caplog.records) and time.monotonic() < end:
+            time.sleep(0.02)
+    lines = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+    assert f"client {peer} joined bus 'bus0' as node 'dash'" in lines
+    assert f"client {peer} (node 'dash') left bus 'bus0': said BYE" in lines

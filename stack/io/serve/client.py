@@ -1,0 +1,147 @@
+"""The client side of `canstack serve`: `RemotePort`, a `CanstackBus`'s connection to a served
+bus. It speaks `stack.io.serve.protocol` and reports to its owner exactly as an in-process
+`stack.io.port.Port` does (`stack.io.port.PortOwner`), so `CanstackBus` cannot tell them apart
+except that periodic tasks run on python-can's threads (``native_periodic`` False).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from typing import Any, Mapping
+
+import can
+
+from stack.io.port import PortOwner
+from stack.io.serve import protocol as P
+from stack.wire.frame import Frame
+
+__all__ = ["RemotePort"]
+
+LOG = logging.getLogger("stack.io.serve")
+
+
+class RemotePort:
+    """The connection of ``owner`` to the bus ``name`` served at ``addr``: ``kind`` 'tcp' with
+    ``(host, port)`` or 'unix' with a socket path. `can.CanInitializationError` names the
+    channel when the server cannot be reached or refuses the HELLO (with its reason)."""
+
+    native_periodic = False
+
+    def __init__(self, owner: PortOwner, kind: str, addr: Any, name: str, bitrate: int | None,
+                 node_name: str | None, config: Mapping[str, Any], *, channel: str = "",
+                 receive_own_messages: bool = False) -> None:
+        self.owner = owner
+        where = channel or str(addr)
+        try:
+            if kind == "tcp":
+                self.sock = socket.create_connection(addr, timeout=5.0)
+                self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            else:
+                self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                self.sock.settimeout(5.0)
+                self.sock.connect(addr)
+        except OSError as exc:
+            what = "nothing listens there" if isinstance(exc, (ConnectionRefusedError, FileNotFoundError)) \
+                else (exc.strerror or str(exc))
+            raise can.CanInitializationError(
+                f"cannot reach a canstack server at {where}: {what} (is `canstack serve` running there?)") from None
+        self._wlock = threading.Lock()
+        self._reader = P.Reader()
+        self._pending: list[tuple[int, bytes]] = []
+        self._closing = False
+        try:
+            self._write(P.encode_hello(name, bitrate, node_name, dict(config), receive_own_messages))
+            self.bitrate, self.node_name, self.epoch0 = P.parse_welcome(self._await_welcome())
+        except (OSError, ValueError) as exc:
+            self.sock.close()
+            raise can.CanInitializationError(f"canstack server at {where}: {exc}") from None
+        self.sock.settimeout(None)
+        self._thread = threading.Thread(target=self._read_loop, name="canstack-client", daemon=True)
+        self._thread.start()
+
+    def _write(self, data: bytes) -> None:
+        with self._wlock:
+            self.sock.sendall(data)
+
+    def _await_welcome(self) -> bytes:
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            data = self.sock.recv(65536)
+            if not data:
+                raise ValueError("the server closed the connection")
+            for mtype, payload in self._reader.feed(data):
+                if mtype == P.ERROR:
+                    raise ValueError(payload.decode(errors="replace"))
+                if mtype == P.WELCOME:
+                    return payload
+                self._pending.append((mtype, payload))
+        raise ValueError("no answer to HELLO within 5 s")
+
+    def _read_loop(self) -> None:
+        owner = self.owner
+        deliver = owner.deliver
+        rx = P.RxDecoder().decode
+        reason = "the server closed the connection"
+        try:
+            msgs = self._pending
+            while True:
+                for mtype, payload in msgs:
+                    if mtype == P.RX:
+                        deliver(*rx(payload))
+                    elif mtype == P.TXEND:
+                        owner.tx_finished(P.decode_txend(payload))
+                    elif mtype == P.STATE:
+                        owner.set_state(*P.decode_state(payload))
+                    elif mtype == P.TXERROR:
+                        owner.tx_error(*P.decode_tx_error(payload))
+                    elif mtype == P.ERROR:
+                        LOG.warning("canstack server: %s", payload.decode(errors="replace"))
+                    # other types: from a newer server, ignored
+                data = self.sock.recv(262144)
+                if not data:
+                    break
+                msgs = self._reader.feed(data)
+        except (OSError, ValueError) as exc:
+            reason = f"connection lost: {exc}"
+        if not self._closing:
+            owner.lost(reason)
+
+    def _send_message(self, data: bytes) -> None:
+        try:
+            self._write(data)
+        except OSError as exc:
+            raise can.CanOperationError(f"canstack server connection lost: {exc}") from None
+
+    def send(self, frame: Frame) -> None:
+        """Send a frame to the server's node queue (TXEND reports its end)."""
+        try:
+            self._write(P.encode_send(frame))
+        except OSError as exc:
+            self.owner.tx_finished(str(exc))
+            raise can.CanOperationError(f"canstack server connection lost: {exc}") from None
+
+    def set_filters(self, filters: list[Mapping[str, Any]] | None) -> None:
+        """Set the node's acceptance filters on the server (checked before)."""
+        self._send_message(P.json_message(P.FILTERS, filters))
+
+    def set_listen_only(self, on: bool) -> None:
+        """Switch the node to listen-only or back (see `stack.io.port.Port.set_listen_only`)."""
+        self._send_message(P.encode_mode(on))
+
+    def can_drain(self) -> bool:
+        """Whether queued frames can still go out: the server decides; True while connected."""
+        return not self._closing and self._thread.is_alive()
+
+    def close(self) -> None:
+        """Say BYE and close the connection."""
+        self._closing = True
+        try:
+            self._write(P.encode_message(P.BYE))
+            self.sock.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass
+        self._thread.join(2.0)
+        self.sock.close()

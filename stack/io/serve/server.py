@@ -1,0 +1,430 @@
+"""The server side of `canstack serve`: `BusServer` accepts clients, one `_Session` per client.
+
+A session is the socket half of a client only: it reads and checks protocol messages
+(`stack.io.serve.protocol`) and writes the answers; the client's node, its credits, its error
+state and its leaving the bus are a `stack.io.port.Port`, the same class the in-process
+interface uses.
+
+Robustness: a malformed message is answered with ERROR (or TXEND not ok for a bad SEND) and
+logged; framing errors and a missing HELLO close that connection only. A client that dies leaves
+the bus (its node is removed and its name is free again); the others keep every frame, exactly
+once, in order. A client that stops reading is disconnected once `MAX_BACKLOG` messages wait
+for it. Clients joining and leaving are logged at INFO with their node name and peer.
+"""
+
+from __future__ import annotations
+
+import errno
+import ipaddress
+import logging
+import os
+import queue
+import socket
+import struct
+import threading
+from itertools import count
+from typing import Any
+
+import can
+
+from stack.controller.confinement import ErrorState
+from stack.io.discovery import Announcement
+from stack.io.port import Port, check_filters
+from stack.io.runner import BUS_NAME_RE, RealTimeRunner
+from stack.io.serve import protocol as P
+from stack.wire.frame import Frame
+
+__all__ = ["BusServer", "MAX_BACKLOG", "HELLO_TIMEOUT_S"]
+
+LOG = logging.getLogger("stack.io.serve")
+
+MAX_BACKLOG = 200_000
+HELLO_TIMEOUT_S = 5.0
+_unix_peers = count(1)
+
+
+class _Session:
+    """One connected client: a reader thread, a writer thread and, once joined, its `Port`."""
+
+    def __init__(self, server: "BusServer", sock: socket.socket, peer: str) -> None:
+        self.server = server
+        self.sock = sock
+        self.peer = peer
+        self.port: Port | None = None
+        self.out: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self.closed = threading.Event()
+        self._closing = False
+        self._close_lock = threading.Lock()
+        self.rejected = 0
+        threading.Thread(target=self._read_loop, name=f"serve-rd-{peer}", daemon=True).start()
+        threading.Thread(target=self._write_loop, name=f"serve-wr-{peer}", daemon=True).start()
+
+    @property
+    def node_name(self) -> str | None:
+        """The client's node on the bus (None before it joined)."""
+        return self.port.node_name if self.port is not None else None
+
+    # -- output -------------------------------------------------------------------------
+    def push(self, data: bytes) -> None:
+        """Queue ``data`` for the client (dropped once closed; a client that does not read is
+        disconnected at `MAX_BACKLOG` waiting messages)."""
+        if self.closed.is_set():
+            return
+        if self.out.qsize() > MAX_BACKLOG:
+            LOG.warning("client %s does not read (%d messages waiting): disconnected", self.peer, MAX_BACKLOG)
+            self.close(f"did not read ({MAX_BACKLOG} messages waiting)")
+            return
+        self.out.put(data)
+
+    def _write_loop(self) -> None:
+        out = self.out
+        try:
+            while True:
+                item = out.get()
+                if item is None:
+                    break
+                chunks = [item]
+                size = len(item)
+                while size < 65536:  # one sendall for what is waiting: fewer system calls
+                    try:
+                        nxt = out.get_nowait()
+                    except queue.Empty:
+                        break
+                    if nxt is None:
+                        self.sock.sendall(b"".join(chunks))
+                        return
+                    chunks.append(nxt)
+                    size += len(nxt)
+                self.sock.sendall(b"".join(chunks))
+        except OSError as exc:
+            self.close(f"connection error: {exc}")
+        finally:
+            self.close("connection closed")
+            try:
+                self.sock.close()
+            except OSError:
+                pass
+
+    # -- PortOwner: the runner thread reports here ----------------------------------------
+    def deliver(self, t_ns: int, frame: Frame, is_rx: bool) -> None:
+        """A frame for the client (RX)."""
+        self.push(P.encode_rx(t_ns, frame, not is_rx))
+
+    def tx_finished(self, error: str | None) -> None:
+        """One SEND done (TXEND)."""
+        self.push(P.encode_txend(error))
+
+    def tx_error(self, t_ns: int, reason: str, tec: int, rec: int) -> None:
+        """A one-shot transmission failed (TXERROR)."""
+        self.push(P.encode_tx_error(t_ns, reason, tec, rec))
+
+    def set_state(self, state: ErrorState, tec: int, rec: int) -> None:
+        """The node's error state changed (STATE)."""
+        self.push(P.encode_state(state, tec, rec))
+
+    def lost(self, reason: str) -> None:
+        """The bus stopped: tell the client and close."""
+        self.push(P.encode_message(P.ERROR, reason.encode()))
+        self.close(f"bus stopped: {reason}")
+
+    # -- input ----------------------------------------------------------------------------
+    def _reject(self, reason: str, fatal: bool = False) -> None:
+        self.rejected += 1
+        self.server.rejected += 1
+        LOG.warning("client %s: %s%s", self.peer, reason, " (disconnected)" if fatal else "")
+        self.push(P.encode_message(P.ERROR, reason.encode()[:P.MAX_MESSAGE - 1]))
+        if fatal:
+            self.out.put(None)
+            self.closed.set()
+
+    def _read_loop(self) -> None:
+        reader = P.Reader()
+        sock = self.sock
+        reason = "closed the connection"
+        try:
+            sock.settimeout(HELLO_TIMEOUT_S)
+            while not self.closed.is_set():
+                try:
+                    data = sock.recv(65536)
+                except socket.timeout:
+                    if self.port is None:
+                        self._reject(f"no HELLO within {HELLO_TIMEOUT_S} s", fatal=True)
+                        return
+                    continue
+                if not data:
+                    return
+                try:
+                    msgs = reader.feed(data)
+                except ValueError as exc:
+                    self._reject(f"framing error: {exc}", fatal=True)
+                    return
+                for mtype, payload in msgs:
+                    if self.port is None:
+                        if mtype != P.HELLO:
+                            self._reject(f"first message must be HELLO (0x01), got type 0x{mtype:02X}", fatal=True)
+                            return
+                        if not self._hello(payload):
+                            return
+                        sock.settimeout(None)
+                        continue
+                    self._handle(mtype, payload)
+        except OSError as exc:
+            reason = f"connection error: {exc}"
+        except Exception:  # never let a client take the server down
+            LOG.exception("client %s: unexpected failure; disconnected", self.peer)
+            reason = "server-side failure (see log)"
+        finally:
+            self.close(reason)
+
+    def _hello(self, payload: bytes) -> bool:
+        srv = self.server
+        try:
+            hello = P.parse_hello(payload, srv.name, srv.bitrate)
+            self.port = Port(srv.runner, self, node_name=hello.node_name, prefix="client", config=hello.config,
+                             receive_own_messages=hello.receive_own_messages)
+        except (ValueError, TypeError, can.CanError) as exc:
+            self._reject(f"HELLO refused: {exc}", fatal=True)
+            return False
+        if self._closing:  # the server closed while the node was attached: leave again
+            self.port.close(wait=False)
+            return False
+        LOG.info("client %s joined bus %r as node %r", self.peer, srv.name, self.port.node_name)
+        self.push(P.encode_welcome(srv.bitrate, self.port.node_name, srv.runner.epoch0))
+        return True
+
+    def _handle(self, mtype: int, payload: bytes) -> None:
+        port = self.port
+        assert port is not None
+        if mtype == P.SEND:
+            try:
+                frame = P.decode_send(payload)
+                frame.bits  # noqa: B018 - stuffed on this thread, not the runner's
+            except ValueError as exc:
+                self.rejected += 1
+                self.server.rejected += 1
+                LOG.warning("client %s: SEND rejected: %s", self.peer, exc)
+                self.push(P.encode_txend(f"rejected: {exc}"[:512]))
+                return
+            port.send(frame)
+        elif mtype == P.FILTERS:
+            try:
+                filters = check_filters(P.parse_filters(payload))
+            except ValueError as exc:
+                self._reject(f"FILTERS rejected: {exc}")
+                return
+            port.set_filters(filters, wait=False)
+        elif mtype == P.MODE:
+            try:
+                listen_only = P.decode_mode(payload)
+            except ValueError as exc:
+                self._reject(f"MODE rejected: {exc}")
+                return
+            port.set_listen_only(listen_only, wait=False)
+        elif mtype == P.BYE:
+            self.close("said BYE")
+        else:
+            self._reject(f"unknown message type 0x{mtype:02X} ignored")
+
+    def close(self, reason: str = "closed") -> None:
+        """Leave the bus and close the connection (idempotent); logs the client leaving."""
+        with self._close_lock:
+            if self._closing:
+                return
+            self._closing = True
+        self.closed.set()
+        self.out.put(None)
+        if self.port is not None:
+            LOG.info("client %s (node %r) left bus %r: %s", self.peer, self.port.node_name, self.server.name, reason)
+        self.server._detach(self)
+
+
+def _claim_unix_path(path: str) -> None:
+    """Make ``path`` free for a new unix socket: a stale socket (nobody listening) is removed;
+    anything else — a regular file, a directory, a socket a running server listens on — is an
+    error, never deleted."""
+    import stat
+
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise ValueError(f"unix socket path {path!r} exists and is not a socket: not replacing it")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(0.5)
+        probe.connect(path)
+    except OSError:
+        os.unlink(path)  # stale: left by a server that did not close
+        return
+    finally:
+        probe.close()
+    raise ValueError(f"unix socket path {path!r} is in use by a running server")
+
+
+def _bind_error(exc: OSError, where: str, tcp: bool) -> ValueError:
+    """A bind failure as one line naming the address or path and what to do."""
+    if exc.errno == errno.EADDRINUSE:
+        hint = ("another server (perhaps another canstack serve) listens there: stop it, or pick another port "
+                "(--listen HOST:0 picks a free one)") if tcp else "another server uses it"
+        return ValueError(f"{where} is already in use: {hint}")
+    if exc.errno == errno.ENOENT:
+        return ValueError(f"{where}: the directory {os.path.dirname(where)!r} does not exist; create it or "
+                          "choose another path")
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        what = "ports below 1024 need privileges; choose a port above 1023" if tcp else \
+            "choose a path in a directory you may write"
+        return ValueError(f"{where}: permission denied ({what})")
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return ValueError(f"{where}: that address belongs to no interface of this machine")
+    return ValueError(f"cannot listen on {where}: {exc.strerror or exc}")
+
+
+def _peer_name(conn: socket.socket, addr: Any) -> str:
+    if isinstance(addr, tuple):
+        return f"{addr[0]}:{addr[1]}"
+    # a unix socket's peer has no address: name it by its process where the system tells
+    peercred = getattr(socket, "SO_PEERCRED", None)
+    if peercred is not None:
+        try:
+            pid, _, _ = struct.unpack("3i", conn.getsockopt(socket.SOL_SOCKET, peercred, struct.calcsize("3i")))
+            return f"unix(pid {pid})#{next(_unix_peers)}"
+        except OSError:
+            pass
+    return f"unix#{next(_unix_peers)}"
+
+
+class BusServer:
+    """A simulated bus in real time served to python-can clients over TCP or a unix socket.
+
+    ``listen`` is ``(host, port)`` (port 0 picks a free one); non-loopback hosts are refused
+    unless ``allow_remote``. ``unix`` is a socket path. `url` is the channel clients use. A
+    server announces itself on this machine (`stack.io.discovery`) while it runs. ValueError
+    names the address or path when it cannot listen there (in use, missing directory, ...).
+    """
+
+    def __init__(self, bitrate: int = 500_000, *, name: str = "bus0", listen: tuple[str, int] | None = None,
+                 unix: str | None = None, allow_remote: bool = False) -> None:
+        if not BUS_NAME_RE.match(name):
+            raise ValueError(f"bus name {name!r}: use 1..64 of A-Z a-z 0-9 _ . -")
+        if (listen is None) == (unix is None):
+            raise ValueError("give exactly one of a TCP listen address and a unix socket path")
+        if listen is not None:
+            self.sock, self.address, self.url = self._bind_tcp(listen, name, allow_remote)
+        else:
+            assert unix is not None
+            self.sock, self.address, self.url = self._bind_unix(unix, name)
+        self.sock.listen(64)
+        self.sock.settimeout(0.2)
+        self.name = name
+        self.runner = RealTimeRunner(name, bitrate)
+        self.bitrate = bitrate
+        self.sessions: set[_Session] = set()
+        self.rejected = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._announcement = Announcement(name, self.url)
+        self._thread = threading.Thread(target=self._accept_loop, name=f"serve-{name}", daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _bind_tcp(listen: tuple[str, int], name: str, allow_remote: bool) -> tuple[socket.socket, Any, str]:
+        host, port = listen
+        if not allow_remote and not _is_loopback(host):
+            raise ValueError(f"listen address {host!r} is not loopback: the simulated bus has no "
+                             "authentication; pass --allow-remote to serve other machines")
+        where = f"{'[' + host + ']' if ':' in host else host}:{port}"
+        fam = socket.AF_INET6 if ":" in host else socket.AF_INET
+        sock = socket.socket(fam, socket.SOCK_STREAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+        except socket.gaierror as exc:
+            sock.close()
+            raise ValueError(f"listen address {host!r}: unknown host ({exc.strerror})") from exc
+        except OSError as exc:
+            sock.close()
+            raise _bind_error(exc, where, tcp=True) from exc
+        h, p = sock.getsockname()[:2]
+        return sock, (h, p), f"tcp://{'[' + h + ']' if ':' in h else h}:{p}/{name}"
+
+    def _bind_unix(self, path: str, name: str) -> tuple[socket.socket, Any, str]:
+        if not hasattr(socket, "AF_UNIX"):
+            raise ValueError("unix sockets are not available on this system")
+        if not os.path.isabs(path):
+            raise ValueError(f"unix socket path {path!r} must be absolute")
+        _claim_unix_path(path)
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(path)
+        except OSError as exc:
+            sock.close()
+            raise _bind_error(exc, path, tcp=False) from exc
+        self._socket_ino = os.stat(path).st_ino  # close() removes only its own socket
+        return sock, path, f"unix://{path}/{name}"
+
+    @property
+    def sim(self) -> Any:
+        """The served `SimBus` (read it only from the runner thread, e.g. via ``runner.call``)."""
+        return self.runner.sim
+
+    def _accept_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, addr = self.sock.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                break
+            if conn.family != getattr(socket, "AF_UNIX", None):
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self.sessions.add(_Session(self, conn, _peer_name(conn, addr)))
+
+    def _detach(self, session: _Session) -> None:
+        if session.port is not None:
+            session.port.close(wait=False)  # the node leaves the bus; its name is free again
+        with self._lock:
+            self.sessions.discard(session)
+        try:
+            session.sock.shutdown(socket.SHUT_RD)
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        """Disconnect every client and stop serving."""
+        self._stop.set()
+        self._thread.join(2.0)
+        self._announcement.close()
+        with self._lock:
+            sessions = list(self.sessions)
+        for s in sessions:
+            s.close("server closing")
+            try:
+                s.sock.close()
+            except OSError:
+                pass
+        self.sock.close()
+        if isinstance(self.address, str):
+            try:
+                if os.stat(self.address).st_ino == self._socket_ino:
+                    os.unlink(self.address)
+            except OSError:
+                pass
+        self.runner.stop()
+        self.runner.join(2.0)
+
+    def __enter__(self) -> "BusServer":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
