@@ -94,7 +94,7 @@ class BitLevelAttempts:
                 node.rounds_lost += 1
                 q.head_since = self.rounds
                 if q.one_shot:
-                    node.fail(q, end, "arbitration lost (one-shot)")
+                    node.fail(q, end, "arbitration lost (one-shot)", "arbitration")
                 elif node.offered is q:
                     self.offer(node, q)
                 continue
@@ -104,7 +104,7 @@ class BitLevelAttempts:
                 self._suspend(node, idle)  # it transmitted as (or is now) error passive
             if q.one_shot:
                 kind = o.detected[0] if o is not None and o.detected else "error"
-                node.fail(q, end, f"{kind} error (one-shot)")
+                node.fail(q, end, f"{kind} error (one-shot)", kind.removesuffix("-arbitration"))
             elif node.state is BUS_OFF:
                 pass  # stays queued; offered again after recovery
             else:

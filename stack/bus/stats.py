@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import can
 
 from stack.bus.trace import TraceRecord, save_messages
+from stack.wire.frame import arbitration_key, id_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from stack.controller.node import Node
@@ -94,11 +95,15 @@ class BusStatistics:
             "error_frames": self.error_frames,
             "collisions": self.collisions,
             "bus_load": self.bus_load(),
+            # one entry per arbitration key: a remote frame and a data frame of one identifier
+            # are two frames on the wire (labelled 'ID RTR' and 'ID'), so the counts add up
             "ids": {
-                (f"0x{s.can_id:08X}" if s.extended else f"0x{s.can_id:03X}"): {
+                id_text(s.can_id, s.extended, key == arbitration_key(s.can_id, s.extended, True)): {
+                    "id": s.can_id, "extended": s.extended,
+                    "remote": key == arbitration_key(s.can_id, s.extended, True),
                     "count": s.count, "latency_min_us": s.min / 1e3, "latency_mean_us": s.mean / 1e3,
                     "latency_max_us": s.max / 1e3, "arbitration_losses": s.losses}
-                for _, s in sorted(self.id_stats.items())
+                for key, s in sorted(self.id_stats.items())
             },
             "nodes": {n.name: n.counters() for n in self.nodes},
         }

@@ -14,6 +14,8 @@ import math
 import sys
 from typing import Sequence
 
+from stack.wire.frame import id_text
+
 __all__ = ["CliError", "main", "parse_int", "parse_sample_point", "version", "format_id", "plural"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
@@ -81,10 +83,7 @@ def parse_sample_point(text: str) -> float:
     return v * 100 if v < 1 else v
 
 
-def format_id(can_id: int, extended: bool, remote: bool = False) -> str:
-    """An identifier as every text output writes it: 0x-hex, 3 digits standard, 8 extended,
-    ' RTR' for a remote frame. (JSON output carries the integer: ``"id": 193``.)"""
-    return (f"0x{can_id:08X}" if extended else f"0x{can_id:03X}") + (" RTR" if remote else "")
+format_id = id_text  # the wire layer's: every text output writes identifiers the same way
 
 
 def plural(n: int, word: str) -> str:

@@ -9,13 +9,13 @@ from pathlib import Path
 from typing import Any
 
 from stack.wire.coding import INTERMISSION_BITS, worst_case_length
-from stack.cli import CliError, format_id, parse_int, plural
+from stack.cli import CliError, parse_int, plural
 from stack.cli.runs import (MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced,
                             trace_note, trc_dropped, writing)
-from stack.wire.frame import Frame, arbitration_key
+from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
 
-__all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json", "id_rows"]
+__all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json"]
 
 MS = 1_000_000
 
@@ -108,26 +108,10 @@ def plot_counters(samples: list[tuple[int, dict[str, tuple[int, int]]]], path: s
     plt.close(fig)
 
 
-def id_rows(bus: SimBus) -> list[tuple[str, dict[str, Any]]]:
-    """Per-identifier statistics, one row per arbitration key in arbitration order: a remote
-    frame and a data frame with the same identifier are two rows (they are two frames on the
-    wire), labelled by `stack.cli.format_id`."""
-    rows = []
-    for key, st in sorted(bus.id_stats.items()):
-        remote = key == arbitration_key(st.can_id, st.extended, True)
-        rows.append((format_id(st.can_id, st.extended, remote), {
-            "id": st.can_id, "extended": st.extended, "remote": remote, "count": st.count,
-            "latency_min_us": st.min / 1e3, "latency_mean_us": st.mean / 1e3, "latency_max_us": st.max / 1e3,
-            "arbitration_losses": st.losses}))
-    return rows
-
-
 def summary_json(bus: SimBus) -> dict[str, Any]:
-    """`SimBus.summary` with the per-identifier table of `id_rows` (remote and data frames of
-    one identifier apart, each with its integer ``id``)."""
-    s = bus.summary()
-    s["ids"] = dict(id_rows(bus))
-    return s
+    """`SimBus.summary`: one entry per frame kind on the wire (remote and data frames of one
+    identifier apart, each with its integer ``id``)."""
+    return bus.summary()
 
 
 def format_summary(bus: SimBus) -> str:
@@ -140,7 +124,7 @@ def format_summary(bus: SimBus) -> str:
         "",
         f"{'ID':>14}  {'frames':>6}  {'latency min/mean/max (us)':>27}  {'arb. losses':>11}",
     ]
-    for label, st in id_rows(bus):
+    for label, st in s["ids"].items():
         lat = f"{st['latency_min_us']:.0f} / {st['latency_mean_us']:.0f} / {st['latency_max_us']:.0f}"
         lines.append(f"{label:>14}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
     lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'arb.lost':>8} {'retx':>5} {'overrun':>7} {'TEC':>4} {'REC':>4}"]

@@ -47,6 +47,10 @@ class TxFailed(NamedTuple):
     frame: Frame
     request: "TxRequest"
     reason: str
+    kind: str = ""
+    """Why, in one word: 'arbitration' (lost, one-shot), 'bit', 'stuff', 'form', 'crc', 'ack'
+    (the error that destroyed a one-shot attempt), 'expired' (latest start time passed),
+    'aborted', 'send' (the python-can bus refused it)."""
 
 
 class ArbitrationLost(NamedTuple):

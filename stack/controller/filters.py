@@ -23,6 +23,9 @@ def validate_filters(filters: Iterable[Mapping[str, Any]] | None) -> list[tuple[
         return out
     if isinstance(filters, Mapping):
         raise ValueError("filters must be a list of {'can_id', 'can_mask'[, 'extended']} mappings, got one mapping")
+    if isinstance(filters, (str, bytes)) or not isinstance(filters, Iterable):
+        raise ValueError(f"filters {filters!r} must be a list of {{'can_id', 'can_mask'[, 'extended']}} mappings, "
+                         "or None")
     for i, f in enumerate(filters):
         if not isinstance(f, Mapping):
             raise ValueError(f"filter {i} ({f!r}) is not a mapping with can_id and can_mask")

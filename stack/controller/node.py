@@ -104,7 +104,7 @@ class Node:
         self._fifo: deque[tuple[int, Frame, Any]] = deque()
         self.rx_fifo_size = rx_fifo_size
         self.receive_own_messages = bool(receive_own_messages)
-        self.listen_only = bool(listen_only)
+        self._listen_only = bool(listen_only)
         self._one_shot = bool(one_shot)
         self._one_shot_pending = 0  # queued requests that are one-shot while the node is not
         self.clock = clock
@@ -147,6 +147,22 @@ class Node:
         self._one_shot = value
         if self.bus is not None:
             self.bus.node_changed(self)  # the driver watches one-shot nodes' arbitration
+
+    @property
+    def listen_only(self) -> bool:
+        """Listen-only (silent) mode: the node receives but never drives the bus — no ACK, no
+        transmission, no error flags. Switching it at run time takes effect from the next frame
+        on the bus (the driver re-reads who acknowledges); frames already queued stay queued
+        and are refused by `send` no more than before (abort them to drop them)."""
+        return self._listen_only
+
+    @listen_only.setter
+    def listen_only(self, value: bool) -> None:
+        if not isinstance(value, bool):
+            raise ValueError(f"listen_only {value!r} must be True or False")
+        self._listen_only = value
+        if self.bus is not None:
+            self.bus.node_changed(self)
 
     @property
     def watches_arbitration(self) -> bool:
@@ -269,7 +285,8 @@ class Node:
     def _expire(self, req: TxRequest) -> None:
         if req.state is QUEUED and not req.on_wire:
             bus = self._driver()
-            self.fail(req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns")
+            self.fail(req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns",
+                      "expired")
 
     @staticmethod
     def _coerce(frame: Any) -> Frame:
@@ -300,7 +317,7 @@ class Node:
         t = self.bus.now() if self.bus else 0
         self._finish(req, ABORTED, "aborted", t)
         self.update_head()
-        self._emit(TxFailed(self.to_local(t), req.frame, req, "aborted"))
+        self._emit(TxFailed(self.to_local(t), req.frame, req, "aborted", "aborted"))
         return True
 
     def pending(self) -> list[TxRequest]:
@@ -419,13 +436,14 @@ class Node:
         self.update_head()
         return None
 
-    def fail(self, req: TxRequest, t: int, reason: str) -> None:
+    def fail(self, req: TxRequest, t: int, reason: str, kind: str = "") -> None:
         """The driver's report that ``req`` will not be sent (one-shot failure, latest start
-        time passed, a send that failed for good): emits `TxFailed` and picks the next head."""
+        time passed, a send that failed for good; ``kind`` says which in one word, see
+        `TxFailed`): emits `TxFailed` and picks the next head."""
         self._finish(req, FAILED, reason, t)
         self.tx_failed += 1
         self.update_head()
-        self._emit(TxFailed(self.to_local(t), req.frame, req, reason))
+        self._emit(TxFailed(self.to_local(t), req.frame, req, reason, kind))
 
     def retry(self, req: TxRequest) -> None:
         """The driver's report that an attempt of ``req`` failed and will be repeated
@@ -452,7 +470,7 @@ class Node:
                 req.losses += lost
                 self.rounds_lost += lost
             req.head_since = r
-            self.fail(req, t, "arbitration lost (one-shot)")
+            self.fail(req, t, "arbitration lost (one-shot)", "arbitration")
 
     def deliver(self, t: int, frame: Frame, sender: Any = None, sof: int = -1) -> None:
         """The driver's report of a valid frame on the bus at ``t`` (start of frame ``sof``, bus

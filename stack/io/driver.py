@@ -363,7 +363,7 @@ class PyCanDriver:
         except can.CanError as exc:
             if req.one_shot:
                 self._retry.pop(req, None)
-                node.fail(req, self.now(), f"send failed (one-shot): {exc}")
+                node.fail(req, self.now(), f"send failed (one-shot): {exc}", "send")
             else:
                 self._retry[req] = now + RETRY_NS
                 node.retry(req)  # counted as a retransmission and offered again

@@ -18,7 +18,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any, Callable, Protocol
 
 from stack.controller.confinement import BUS_OFF, ErrorState
-from stack.controller.events import Received, TxDone, TxFailed
+from stack.controller.events import TxDone, TxFailed
 from stack.controller.filters import validate_filters
 from stack.controller.node import Node, NodeError, QueueFull
 from stack.wire.frame import Frame
@@ -28,6 +28,8 @@ __all__ = ["Port", "PortOwner", "NODE_OPTIONS", "check_filters"]
 NODE_OPTIONS = ("queue", "mailboxes", "abort", "tx_queue_size", "listen_only", "one_shot")
 """The controller options a client may give for its node (see `stack.controller.node.Node`)."""
 
+
+_WIRE_FAILURES = frozenset({"arbitration", "bit", "stuff", "form", "crc", "ack"})
 
 class PortOwner(Protocol):
     """What a `Port` reports to (on the runner thread)."""
@@ -117,9 +119,9 @@ class Port:
             self.owner.tx_finished(None)
 
     def _on_txfailed(self, ev: TxFailed) -> None:
-        # a failed attempt (the engine's reasons end "(one-shot)"); not the host's abort nor a
-        # frame withdrawn at its latest start time: those never reached the wire
-        if ev.reason.endswith("(one-shot)") and not self.closed:
+        # a failed attempt on the wire (TxFailed.kind names the error); not the host's abort
+        # nor a frame withdrawn at its latest start time: those never reached the wire
+        if ev.kind in _WIRE_FAILURES and not self.closed:
             self.owner.tx_error(ev.time, ev.reason, self.node.tec, self.node.rec)
         if ev.request in self._credit:
             self._credit.discard(ev.request)
@@ -190,11 +192,7 @@ class Port:
             node = self.node
             if self.closed or node.listen_only == on:
                 return
-            # off the wire and back at the same instant: the bus re-reads the node's mode
-            # (who acknowledges) through its public API; nothing is missed in between
-            sim.disconnect(node)
-            node.listen_only = on
-            sim.reconnect(node)
+            node.listen_only = on  # the node tells the bus, which re-reads who acknowledges
             if on:  # a frame on the wire that fails is not retransmitted: aborted at its end
                 abort_queued()
         if wait:

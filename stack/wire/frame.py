@@ -19,6 +19,7 @@ __all__ = [
     "EXTENDED_ID_MAX",
     "arbitration_key",
     "data_length",
+    "id_text",
 ]
 
 STANDARD_ID_MAX = 0x7FF
@@ -41,6 +42,12 @@ def arbitration_key(can_id: int, extended: bool, remote: bool) -> int:
     if extended:
         return ((can_id >> 18) << 21) | (3 << 19) | ((can_id & 0x3FFFF) << 1) | int(remote)
     return (can_id << 21) | (int(remote) << 20)
+
+
+def id_text(can_id: int, extended: bool, remote: bool = False) -> str:
+    """An identifier as every text output writes it: 0x-hex, 3 digits standard, 8 extended,
+    ' RTR' for a remote frame (JSON output carries the integer)."""
+    return (f"0x{can_id:08X}" if extended else f"0x{can_id:03X}") + (" RTR" if remote else "")
 
 
 def _hex(v: int) -> str:

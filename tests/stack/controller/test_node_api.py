@@ -159,3 +159,48 @@ def test_arbitration_lost_event_names_the_winner():
     a.send(Frame(0x200))
     bus.run(duration=2_000_000)
     assert [(e.frame.can_id, e.winner.can_id, e.time) for e in lost] == [(0x200, 0x100, 0)]
+
+
+def test_failures_say_why_in_one_word():
+    from stack.bus.faults import FaultInjector
+
+    bus, a, b = _pair()
+    kinds: list[tuple[str, str]] = []
+    a.listen(TxFailed, lambda ev: kinds.append((ev.kind, ev.reason)))
+    FaultInjector(bus).flip(can_id=0x300, occurrence=1, field="crc", bit=2, nodes=["b"])
+    b.send(Frame(0x100))
+    a.send(Frame(0x200), one_shot=True)  # loses to 0x100
+    # b alone sees a CRC error; its error flag after the ACK delimiter is dominant where the
+    # transmitter sends its recessive EOF: for the transmitter, a bit error
+    a.send(Frame(0x300, b"\x01"), one_shot=True)
+    late = a.send(Frame(0x400), not_after=0)
+    gone = a.send(Frame(0x500))
+    a.abort(gone)
+    bus.run(duration=3_000_000)
+    assert late.state == "failed"
+    assert sorted(k for k, _ in kinds) == ["aborted", "arbitration", "bit", "expired"]
+    assert dict(kinds)["arbitration"] == "arbitration lost (one-shot)"
+
+
+def test_listen_only_switched_at_run_time_stops_acknowledging():
+    """The only other node going listen-only leaves the transmitter without acknowledgement:
+    ACK errors (rule 3) from the next frame on."""
+    bus, a, b = _pair()
+    a.send(Frame(0x100))
+    bus.run(duration=1_000_000)
+    assert a.tx_frames == 1 and a.tec == 0
+    b.listen_only = True
+    a.send(Frame(0x101))
+    bus.run(duration=2_000_000)
+    assert a.tx_frames == 1 and a.tec > 0 and bus.trace[-1].detail["error"] == "ack"
+    b.listen_only = False
+    bus.run(duration=2_000_000)
+    assert a.tx_frames == 2
+
+
+def test_filters_that_are_not_a_list_are_refused_naming_the_value():
+    from stack.controller.filters import validate_filters
+
+    for bad in (5, True, 1.5, "0x100"):
+        with pytest.raises(ValueError, match=r"must be a list of .* or None"):
+            validate_filters(bad)  # type: ignore[arg-type]
