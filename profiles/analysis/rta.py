@@ -98,7 +98,9 @@ class MessageSpec:
 
     ``period_ns`` is the period, or the minimum inter-arrival time of a sporadic message;
     ``deadline_ns`` is relative to the queuing (release) time and may exceed the period;
-    ``jitter_ns`` is the queuing jitter J_m.
+    ``jitter_ns`` is the queuing jitter J_m. ``frame_bits`` replaces the worst-case length of
+    eq. 1 by a frame's exact length in bits (stuff bits and the 3-bit intermission included) when
+    its payload is known — the same analysis with C_m exact, as tight as the bus can be.
     """
 
     name: str
@@ -108,6 +110,7 @@ class MessageSpec:
     period_ns: int
     deadline_ns: int
     jitter_ns: int = 0
+    frame_bits: int | None = None
 
 
 @dataclass(frozen=True)
@@ -220,8 +223,14 @@ def _prepare(messages: Sequence[MessageSpec], bitrate: int,
             raise ValueError(f"message {name!r}: deadline_ns {deadline} must be > 0")
         if jitter < 0:
             raise ValueError(f"message {name!r}: jitter_ns {jitter} must be >= 0")
+        bits = frame_bits_worst(m.dlc, m.extended)
+        if m.frame_bits is not None:
+            if isinstance(m.frame_bits, bool) or not isinstance(m.frame_bits, int) or not 0 < m.frame_bits <= bits:
+                raise ValueError(f"message {name!r}: frame_bits {m.frame_bits!r} must be 1..{bits} "
+                                 "(at most the worst-case length of its DLC)")
+            bits = m.frame_bits
         out.append(_Msg(spec=m, key=arbitration_key(can_id, m.extended, False),
-                        c=frame_bits_worst(m.dlc, m.extended) * _NS_PER_S,
+                        c=bits * _NS_PER_S,
                         t=period * bitrate, d=deadline * bitrate, j=jitter * bitrate))
     out.sort(key=lambda x: x.key)
     for a, b in zip(out, out[1:]):

@@ -1,0 +1,309 @@
+"""The profile contract: what every scheduling layer shares — the base class, the context a
+scenario gives it, message sources (periodic, sporadic, application) and the one metrics
+recorder the scenario runner reads.
+
+A profile is a sans-IO state machine on one `stack` node: it acts only through the node API
+(`stack.NodeAPI`: ``send``, ``subscribe``, ``listen``, ``call_at``/``call_later``, ``now``), so it
+runs unchanged on the simulated bus and on any python-can bus. Releases are timed on the node's
+own clock (a drifting node releases on its drifting clock); measurements use the bus times the
+node's `TxRequest` keeps, so they compare across nodes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import random
+from array import array
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable
+
+from stack import Frame, QueueFull, NodeError, TxDone, TxFailed
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.scenario import MessageDecl, NodeDecl, Scenario
+    from stack import NodeAPI, TxRequest
+
+__all__ = ["Profile", "Context", "Recorder", "Track", "PeriodicSource", "SporadicSource", "frame_of", "stats_ms",
+           "stable_rng", "source_for"]
+
+
+def stable_rng(seed: int, *parts: object) -> random.Random:
+    """A random source derived from ``seed`` and names (a node, a message): the same scenario and
+    seed give the same draws whatever else the scenario holds, in any process (unlike `hash`)."""
+    digest = hashlib.sha256(repr((seed,) + parts).encode()).digest()
+    return random.Random(int.from_bytes(digest[:8], "big"))
+
+
+def frame_of(m: "MessageDecl") -> Frame:
+    """The frame a declared message sends (its data, or zeros)."""
+    if m.remote:
+        return Frame(m.can_id, extended=m.extended, remote=True, dlc=m.dlc)
+    return Frame(m.can_id, m.data if m.data is not None else bytes(m.dlc), extended=m.extended)
+
+
+def stats_ms(values_ns: "array[int] | list[int]") -> dict[str, float] | None:
+    """min, mean, p99 and max of ns values, in ms (None when there are none). The p99 is the
+    nearest-rank 99th percentile (the value at rank ceil(0.99 n))."""
+    n = len(values_ns)
+    if n == 0:
+        return None
+    s = sorted(values_ns)
+    p99 = s[max(0, math.ceil(0.99 * n) - 1)]
+    return {"min": s[0] / 1e6, "mean": sum(s) / n / 1e6, "p99": p99 / 1e6, "max": s[-1] / 1e6}
+
+
+class Track:
+    """What happened to one declared message: instances released (queued), sent, failed,
+    dropped (queue full or node bus off at release), their response times (queued → end of EOF,
+    bus ns), the SOF times of successful instances (for start-to-start jitter) and deadline
+    misses — an instance that ends after its deadline, fails, is dropped, or is still pending
+    at the end of the run when its deadline has passed."""
+
+    __slots__ = ("decl", "released", "sent", "failed", "dropped", "misses", "responses", "starts", "pending",
+                 "received", "monitor", "awaiting", "seen_early")
+
+    def __init__(self, decl: "MessageDecl") -> None:
+        self.decl = decl
+        self.released = 0
+        self.sent = 0
+        self.failed = 0
+        self.dropped = 0
+        self.misses = 0
+        self.received: int | None = None  # set by the runner: instances that reached another node
+        self.responses: array[int] = array("q")
+        self.starts: array[int] = array("q")
+        self.pending: dict["TxRequest", None] = {}
+        # on a python-can bus the end of a frame is the monitor's receive timestamp (`observed`),
+        # not the moment the driver handed it over: sent instances wait for it here
+        self.monitor = False
+        self.awaiting: dict["TxRequest", None] = {}
+        self.seen_early: set["TxRequest"] = set()
+
+    def release(self, req: "TxRequest") -> None:
+        """An instance was queued (``req.t_queued`` is its release time)."""
+        self.released += 1
+        self.pending[req] = None
+
+    def drop(self) -> None:
+        """An instance could not be queued (transmit queue full, node bus off)."""
+        self.released += 1
+        self.dropped += 1
+        self.misses += 1
+
+    def done(self, req: "TxRequest") -> None:
+        """``req`` went out (`TxDone`)."""
+        if req in self.seen_early:
+            self.seen_early.discard(req)
+            return
+        if req not in self.pending:
+            return  # not one of this message's instances (a profile's own frame)
+        del self.pending[req]
+        if self.monitor:
+            self.awaiting[req] = None
+            return
+        self._complete(req, req.t_done, req.sof)
+
+    def observed(self, t_end: int, sof: int) -> None:
+        """A monitor on a python-can bus received this message at ``t_end`` (its SOF at ``sof``):
+        the oldest instance handed to the bus ends there."""
+        if self.awaiting:
+            req = next(iter(self.awaiting))
+            del self.awaiting[req]
+        elif self.pending:  # the monitor saw it before the driver reported it sent
+            req = next(iter(self.pending))
+            del self.pending[req]
+            self.seen_early.add(req)
+        else:
+            return
+        self._complete(req, t_end, sof)
+
+    def _complete(self, req: "TxRequest", t_end: int, sof: int) -> None:
+        self.sent += 1
+        resp = t_end - req.t_queued
+        self.responses.append(resp)
+        self.starts.append(sof)
+        d = self.decl.deadline_ns
+        if d is not None and resp > d:
+            self.misses += 1
+
+    def fail(self, req: "TxRequest") -> None:
+        """``req`` will not be sent (`TxFailed`)."""
+        if req not in self.pending:
+            return
+        del self.pending[req]
+        self.failed += 1
+        self.misses += 1
+
+    def finish(self, t_end: int) -> int:
+        """At the end of the run: instances still pending whose deadline has passed are misses.
+        Returns how many are still pending."""
+        d = self.decl.deadline_ns
+        left = list(self.pending) + list(self.awaiting)
+        if d is not None:
+            self.misses += sum(1 for r in left if r.t_queued + d < t_end)
+        return len(left)
+
+    def jitter_ns(self) -> int | None:
+        """Max − min of the start-to-start distance (SOF to SOF of consecutive instances),
+        for a periodic message; None otherwise or with fewer than two instances."""
+        if self.decl.period_ns is None or len(self.starts) < 2:
+            return None
+        st = self.starts
+        gaps = [b - a for a, b in zip(st, st[1:])]
+        return max(gaps) - min(gaps)
+
+
+class Recorder:
+    """The one place profiles record what they measure; the runner reads it. Tracks are keyed by
+    message name (unique in a scenario)."""
+
+    def __init__(self) -> None:
+        self.tracks: dict[str, Track] = {}
+
+    def track(self, decl: "MessageDecl") -> Track:
+        """The track of a declared message (made on first use)."""
+        t = self.tracks.get(decl.name)
+        if t is None:
+            t = self.tracks[decl.name] = Track(decl)
+        return t
+
+
+@dataclass
+class Context:
+    """What a scenario gives its profiles: the scenario, the recorder, every node by name (for
+    profiles that talk to each other), the profiles built so far, and the simulated bus (None on
+    a python-can bus)."""
+
+    scenario: "Scenario"
+    recorder: Recorder
+    nodes: "dict[str, NodeAPI]" = field(default_factory=dict)
+    profiles: "dict[str, Profile]" = field(default_factory=dict)
+    bus: Any = None
+
+    def rng(self, *parts: object) -> random.Random:
+        """A random source for one purpose (see `stable_rng`)."""
+        return stable_rng(self.scenario.seed, *parts)
+
+
+class Profile:
+    """Base of the scheduling layers: a profile on ``node`` built from its scenario declaration.
+
+    Subclasses release their messages through ``release`` or their own schedule, record through
+    ``context.recorder`` and report their own figures in `summary`. ``start()`` is called once
+    every profile of the scenario is built (so profiles may look each other up in
+    ``context.profiles``).
+    """
+
+    kind = "profile"
+
+    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+        self.node = node
+        self.decl = decl
+        self.context = context
+        self.tracks: dict[int, Track] = {}  # by arbitration key: identifiers are unique on the bus
+        for m in decl.messages:
+            tr = context.recorder.track(m)
+            self.tracks[frame_of(m).key] = tr
+        node.listen(TxDone, self._tx_done)
+        node.listen(TxFailed, self._tx_failed)
+
+    def start(self) -> None:
+        """Begin acting (timers, first releases)."""
+
+    def summary(self) -> dict[str, Any]:
+        """The profile's own figures for the results (JSON-ready)."""
+        return {}
+
+    def _tx_done(self, ev: TxDone) -> None:
+        tr = self.tracks.get(ev.frame.key)
+        if tr is not None:
+            tr.done(ev.request)
+
+    def _tx_failed(self, ev: TxFailed) -> None:
+        tr = self.tracks.get(ev.frame.key)
+        if tr is not None:
+            tr.fail(ev.request)
+
+    def queue(self, frame: Frame, track: Track | None = None, **send: Any) -> "TxRequest | None":
+        """Send ``frame`` (keyword arguments go to `send`: ``one_shot``, ``not_after``) and
+        record the instance; a full queue or a bus-off node drops it (recorded as a miss)."""
+        try:
+            req = self.node.send(frame, **send)
+        except (QueueFull, NodeError):
+            if track is not None:
+                track.drop()
+            return None
+        if track is not None:
+            track.release(req)
+        return req
+
+
+class PeriodicSource:
+    """Releases ``on_release(decl)`` every ``period_ns`` of the node's clock, first at
+    ``offset_ns``, each release late by a uniform draw in [0, ``jitter_ns``] (release jitter)
+    from a seeded source; the nominal times do not drift with the jitter."""
+
+    def __init__(self, node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
+                 rng: random.Random) -> None:
+        if decl.period_ns is None:
+            raise ValueError(f"message {decl.name!r} has no period")
+        self.node = node
+        self.decl = decl
+        self.on_release = on_release
+        self.rng = rng
+        self.nominal = 0
+
+    def start(self) -> None:
+        """Arm the first release."""
+        self.nominal = self.node.now() + self.decl.offset_ns
+        self._arm()
+
+    def _arm(self) -> None:
+        j = self.decl.jitter_ns
+        self.node.call_at(self.nominal + (self.rng.randint(0, j) if j else 0), self._fire)
+
+    def _fire(self) -> None:
+        self.on_release(self.decl)
+        self.nominal += self.decl.period_ns  # type: ignore[operator]
+        self._arm()
+
+
+class SporadicSource(PeriodicSource):
+    """Releases a sporadic message: consecutive releases at least ``sporadic_ns`` apart, the
+    extra gap exponentially distributed so that the mean inter-arrival is ``mean_ns`` (twice the
+    minimum when not given), from a seeded source."""
+
+    def __init__(self, node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
+                 rng: random.Random) -> None:
+        if decl.sporadic_ns is None:
+            raise ValueError(f"message {decl.name!r} is not sporadic")
+        self.node = node
+        self.decl = decl
+        self.on_release = on_release
+        self.rng = rng
+        self.nominal = 0
+        self.extra_mean = (decl.mean_ns if decl.mean_ns is not None else 2 * decl.sporadic_ns) - decl.sporadic_ns
+
+    def start(self) -> None:
+        """Arm the first release (at the offset plus a random gap)."""
+        self.nominal = self.node.now() + self.decl.offset_ns + self._gap_extra()
+        self._arm()
+
+    def _gap_extra(self) -> int:
+        return round(self.rng.expovariate(1 / self.extra_mean)) if self.extra_mean > 0 else 0
+
+    def _fire(self) -> None:
+        self.on_release(self.decl)
+        self.nominal += self.decl.sporadic_ns + self._gap_extra()  # type: ignore[operator]
+        self._arm()
+
+
+def source_for(node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
+               rng: random.Random) -> PeriodicSource | None:
+    """The source that releases ``decl`` (periodic or sporadic), or None for an untimed one."""
+    if decl.period_ns is not None:
+        return PeriodicSource(node, decl, on_release, rng)
+    if decl.sporadic_ns is not None:
+        return SporadicSource(node, decl, on_release, rng)
+    return None

@@ -1,0 +1,104 @@
+"""`canstack experiment SCENARIO.toml`: run a scheduling scenario and print its metrics beside the
+response-time analysis (registered under the ``canstack.commands`` entry point group)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from stack.cli import CliError
+from stack.cli.runs import check_output
+
+__all__ = ["register"]
+
+
+def _check_plot_dir(path: str) -> None:
+    import importlib.util
+
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise CliError(f"--plot {path!r}: is a file; give a directory for the plots")
+    parent = p if p.exists() else p.parent
+    if not parent.exists():
+        raise CliError(f"--plot {path!r}: the directory {str(parent)!r} does not exist")
+    if importlib.util.find_spec("matplotlib") is None:
+        raise CliError("--plot needs matplotlib, which is not installed: pip install 'canstack[plot]'")
+
+
+def _experiment(args: argparse.Namespace) -> int:
+    from profiles.metrics import format_table
+    from profiles.runner import run_on_pycan, run_scenario
+    from profiles.scenario import load_scenario
+
+    if args.plot:
+        _check_plot_dir(args.plot)
+    if args.out:
+        check_output(args.out, "--out")
+    if (args.interface is None) != (args.channel is None):
+        raise CliError("--interface and --channel go together (a python-can bus), or neither (the simulated bus)")
+    scenario = load_scenario(args.scenario)
+    if args.interface:
+        if args.plot:
+            raise CliError("--plot needs the simulated bus (the timeline is drawn from the simulation's trace)")
+        result = run_on_pycan(scenario, args.interface, args.channel, duration_s=args.duration)
+    else:
+        if args.duration is not None:
+            scenario.duration_ns = round(args.duration * 1e9)
+        result = run_scenario(scenario, record=bool(args.plot) or None, progress=args.progress)
+    data = result.to_json()
+    text = json.dumps(data, indent=2) if args.json else format_table(data)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
+    if args.plot:
+        from profiles.plots import write_plots
+
+        files = write_plots(result, args.plot, extra=_profile_plots(scenario))
+        print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
+    return 130 if result.interrupted else 0
+
+
+def _profile_plots(scenario: Any) -> dict[str, Any]:
+    """Plots that the profiles of this scenario add (their module's ``PLOTS``: name -> function)."""
+    import importlib
+
+    from profiles.registry import profile_kind
+
+    out: dict[str, Any] = {}
+    for kind_name in sorted({n.profile for n in scenario.nodes}):
+        mod = importlib.import_module(profile_kind(kind_name).build.__module__)
+        out.update(getattr(mod, "PLOTS", {}))
+    return out
+
+
+def _seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < v <= 1e6:
+        raise argparse.ArgumentTypeError(f"{text!r}: a duration is > 0 and at most 1e6 s")
+    return v
+
+
+def register(sub: Any) -> None:
+    """Add the `experiment` subcommand."""
+    p = sub.add_parser(
+        "experiment", help="run a scheduling scenario (TOML) and compare it with the response-time analysis",
+        description="Run a scenario file's nodes and profiles on the simulated bus (or on a python-can bus with "
+        "--interface/--channel) and print, per message, the measured response times, jitter and deadline misses "
+        "beside the worst case of the CAN schedulability analysis (Davis et al. 2007).")
+    p.add_argument("scenario", help="the scenario file (TOML; see examples/*.toml)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    p.add_argument("--out", help="also write the JSON result to this file")
+    p.add_argument("--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here "
+                   "(needs the plot extra)")
+    p.add_argument("--duration", type=_seconds, help="run this many seconds instead of the scenario's [bus] duration")
+    p.add_argument("--progress", action="store_true", default=None,
+                   help="draw a progress bar (default: on a terminal, for runs over 2 s)")
+    p.add_argument("--interface", help="run on this python-can interface (socketcan, virtual, canstack, ...)")
+    p.add_argument("--channel", help="the python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
+    p.set_defaults(func=_experiment)

@@ -1,0 +1,306 @@
+"""Run a scenario: build its nodes and profiles on the simulated bus (or on a python-can bus),
+inject its faults, run it, and collect the metrics and the analysis into a `Result`.
+
+On the simulated bus time is virtual and the run is deterministic (the same scenario and seed
+give the same trace and the same result). On a python-can bus (``interface``/``channel``) the
+same profiles run on the wall clock through `stack.PyCanDriver`; the end of each frame is taken
+from the receive timestamps of a monitor connection on that bus, so the metrics mean the same.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from profiles.base import Context, Profile, Recorder
+from profiles.metrics import analyse_scenario, message_rows, summary_of
+from profiles.registry import profile_kind
+from profiles.scenario import FaultDecl, NodeDecl, Scenario, ScenarioError, ms_to_ns
+from stack import LocalClock, Received, SimBus
+from stack.cli.runs import run_sliced
+
+__all__ = ["Result", "run_scenario", "run_on_pycan", "build", "Built"]
+
+
+@dataclass
+class Built:
+    """A scenario made ready to run: the driver (a SimBus, or a PyCanDriver), the nodes and
+    profiles by name, the context they share."""
+
+    scenario: Scenario
+    driver: Any
+    nodes: dict[str, Any]
+    profiles: dict[str, Profile]
+    context: Context
+
+
+@dataclass
+class Result:
+    """What a run measured, with the analysis beside it (see `to_json` for the keys)."""
+
+    scenario: Scenario
+    duration_s: float
+    bus_load: float
+    frames: int
+    error_frames: int
+    messages: list[dict[str, Any]]
+    profiles: dict[str, Any]
+    nodes: dict[str, dict[str, int]]
+    analysis: dict[str, Any]
+    interrupted: bool = False
+    driver: str = "simulated"
+    wall_s: float = 0.0
+    trace: list[Any] = field(default_factory=list)
+    tracks: dict[str, Any] = field(default_factory=dict)
+
+    def responses_ms(self, name: str) -> list[float]:
+        """Every measured response time of message ``name`` (ms, in release order)."""
+        tr = self.tracks.get(name)
+        return [] if tr is None else [v / 1e6 for v in tr.responses]
+
+    def to_json(self) -> dict[str, Any]:
+        """One JSON object: bus_load (0..1), duration (s), frames, error_frames, messages (one
+        object per declared message), each profile's own figures under its key, the nodes'
+        counters, the analysis' assumptions."""
+        out: dict[str, Any] = {
+            "scenario": self.scenario.source, "driver": self.driver, "seed": self.scenario.seed,
+            "bitrate": self.scenario.bitrate, "duration": self.duration_s, "bus_load": self.bus_load,
+            "frames": self.frames, "error_frames": self.error_frames, "messages": self.messages,
+        }
+        out.update(self.profiles)
+        out["nodes"] = self.nodes
+        out["analysis"] = self.analysis
+        if self.interrupted:
+            out["interrupted"] = True
+        return out
+
+
+def _node_config(d: NodeDecl) -> dict[str, Any]:
+    cfg: dict[str, Any] = {"queue": d.policy, "tx_queue_size": d.tx_queue_size, "rx_fifo_size": d.rx_fifo_size,
+                           "listen_only": d.listen_only}
+    if d.policy == "mailbox":
+        cfg.update(mailboxes=d.mailboxes, abort=d.abort)
+    if d.drift_ppm or d.clock_offset_ns:
+        cfg["clock"] = LocalClock(offset_ns=d.clock_offset_ns, drift_ppm=d.drift_ppm)
+    return cfg
+
+
+def build(scenario: Scenario, driver: Any, *, bus: Any = None) -> Built:
+    """Make the scenario's nodes on ``driver`` (a SimBus or a PyCanDriver) and their profiles,
+    call the application hooks (``app = "module:function"``), and return them unstarted."""
+    ctx = Context(scenario, Recorder(), bus=bus)
+    nodes = {}
+    for d in scenario.nodes:
+        nodes[d.name] = driver.node(d.name, **_node_config(d))
+    ctx.nodes = dict(nodes)
+    profiles: dict[str, Profile] = {}
+    for d in scenario.nodes:
+        profiles[d.name] = profile_kind(d.profile).build(nodes[d.name], d, ctx)
+        ctx.profiles[d.name] = profiles[d.name]
+    for d in scenario.nodes:
+        if d.app:
+            _app(d.app, scenario.source, d.name)(nodes[d.name], profiles[d.name], ctx)
+    return Built(scenario, driver, nodes, profiles, ctx)
+
+
+def _app(spec: str, source: str, node: str) -> Callable[..., Any]:
+    mod_name, _, fn_name = spec.partition(":")
+    loc = f"{source}: [[nodes]] {node!r}: app"
+    try:
+        mod = importlib.import_module(mod_name)
+    except ImportError as exc:
+        raise ScenarioError(f"{loc}: cannot import module {mod_name!r} ({exc})") from None
+    fn = getattr(mod, fn_name, None)
+    if not callable(fn):
+        raise ScenarioError(f"{loc}: module {mod_name!r} has no function {fn_name!r}")
+    return fn
+
+
+def inject_faults(bus: SimBus, faults: list[FaultDecl]) -> None:
+    """Apply the scenario's ``[[faults]]`` with the simulated bus's fault injector."""
+    if not faults:
+        return
+    from stack import FaultInjector
+
+    fi = FaultInjector(bus)
+    for f in faults:
+        p = f.params
+        if f.kind == "bit_errors":
+            nodes = p["nodes"]
+            start, end = ms_to_ns(p["start_ms"]), p["end_ms"]
+            if start:
+                bus.call_at(start, lambda p=p, nodes=nodes: fi.bit_errors(p["rate"], nodes=nodes))
+            else:
+                fi.bit_errors(p["rate"], nodes=nodes)
+            if end is not None:
+                bus.call_at(ms_to_ns(end), lambda nodes=nodes: fi.bit_errors(0.0, nodes=nodes))
+        elif f.kind == "flip":
+            fi.flip(can_id=p["id"], extended=p["extended"], occurrence=p["occurrence"], field=p["field"], bit=p["bit"],
+                    nodes=p["nodes"], every=p["every"])
+        elif f.kind == "stuck":
+            fi.stuck(p["node"], p["level"], start=ms_to_ns(p["start_ms"]),
+                     end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]))
+        elif f.kind == "disconnect":
+            fi.disconnect(p["node"], at=ms_to_ns(p["at_ms"]),
+                          reconnect_at=None if p["reconnect_ms"] is None else ms_to_ns(p["reconnect_ms"]))
+        elif f.kind == "babbling_idiot":
+            fi.babbling_idiot(p["node"], can_id=p["id"], data=bytes.fromhex(p["data"]), start=ms_to_ns(p["start_ms"]),
+                              end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]))
+        elif f.kind == "never_ack":
+            fi.never_ack(p["node"])
+
+
+def _desc(scenario: Scenario) -> str:
+    return f"simulating {scenario.source}"
+
+
+def run_scenario(scenario: Scenario, *, record: bool | None = None, progress: bool | None = None,
+                 setup: Callable[[Built], Any] | None = None) -> Result:
+    """Run ``scenario`` on the simulated bus for its duration and return the `Result`.
+
+    ``record`` keeps the trace (needed for plots; on by default when the scenario injects
+    faults, so that receptions are counted from what each receiver accepted); ``progress``
+    shows a progress bar (None: on a terminal, for runs longer than 2 s); ``setup(built)`` runs after the nodes and profiles are built and
+    before they start (application code). Ctrl-C ends the run early: the result covers the time
+    simulated so far and says ``interrupted``.
+    """
+    if record is None:
+        record = bool(scenario.faults)
+    bus = SimBus(scenario.bitrate, seed=scenario.seed, name="bus0", record=record)
+    built = build(scenario, bus, bus=bus)
+    inject_faults(bus, scenario.faults)
+    if setup is not None:
+        setup(built)
+    for p in built.profiles.values():
+        p.start()
+    wall0 = time.perf_counter()
+    # the run covers [0, duration): a release at the end would have no time to go out
+    interrupted = not run_sliced(bus, scenario.duration_ns - 1, progress=progress or None, desc=_desc(scenario))
+    return collect(built, time.perf_counter() - wall0, interrupted=interrupted,
+                   t_end=bus.now() if interrupted else scenario.duration_ns)
+
+
+def collect(built: Built, wall_s: float, *, interrupted: bool = False, driver: str = "simulated",
+            t_end: int | None = None, bus_load: float | None = None) -> Result:
+    """Read the recorder, the bus and the profiles into a `Result` (analysis included)."""
+    sc = built.scenario
+    bus = built.context.bus
+    t_end = bus.now() if t_end is None else t_end
+    for tr in built.context.recorder.tracks.values():
+        tr.finish(t_end)
+    if bus is not None:
+        _count_receptions(built)
+    analysis = analyse_scenario(sc)
+    rows = message_rows(sc, built.context.recorder, analysis)
+    profiles_json: dict[str, Any] = {}
+    by_kind: dict[str, list[Profile]] = {}
+    for d in sc.nodes:
+        by_kind.setdefault(d.profile, []).append(built.profiles[d.name])
+    for kind_name, profs in by_kind.items():
+        kind = profile_kind(kind_name)
+        if kind.result_key and kind.summarize:
+            profiles_json[kind.result_key] = kind.summarize(profs, built.context)
+    nodes = {name: n.counters() for name, n in built.nodes.items()}
+    s = summary_of(bus, t_end)
+    return Result(scenario=sc, duration_s=t_end / 1e9, bus_load=s["bus_load"] if bus_load is None else bus_load,
+                  frames=s["frames"], error_frames=s["error_frames"], messages=rows, profiles=profiles_json,
+                  nodes=nodes, analysis=analysis["assumptions"], interrupted=interrupted, driver=driver,
+                  wall_s=wall_s, trace=list(bus.trace) if bus is not None and bus.record else [],
+                  tracks=dict(built.context.recorder.tracks))
+
+
+def _count_receptions(built: Built) -> None:
+    """Instances that reached at least one other node. On a fault-free simulated bus a frame that
+    completes is received by every node on it, so it is every sent instance; with faults the
+    trace records say which receivers accepted each attempt (inconsistent omission, double
+    reception)."""
+    bus = built.context.bus
+    tracks = built.context.recorder.tracks
+    if not bus.record or not built.scenario.faults:
+        for tr in tracks.values():
+            tr.received = tr.sent
+        return
+    by_key = {}
+    for tr in tracks.values():
+        from profiles.base import frame_of
+
+        by_key[frame_of(tr.decl).key] = tr
+        tr.received = 0
+    for rec in bus.trace:
+        tr = by_key.get(rec.frame.key)
+        if tr is None:
+            continue
+        d = rec.detail or {}
+        if rec.kind == "frame" and not d.get("accepted_by") and "error" not in d:
+            tr.received += 1  # a clean frame: everyone received it
+        elif d.get("accepted_by"):
+            tr.received += 1
+
+
+def run_on_pycan(scenario: Scenario, interface: str, channel: Any, *, duration_s: float | None = None,
+                 progress: bool = False, **bus_kwargs: Any) -> Result:
+    """Run ``scenario`` on a python-can bus (``interface``/``channel``, any python-can options in
+    ``bus_kwargs``) on the wall clock, for its duration (or ``duration_s``).
+
+    Every scenario node gets its own connection through `stack.PyCanDriver`; a monitor
+    connection receives every frame and its receive timestamps give the end of each frame, so
+    response times mean what they mean in simulation (release to end of EOF). Faults are a
+    simulation feature: a scenario with ``[[faults]]`` is refused here.
+    """
+    from stack import PyCanDriver
+
+    if scenario.faults:
+        raise ScenarioError(f"{scenario.source}: [[faults]] need the simulated bus (fault injection is a simulation "
+                            "feature); remove them to run on a python-can bus")
+    if interface == "canstack":
+        import stack.io.pycan  # noqa: F401  (registers the interface when canstack is not installed)
+    bus_kwargs.setdefault("bitrate", scenario.bitrate)
+    try:
+        drv = PyCanDriver(interface=interface, channel=channel, **bus_kwargs)
+        built = build(scenario, drv)
+        monitor = drv.node("__monitor__", listen_only=True)
+    except Exception as exc:
+        raise ScenarioError(f"cannot open {interface} channel {channel!r}: {exc}") from None
+    recorder = built.context.recorder
+    for tr in recorder.tracks.values():
+        tr.monitor = True  # ends come from the monitor's timestamps
+    from profiles.base import frame_of
+
+    by_key = {frame_of(tr.decl).key: tr for tr in recorder.tracks.values()}
+    busy = [0]
+
+    def seen(ev: Received) -> None:
+        tr = by_key.get(ev.frame.key)
+        if tr is not None:
+            tr.observed(ev.time, ev.sof)
+        if ev.sof >= 0:
+            busy[0] += ev.time - ev.sof + round(3 * 1e9 / scenario.bitrate)
+
+    monitor.subscribe(seen)
+    total = scenario.duration_ns / 1e9 if duration_s is None else duration_s
+    wall0 = time.perf_counter()
+    interrupted = False
+    with drv.lock:
+        for p in built.profiles.values():
+            p.start()
+    t0 = drv.now()
+    drv.start()
+    try:
+        end = time.monotonic() + total
+        while time.monotonic() < end:
+            time.sleep(min(0.05, max(0.0, end - time.monotonic())))
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        drv.stop()
+        t_end = drv.now()
+        drv.close()
+    elapsed = max(1, t_end - t0)
+    with drv.lock:
+        res = collect(built, time.perf_counter() - wall0, interrupted=interrupted, driver=f"{interface} {channel}",
+                      t_end=t_end, bus_load=min(1.0, busy[0] / elapsed))
+    if drv.errors:
+        res.analysis["driver_errors"] = drv.errors[:5]
+    return res

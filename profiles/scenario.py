@@ -1,0 +1,411 @@
+"""Scenario files: one bus, its nodes with their scheduling profiles and messages, faults, and
+what to analyse and plot — read from TOML and checked before anything runs.
+
+    [bus]
+    bitrate = 500000          # bit/s
+    duration = 2.0            # simulated seconds
+    seed = 1
+
+    [[nodes]]
+    name = "engine"
+    profile = "csma"          # csma (default) | the profiles registered in `profiles.registry`
+    queue = "priority"        # priority | fifo | mailboxes:N | mailboxes-abort:N
+    drift_ppm = 0             # the node's oscillator (read for every profile)
+
+    [[nodes.messages]]
+    name = "EngineData"
+    id = 0x100
+    extended = false
+    dlc = 8
+    period_ms = 10            # or: sporadic_ms = 20 (minimum inter-arrival; mean_ms for the mean)
+    offset_ms = 0
+    jitter_ms = 0             # release jitter, uniform in [0, jitter], seeded
+    deadline_ms = 10          # default: the period
+
+    [[faults]]                # optional: every kind of stack.bus.faults.FaultInjector
+    kind = "bit_errors"       # bit_errors | flip | stuck | disconnect | babbling_idiot | never_ack
+    rate = 1e-5
+
+Every error names the file, the table and the key, and the rule it breaks (`ScenarioError`, a
+ValueError: the CLI prints it on one line and exits with status 2).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from profiles.registry import profile_kind, profile_kinds
+from profiles.schema import (REQUIRED, Key, ScenarioError, identifier_rule, in_range, non_negative, one_of,
+                             positive, read_table, where)
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Scenario", "NodeDecl", "MessageDecl", "FaultDecl", "load_scenario", "parse_scenario", "ScenarioError",
+           "ms_to_ns", "parse_queue"]
+
+MAX_DURATION_S = 1e6  # 11.6 simulated days: longer is a units mistake
+FAULT_KINDS = ("bit_errors", "flip", "stuck", "disconnect", "babbling_idiot", "never_ack")
+
+
+def ms_to_ns(ms: float) -> int:
+    """Milliseconds (TOML) as integer nanoseconds (the engine's unit)."""
+    return round(ms * 1_000_000)
+
+
+@dataclass
+class MessageDecl:
+    """A message a node sends: identifier and format, length, and its release pattern —
+    periodic (``period_ns``), sporadic (``sporadic_ns`` minimum inter-arrival, ``mean_ns`` mean)
+    or none (the profile decides when, e.g. a TDMA window) — with offset, release jitter and
+    deadline. ``options`` holds keys a profile adds to messages."""
+
+    name: str
+    node: str
+    can_id: int
+    extended: bool
+    dlc: int
+    data: bytes | None
+    remote: bool
+    period_ns: int | None
+    sporadic_ns: int | None
+    mean_ns: int | None
+    offset_ns: int
+    jitter_ns: int
+    deadline_ns: int | None
+    options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def interval_ns(self) -> int | None:
+        """The period, or the minimum inter-arrival time of a sporadic message."""
+        return self.period_ns if self.period_ns is not None else self.sporadic_ns
+
+    @property
+    def id_text(self) -> str:
+        """The identifier as CAN tools print it (0x100, 0x18FEF100)."""
+        return f"0x{self.can_id:08X}" if self.extended else f"0x{self.can_id:03X}"
+
+
+@dataclass
+class NodeDecl:
+    """A node: its name, profile, controller configuration (queue policy, sizes), oscillator
+    (``drift_ppm``, ``clock_offset_ns``), its messages, an optional application hook
+    (``app = "module:function"``) and the keys its profile adds (``options``)."""
+
+    name: str
+    profile: str
+    queue: str
+    mailboxes: int | None
+    abort: bool
+    tx_queue_size: int
+    rx_fifo_size: int
+    drift_ppm: float
+    clock_offset_ns: int
+    listen_only: bool
+    app: str | None
+    messages: list[MessageDecl]
+    options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def policy(self) -> str:
+        """The controller's queue policy as `stack` names it: 'priority', 'fifo' or 'mailbox'."""
+        return "mailbox" if self.queue.startswith("mailboxes") else self.queue
+
+    @property
+    def priority_queue(self) -> bool:
+        """True when the controller sends the highest-priority pending frame first (the
+        response-time analysis' assumption)."""
+        return self.queue == "priority"
+
+
+@dataclass
+class FaultDecl:
+    """A fault to inject (`stack.bus.faults.FaultInjector`): its kind and checked parameters."""
+
+    kind: str
+    params: dict[str, Any]
+    index: int
+
+
+@dataclass
+class Scenario:
+    """A checked scenario. ``tables`` holds what profiles parsed from their own top-level tables
+    (e.g. ``tdma``); ``analysis`` and ``plot`` the optional tables of the same names."""
+
+    source: str
+    bitrate: int
+    duration_ns: int
+    seed: int
+    nodes: list[NodeDecl]
+    faults: list[FaultDecl]
+    analysis: dict[str, Any]
+    plot: dict[str, Any]
+    tables: dict[str, Any] = field(default_factory=dict)
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def messages(self) -> list[MessageDecl]:
+        """Every declared message, in file order."""
+        return [m for n in self.nodes for m in n.messages]
+
+    def node(self, name: str) -> NodeDecl:
+        """The node named ``name``."""
+        for n in self.nodes:
+            if n.name == name:
+                return n
+        raise KeyError(name)
+
+
+BUS_KEYS = {
+    "bitrate": Key(int, REQUIRED, in_range(1_000, 1_000_000, "a CAN 2.0 bus runs at 1 kbit/s .. 1 Mbit/s"),
+                   "bit/s"),
+    "duration": Key(float, REQUIRED, lambda v: None if 0 < v <= MAX_DURATION_S else
+                    f"{v!r} must be > 0 and at most {MAX_DURATION_S:g} simulated seconds", "simulated seconds"),
+    "seed": Key(int, 0, doc="seed of every random choice (jitter, sporadic arrivals, bit errors)"),
+}
+
+NODE_KEYS = {
+    "name": Key(str, REQUIRED, lambda v: None if v and v.isprintable() and not any(c.isspace() for c in v) else
+                f"{v!r}: a node name is non-empty, without spaces or control characters"),
+    "profile": Key(str, "csma"),
+    "queue": Key(str, "priority", doc="priority | fifo | mailboxes:N | mailboxes-abort:N"),
+    "tx_queue_size": Key(int, 1024, positive("frames")),
+    "rx_fifo_size": Key(int, 64, positive("frames")),
+    "drift_ppm": Key(float, 0.0, in_range(-100_000, 100_000, "ppm of the node's oscillator")),
+    "clock_offset_ms": Key(float, 0.0),
+    "listen_only": Key(bool, False),
+    "app": Key(str, None, lambda v: None if ":" in v else f"{v!r}: give 'module:function'",
+               "application code called with (node, profile, context)"),
+    "messages": Key(list, []),
+}
+
+MESSAGE_KEYS = {
+    "name": Key(str, REQUIRED, lambda v: None if v else "a message needs a name"),
+    "id": Key(int, REQUIRED, non_negative()),
+    "extended": Key(bool, False),
+    "dlc": Key(int, REQUIRED, in_range(0, 8, "a CAN 2.0 data frame carries 0..8 bytes")),
+    "data": Key(str, None, doc="payload as hex (default zeros)"),
+    "remote": Key(bool, False),
+    "period_ms": Key(float, None, positive("a period")),
+    "sporadic_ms": Key(float, None, positive("a minimum inter-arrival time")),
+    "mean_ms": Key(float, None, positive("a mean inter-arrival time")),
+    "offset_ms": Key(float, 0.0, non_negative()),
+    "jitter_ms": Key(float, 0.0, non_negative()),
+    "deadline_ms": Key(float, None, positive("a deadline")),
+}
+
+ANALYSIS_KEYS = {
+    "t_error_ms": Key(float, None, positive("the minimum time between errors of the simple error model")),
+    "stuffing": Key(str, "worst", one_of("worst", "exact"),
+                    "frame lengths: worst-case stuffing (eq. 1), or the exact length of each message's payload"),
+}
+
+PLOT_KEYS = {
+    "window_ms": Key(list, None, doc="[start, end] of the timeline, ms"),
+    "bin_ms": Key(float, 10.0, positive("the bus-load bin")),
+}
+
+FAULT_KEYS: dict[str, dict[str, Key]] = {
+    "bit_errors": {"rate": Key(float, REQUIRED, in_range(0, 0.5, "a bit-error rate")), "nodes": Key(list, None),
+                   "start_ms": Key(float, 0.0, non_negative()), "end_ms": Key(float, None, non_negative())},
+    "flip": {"id": Key(int, None, non_negative()), "extended": Key(bool, None), "occurrence": Key(int, 1, positive()),
+             "field": Key(str, "data"), "bit": Key(int, 0, non_negative()), "nodes": Key(list, None),
+             "every": Key(bool, False)},
+    "stuck": {"node": Key(str, REQUIRED), "level": Key(str, REQUIRED, one_of("dominant", "recessive")),
+              "start_ms": Key(float, 0.0, non_negative()), "end_ms": Key(float, None, non_negative())},
+    "disconnect": {"node": Key(str, REQUIRED), "at_ms": Key(float, REQUIRED, non_negative()),
+                   "reconnect_ms": Key(float, None, non_negative())},
+    "babbling_idiot": {"node": Key(str, REQUIRED), "id": Key(int, 0, non_negative()),
+                       "data": Key(str, "ffffffffffffffff"), "start_ms": Key(float, 0.0, non_negative()),
+                       "end_ms": Key(float, None, non_negative())},
+    "never_ack": {"node": Key(str, REQUIRED)},
+}
+
+
+def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
+    """'priority' | 'fifo' | 'mailboxes:N' | 'mailboxes-abort:N' as (policy, mailboxes, abort)."""
+    if text in ("priority", "fifo"):
+        return text, None, False
+    kind, _, count = text.partition(":")
+    if kind in ("mailboxes", "mailboxes-abort") and count.isdigit() and int(count) >= 1:
+        return "mailbox", int(count), kind == "mailboxes-abort"
+    raise ScenarioError(f"{loc}: queue: {text!r} is not one of 'priority', 'fifo', 'mailboxes:N', "
+                        "'mailboxes-abort:N' (N >= 1 transmit mailboxes)")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and check a scenario file (see the module docstring)."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except IsADirectoryError:
+        raise ScenarioError(f"{p}: is a directory, not a scenario file") from None
+    except FileNotFoundError:
+        raise ScenarioError(f"{p}: no such scenario file") from None
+    except OSError as exc:
+        raise ScenarioError(f"{p}: cannot read it ({exc.strerror})") from None
+    try:
+        raw = tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{p}: not a text file (a scenario is TOML in UTF-8)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{p}: not valid TOML: {exc}") from None
+    return parse_scenario(raw, str(p))
+
+
+def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario:
+    """Check a scenario given as the dictionary TOML gives (see the module docstring)."""
+    kinds = profile_kinds()
+    top = {"bus": Key(dict, REQUIRED), "nodes": Key(list, REQUIRED), "faults": Key(list, []),
+           "analysis": Key(dict, {}), "plot": Key(dict, {})}
+    for kind in kinds.values():
+        for name in kind.tables:
+            top[name] = Key((dict, list), None)
+    t = read_table(raw, top, where(source, "top level"))
+    bus = read_table(t["bus"], BUS_KEYS, where(source, "[bus]"))
+    if not t["nodes"]:
+        raise ScenarioError(f"{where(source, '[[nodes]]')}: a scenario needs at least one node")
+    nodes: list[NodeDecl] = []
+    for i, rn in enumerate(t["nodes"], 1):
+        nodes.append(_node(rn, i, source))
+    _check_unique(nodes, source)
+    faults = [_fault(rf, i, source, {n.name for n in nodes}) for i, rf in enumerate(t["faults"], 1)]
+    analysis = read_table(t["analysis"], ANALYSIS_KEYS, where(source, "[analysis]"))
+    plot = read_table(t["plot"], PLOT_KEYS, where(source, "[plot]"))
+    w = plot["window_ms"]
+    if w is not None and not (len(w) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in w)
+                              and 0 <= w[0] < w[1]):
+        raise ScenarioError(f"{where(source, '[plot]')}: window_ms: {w!r} must be [start, end] in ms with start < end")
+    sc = Scenario(source=source, bitrate=bus["bitrate"], duration_ns=round(bus["duration"] * 1e9), seed=bus["seed"],
+                  nodes=nodes, faults=faults, analysis=analysis, plot=plot, raw=dict(raw))
+    for kind in kinds.values():
+        if kind.parse is not None:
+            kind.parse(sc, {name: raw[name] for name in kind.tables if name in raw})
+    return sc
+
+
+def _node(rn: Any, i: int, source: str) -> NodeDecl:
+    label = f"[[nodes]] #{i}" + (f" {rn.get('name')!r}" if isinstance(rn, Mapping) and "name" in rn else "")
+    loc = where(source, label)
+    if not isinstance(rn, Mapping):
+        raise ScenarioError(f"{loc}: expected a table, got {rn!r}")
+    profile = rn.get("profile", "csma")
+    kinds = profile_kinds()
+    if not isinstance(profile, str) or profile not in kinds:
+        raise ScenarioError(f"{loc}: profile: {profile!r} is not one of {', '.join(map(repr, sorted(kinds)))}")
+    kind = profile_kind(profile)
+    d = read_table(rn, NODE_KEYS, loc, extra=kind.node_keys)
+    policy, mailboxes, abort = parse_queue(d["queue"], loc)
+    messages = []
+    for j, rm in enumerate(d["messages"], 1):
+        messages.append(_message(rm, j, source, label, d["name"], kind.timed_messages, kind.message_keys))
+    options = {k: d[k] for k in kind.node_keys}
+    return NodeDecl(name=d["name"], profile=profile, queue=d["queue"],
+                    mailboxes=mailboxes, abort=abort, tx_queue_size=d["tx_queue_size"],
+                    rx_fifo_size=d["rx_fifo_size"], drift_ppm=float(d["drift_ppm"]),
+                    clock_offset_ns=ms_to_ns(d["clock_offset_ms"]), listen_only=d["listen_only"], app=d["app"],
+                    messages=messages, options=options)
+
+
+def _message(rm: Any, j: int, source: str, node_label: str, node: str, timed: bool,
+             extra: Mapping[str, Key]) -> MessageDecl:
+    label = f"[[nodes.messages]] #{j}" + (f" {rm.get('name')!r}" if isinstance(rm, Mapping) and "name" in rm else "")
+    loc = where(source, node_label, label)
+    d = read_table(rm, MESSAGE_KEYS, loc, extra=extra)
+    rule = identifier_rule(d["extended"])(d["id"])
+    if rule is not None:
+        raise ScenarioError(f"{loc}: id: {rule}")
+    if d["period_ms"] is not None and d["sporadic_ms"] is not None:
+        raise ScenarioError(f"{loc}: give period_ms (periodic) or sporadic_ms (sporadic), not both")
+    if timed and d["period_ms"] is None and d["sporadic_ms"] is None:
+        raise ScenarioError(f"{loc}: key 'period_ms' or 'sporadic_ms' is required (when the message is released)")
+    if d["mean_ms"] is not None:
+        if d["sporadic_ms"] is None:
+            raise ScenarioError(f"{loc}: mean_ms: only a sporadic message (sporadic_ms) has a mean inter-arrival time")
+        if d["mean_ms"] < d["sporadic_ms"]:
+            raise ScenarioError(f"{loc}: mean_ms: {d['mean_ms']!r} is below the minimum inter-arrival "
+                                f"sporadic_ms {d['sporadic_ms']!r}")
+    interval = d["period_ms"] if d["period_ms"] is not None else d["sporadic_ms"]
+    if interval is not None and d["jitter_ms"] >= interval:
+        raise ScenarioError(f"{loc}: jitter_ms: {d['jitter_ms']!r} must be below the period {interval!r} ms")
+    data = None
+    if d["data"] is not None:
+        try:
+            data = bytes.fromhex(d["data"])
+        except ValueError:
+            raise ScenarioError(f"{loc}: data: {d['data']!r} is not hex bytes") from None
+        if len(data) != d["dlc"]:
+            raise ScenarioError(f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {d['dlc']}")
+    if d["remote"] and data is not None:
+        raise ScenarioError(f"{loc}: data: a remote frame carries no data (its dlc is the length it requests)")
+    deadline = d["deadline_ms"] if d["deadline_ms"] is not None else interval
+    return MessageDecl(
+        name=d["name"], node=node, can_id=d["id"], extended=d["extended"], dlc=d["dlc"], data=data,
+        remote=d["remote"], period_ns=None if d["period_ms"] is None else ms_to_ns(d["period_ms"]),
+        sporadic_ns=None if d["sporadic_ms"] is None else ms_to_ns(d["sporadic_ms"]),
+        mean_ns=None if d["mean_ms"] is None else ms_to_ns(d["mean_ms"]), offset_ns=ms_to_ns(d["offset_ms"]),
+        jitter_ns=ms_to_ns(d["jitter_ms"]), deadline_ns=None if deadline is None else ms_to_ns(deadline),
+        options={k: d[k] for k in extra})
+
+
+def _check_unique(nodes: list[NodeDecl], source: str) -> None:
+    seen: dict[str, int] = {}
+    for i, n in enumerate(nodes, 1):
+        if n.name in seen:
+            raise ScenarioError(f"{where(source, f'[[nodes]] #{i} {n.name!r}')}: name: {n.name!r} is already the "
+                                f"name of node #{seen[n.name]} (node names are unique on a bus)")
+        seen[n.name] = i
+    names: dict[str, str] = {}
+    ids: dict[tuple[int, bool, bool], str] = {}
+    for n in nodes:
+        for m in n.messages:
+            loc = where(source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+            if m.name in names:
+                raise ScenarioError(f"{loc}: name: {m.name!r} is already a message of node {names[m.name]!r} "
+                                    "(message names are unique in a scenario)")
+            names[m.name] = n.name
+            key = (m.can_id, m.extended, m.remote)
+            if key in ids:
+                raise ScenarioError(f"{loc}: id: {m.id_text} is already used by message {ids[key]!r}: two senders "
+                                    "of one identifier collide on the bus (each identifier has one sender)")
+            ids[key] = m.name
+
+
+def _fault(rf: Any, i: int, source: str, node_names: set[str]) -> FaultDecl:
+    loc = where(source, f"[[faults]] #{i}")
+    if not isinstance(rf, Mapping):
+        raise ScenarioError(f"{loc}: expected a table, got {rf!r}")
+    kind = rf.get("kind")
+    if kind not in FAULT_KINDS:
+        raise ScenarioError(f"{loc}: kind: {kind!r} is not one of {', '.join(map(repr, FAULT_KINDS))}")
+    schema = dict(FAULT_KEYS[kind])
+    schema["kind"] = Key(str, REQUIRED)
+    d = read_table(rf, schema, loc)
+    for key in ("node",):
+        if key in d and d[key] not in node_names:
+            raise ScenarioError(f"{loc}: {key}: {d[key]!r} is not a node of this scenario")
+    if d.get("nodes") is not None:
+        bad = [x for x in d["nodes"] if x not in node_names]
+        if bad:
+            raise ScenarioError(f"{loc}: nodes: {bad[0]!r} is not a node of this scenario")
+    for a, b in (("start_ms", "end_ms"), ("at_ms", "reconnect_ms")):
+        if d.get(b) is not None and d.get(a) is not None and d[b] <= d[a]:
+            raise ScenarioError(f"{loc}: {b}: {d[b]!r} must be after {a} {d[a]!r}")
+    if kind == "babbling_idiot":
+        try:
+            data = bytes.fromhex(d["data"])
+        except ValueError:
+            raise ScenarioError(f"{loc}: data: {d['data']!r} is not hex bytes") from None
+        if len(data) > 8:
+            raise ScenarioError(f"{loc}: data: {len(data)} bytes: a CAN 2.0 frame carries at most 8")
+    if kind == "flip" and d["id"] is not None:
+        rule = identifier_rule(bool(d["extended"]))(d["id"])
+        if rule is not None:
+            raise ScenarioError(f"{loc}: id: {rule}")
+    del d["kind"]
+    return FaultDecl(kind=kind, params=d, index=i)
