@@ -7,7 +7,8 @@ node uses a priority queue.
 
 A node may be *gated* by a time-triggered schedule on the same bus (see the TDMA profile): then
 ``gate`` is set, and each release asks it when the frame may start and by when it must have
-started; ungated, the node sends at once whatever the schedule says.
+started; ungated (``tdma_gated = false`` in the scenario), the node sends at once whatever the
+schedule says.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from profiles.base import Context, Profile, frame_of, source_for
 from profiles.registry import ProfileKind, register
+from profiles.schema import Key
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
@@ -93,4 +95,6 @@ def _traffic(decl: "NodeDecl", scenario: "Scenario") -> "list[MessageSpec]":
 
 
 KIND = register(ProfileKind(name="csma", build=_build, traffic=_traffic,
+                            node_keys={"tdma_gated": Key(bool, True, doc="on a bus with a TDMA schedule: send only "
+                                                         "inside its arbitrating windows (false: ungated)")},
                             description="native CSMA/CR (plain CAN arbitration)"))
