@@ -118,10 +118,14 @@ def one_of(*choices: str) -> Callable[[Any], str | None]:
     return rule
 
 
+def _num(v: float) -> str:
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
+
+
 def in_range(lo: float, hi: float, what: str = "") -> Callable[[Any], str | None]:
     """Rule: lo <= value <= hi."""
     def rule(v: Any) -> str | None:
-        return None if lo <= v <= hi else f"{v!r} is outside {lo:g}..{hi:g}" + (f" ({what})" if what else "")
+        return None if lo <= v <= hi else f"{v!r} is outside {_num(lo)}..{_num(hi)}" + (f" ({what})" if what else "")
     return rule
 
 
