@@ -18,7 +18,7 @@ from array import array
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
-from stack import Frame, QueueFull, NodeError, TxDone, TxFailed
+from stack import Frame, NodeError, QueueFull
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.scenario import MessageDecl, NodeDecl, Scenario
@@ -58,10 +58,16 @@ class Track:
     dropped (queue full or node bus off at release), their response times (queued → end of EOF,
     bus ns), the SOF times of successful instances (for start-to-start jitter) and deadline
     misses — an instance that ends after its deadline, fails, is dropped, or is still pending
-    at the end of the run when its deadline has passed."""
+    at the end of the run when its deadline has passed.
+
+    It reads the outcome of each instance from its `TxRequest` (state, ``t_done``, ``sof``),
+    lazily — at the next release of the message and at the end — rather than through `TxDone`
+    listeners: a listener per frame would take the simulated bus off its fast path (the runner's
+    figure in `python -m stack.bench`).
+    """
 
     __slots__ = ("decl", "released", "sent", "failed", "dropped", "misses", "responses", "starts", "pending",
-                 "received", "monitor", "awaiting", "seen_early")
+                 "received", "monitor", "awaiting")
 
     def __init__(self, decl: "MessageDecl") -> None:
         self.decl = decl
@@ -73,16 +79,17 @@ class Track:
         self.received: int | None = None  # set by the runner: instances that reached another node
         self.responses: array[int] = array("q")
         self.starts: array[int] = array("q")
-        self.pending: dict["TxRequest", None] = {}
+        self.pending: dict["TxRequest", None] = {}  # queued instances, in release order
         # on a python-can bus the end of a frame is the monitor's receive timestamp (`observed`),
         # not the moment the driver handed it over: sent instances wait for it here
         self.monitor = False
         self.awaiting: dict["TxRequest", None] = {}
-        self.seen_early: set["TxRequest"] = set()
 
     def release(self, req: "TxRequest") -> None:
         """An instance was queued (``req.t_queued`` is its release time)."""
         self.released += 1
+        if self.pending:
+            self.settle()
         self.pending[req] = None
 
     def drop(self) -> None:
@@ -91,29 +98,38 @@ class Track:
         self.dropped += 1
         self.misses += 1
 
-    def done(self, req: "TxRequest") -> None:
-        """``req`` went out (`TxDone`)."""
-        if req in self.seen_early:
-            self.seen_early.discard(req)
-            return
-        if req not in self.pending:
-            return  # not one of this message's instances (a profile's own frame)
-        del self.pending[req]
-        if self.monitor:
-            self.awaiting[req] = None
-            return
-        self._complete(req, req.t_done, req.sof)
+    def settle(self, everything: bool = False) -> None:
+        """Account for the pending instances that finished, in release order — up to the first
+        still queued (instances of one message leave in order), or all with ``everything``."""
+        done = []
+        for req in self.pending:
+            st = req.state
+            if st == "queued":
+                if everything:
+                    continue
+                break
+            done.append(req)
+        for req in done:
+            del self.pending[req]
+            if req.state == "sent":
+                if self.monitor:
+                    self.awaiting[req] = None
+                else:
+                    self._complete(req, req.t_done, req.sof)
+            else:  # failed (one-shot, expired) or aborted
+                self.failed += 1
+                self.misses += 1
 
     def observed(self, t_end: int, sof: int) -> None:
         """A monitor on a python-can bus received this message at ``t_end`` (its SOF at ``sof``):
         the oldest instance handed to the bus ends there."""
+        self.settle()
         if self.awaiting:
             req = next(iter(self.awaiting))
             del self.awaiting[req]
         elif self.pending:  # the monitor saw it before the driver reported it sent
             req = next(iter(self.pending))
             del self.pending[req]
-            self.seen_early.add(req)
         else:
             return
         self._complete(req, t_end, sof)
@@ -127,17 +143,10 @@ class Track:
         if d is not None and resp > d:
             self.misses += 1
 
-    def fail(self, req: "TxRequest") -> None:
-        """``req`` will not be sent (`TxFailed`)."""
-        if req not in self.pending:
-            return
-        del self.pending[req]
-        self.failed += 1
-        self.misses += 1
-
     def finish(self, t_end: int) -> int:
-        """At the end of the run: instances still pending whose deadline has passed are misses.
-        Returns how many are still pending."""
+        """At the end of the run: every finished instance is accounted for; those still pending
+        whose deadline has passed are misses. Returns how many are still pending."""
+        self.settle(everything=True)
         d = self.decl.deadline_ns
         left = list(self.pending) + list(self.awaiting)
         if d is not None:
@@ -205,8 +214,6 @@ class Profile:
         for m in decl.messages:
             tr = context.recorder.track(m)
             self.tracks[frame_of(m).key] = tr
-        node.listen(TxDone, self._tx_done)
-        node.listen(TxFailed, self._tx_failed)
 
     def start(self) -> None:
         """Begin acting (timers, first releases)."""
@@ -214,16 +221,6 @@ class Profile:
     def summary(self) -> dict[str, Any]:
         """The profile's own figures for the results (JSON-ready)."""
         return {}
-
-    def _tx_done(self, ev: TxDone) -> None:
-        tr = self.tracks.get(ev.frame.key)
-        if tr is not None:
-            tr.done(ev.request)
-
-    def _tx_failed(self, ev: TxFailed) -> None:
-        tr = self.tracks.get(ev.frame.key)
-        if tr is not None:
-            tr.fail(ev.request)
 
     def queue(self, frame: Frame, track: Track | None = None, **send: Any) -> "TxRequest | None":
         """Send ``frame`` (keyword arguments go to `send`: ``one_shot``, ``not_after``) and
