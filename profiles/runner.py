@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from profiles.base import Context, Profile, Recorder
+from profiles.base import Context, Profile, Recorder, frame_of
 from profiles.metrics import analyse_scenario, message_rows, summary_of
 from profiles.registry import profile_kind
 from profiles.scenario import FaultDecl, NodeDecl, Scenario, ScenarioError, ms_to_ns
@@ -224,8 +224,6 @@ def _count_receptions(built: Built) -> None:
         return
     by_key = {}
     for tr in tracks.values():
-        from profiles.base import frame_of
-
         by_key[frame_of(tr.decl).key] = tr
         tr.received = 0
     for rec in bus.trace:
@@ -266,8 +264,6 @@ def run_on_pycan(scenario: Scenario, interface: str, channel: Any, *, duration_s
     recorder = built.context.recorder
     for tr in recorder.tracks.values():
         tr.monitor = True  # ends come from the monitor's timestamps
-    from profiles.base import frame_of
-
     by_key = {frame_of(tr.decl).key: tr for tr in recorder.tracks.values()}
     busy = [0]
 
