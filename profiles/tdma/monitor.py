@@ -1,0 +1,280 @@
+"""The schedule as the bus shows it: every frame that went out, placed against the time windows
+of the basic cycle it fell in, and the figures of the ``tdma`` result.
+
+One `Monitor` per scenario (the first TDMA profile makes it; the others find it through the
+context). It listens to `TxDone`/`TxFailed` of every node of the scenario and reads the bus
+times the requests keep (``sof``, ``t_done``), so its verdicts do not depend on any node's clock:
+the windows of a basic cycle are placed on the bus from the start of frame of its reference
+message, in the time of the time master that sent it (a master whose oscillator drifts has its
+windows drift with it — the schedule *is* the master's clock). It classifies each frame as it
+completes (the reference message of its cycle is always already known then).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from profiles.tdma.schedule import ARBITRATING, EXCLUSIVE, Window, decode_reference
+from stack import LocalClock, TxDone, TxFailed
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.base import Context, Profile
+    from profiles.scenario import Scenario
+    from profiles.tdma.schedule import Schedule
+
+__all__ = ["Monitor", "master_clock", "window_bounds", "message_bounds"]
+
+
+def master_clock(scenario: "Scenario", schedule: "Schedule", priority: int) -> LocalClock | None:
+    """The oscillator of the time master of ``priority`` (None when it is perfect)."""
+    d = scenario.node(schedule.masters[priority])
+    if not d.drift_ppm and not d.clock_offset_ns:
+        return None
+    return LocalClock(offset_ns=d.clock_offset_ns, drift_ppm=d.drift_ppm)
+
+
+def window_bounds(clock: LocalClock | None, ref_sof: int, start_ns: int, end_ns: int) -> tuple[int, int]:
+    """Bus times of cycle times ``start_ns``..``end_ns`` (NTU ns of the master's clock) in the
+    basic cycle whose reference message started at bus time ``ref_sof``."""
+    if clock is None:
+        return ref_sof + start_ns, ref_sof + end_ns
+    mark = clock.local(ref_sof)
+    return clock.bus(mark + start_ns), clock.bus(mark + end_ns)
+
+
+def message_bounds(schedule: "Schedule", name: str) -> tuple[int | None, int | None, str | None]:
+    """The analytic worst case of a TDMA message, ns: (bound on the measured response — release
+    at the window's start to the end of EOF —, bound on the latency of data ready at any time,
+    why there is none).
+
+    In an exclusive window nothing contends: the frame starts within Tx_Enable and ends one
+    worst-case frame later, so response <= Tx_Enable + C (C without the intermission). Data ready
+    just after a window waits for the message's next window: latency <= the longest distance
+    between consecutive windows of the message over the matrix + that response. In an arbitrating
+    window nothing is guaranteed (it may lose every round). Neither bound covers a cycle whose
+    reference came late (a backup master's takeover adds its Initial_Ref_Offset once) nor
+    errors (exclusive windows do not retransmit).
+    """
+    ws = schedule.windows_of(name)
+    if not ws:
+        return None, None, "in no window"
+    if any(w.kind != EXCLUSIVE for w in ws):
+        return None, None, "arbitrating window: no guarantee (the frame may lose arbitration every time)"
+    c = schedule.frame_ns[name] - schedule.ntu(3)
+    response = schedule.tx_enable_ns + c
+    starts = sorted(k * schedule.basic_cycle_ns + w.start_ns for k in range(schedule.matrix_cycles)
+                    for w in ws if w.active(k))
+    span = schedule.matrix_cycles * schedule.basic_cycle_ns
+    gaps = [b - a for a, b in zip(starts, starts[1:])] + [starts[0] + span - starts[-1]]
+    return response, max(gaps) + response, None
+
+
+@dataclass
+class _WindowStats:
+    frames: int = 0
+    late_starts: int = 0
+    failed: int = 0
+    outside: int = 0
+    intrusions: int = 0
+
+
+@dataclass
+class _MessageStats:
+    frames: int = 0
+    late_starts: int = 0
+    failed: int = 0
+    outside: int = 0
+    offsets: list[int] = field(default_factory=list)
+
+
+@dataclass
+class _Traffic:
+    frames: int = 0
+    outside: int = 0
+    late_starts: int = 0
+
+
+class _Cycle:
+    """A basic cycle on the bus: its reference message's SOF, Cycle_Count, master, and the bus
+    times of its active windows."""
+
+    __slots__ = ("sof", "count", "priority", "bounds")
+
+    def __init__(self, sof: int, count: int, priority: int, bounds: list[tuple[Window, int, int]]) -> None:
+        self.sof = sof
+        self.count = count
+        self.priority = priority
+        self.bounds = bounds
+
+
+class Monitor:
+    """Bookkeeping of the schedule on the bus (see the module docstring)."""
+
+    def __init__(self, schedule: "Schedule", context: "Context") -> None:
+        self.schedule = schedule
+        self.context = context
+        sc = context.scenario
+        self.clocks = [master_clock(sc, schedule, p) for p in range(len(schedule.masters))]
+        self.gated_names = set(schedule.gated)
+        self.gates: dict[str, Any] = {}
+        self._tags: dict[Any, tuple[Window, str]] = {}
+        self._attached = False
+        self.cycle: _Cycle | None = None
+        self.reference_messages = 0
+        self.by_master = [0] * len(schedule.masters)
+        self.late_references = 0
+        self.missing = 0
+        self.switches: list[dict[str, Any]] = []
+        self.windows = {w.index: _WindowStats() for w in schedule.windows}
+        self.messages = {name: _MessageStats() for name in schedule.message_windows}
+        self.gated = {name: _Traffic() for name in schedule.gated}
+        self.unscheduled = _Traffic()
+        self.profiles: list["Profile"] = []
+
+    @classmethod
+    def of(cls, context: "Context", schedule: "Schedule") -> "Monitor":
+        """The scenario's monitor (made by the first TDMA profile built)."""
+        for p in context.profiles.values():
+            m = getattr(p, "monitor", None)
+            if isinstance(m, Monitor):
+                return m
+        return cls(schedule, context)
+
+    def attach(self, gate_factory: Any) -> None:
+        """Listen to every node of the scenario and gate the CSMA nodes the schedule gates
+        (``gate_factory(node, name, schedule)`` makes a node's gate); once, at the first TDMA
+        start."""
+        if self._attached:
+            return
+        self._attached = True
+        for name, node in self.context.nodes.items():
+            node.listen(TxDone, lambda ev, name=name: self._done(name, ev))
+            node.listen(TxFailed, lambda ev, name=name: self._failed(name, ev))
+        for name in self.schedule.gated:
+            prof = self.context.profiles.get(name)
+            if prof is not None and hasattr(prof, "gate"):
+                g = gate_factory(self.context.nodes[name], name, self.schedule)
+                self.gates[name] = g
+                prof.gate = g.gate
+                g.start()
+
+    def tag(self, req: Any, window: Window, message: str) -> None:
+        """``req`` is an instance of ``message`` sent for ``window``."""
+        self._tags[req] = (window, message)
+
+    # ------------------------------------------------------------------ events
+    def _reference(self, sof: int, priority: int, data: bytes) -> None:
+        s = self.schedule
+        info = decode_reference(data, s.level)
+        count = info.cycle_count if info is not None else 0
+        clock = self.clocks[priority]
+        cycle = s.basic_cycle_ns if clock is None else clock.duration_bus(s.basic_cycle_ns)
+        last = self.cycle
+        if last is not None:
+            gap = sof - last.sof
+            slack = s.watch_ns - s.basic_cycle_ns
+            self.missing += max(0, (gap - slack) // cycle)
+            if gap > cycle + s.bit_ns:
+                self.late_references += 1
+            if priority != last.priority:
+                self.switches.append({"at_ms": sof / 1e6, "from": s.masters[last.priority],
+                                      "to": s.masters[priority], "after_cycle_end_us": (gap - cycle) / 1000})
+        self.reference_messages += 1
+        self.by_master[priority] += 1
+        bounds = [(w, *window_bounds(clock, sof, w.start_ns, w.end_ns)) for w in s.windows if w.active(count)]
+        self.cycle = _Cycle(sof, count, priority, bounds)
+
+    def _done(self, node: str, ev: TxDone) -> None:
+        f = ev.frame
+        req = ev.request
+        prio = None if f.remote else self.schedule.priority_of(f.can_id, f.extended)
+        if prio is not None:
+            self._reference(req.sof, prio, f.data)
+            return
+        sof, end = req.sof, req.t_done
+        tag = self._tags.pop(req, None)
+        cyc = self.cycle
+        bounds = cyc.bounds if cyc is not None else []
+        if tag is not None:
+            w, name = tag
+            ws, ms = self.windows[w.index], self.messages[name]
+            ws.frames += 1
+            ms.frames += 1
+            mine = next(((a, b) for x, a, b in bounds if x is w), None)
+            if mine is not None:
+                ms.offsets.append(sof - mine[0])
+            if mine is None or not (mine[0] <= sof and end <= mine[1]):
+                ws.outside += 1
+                ms.outside += 1
+        else:
+            t = self.gated[node] if node in self.gated_names else self.unscheduled
+            t.frames += 1
+            if not any(x.kind == ARBITRATING and a <= sof and end <= b for x, a, b in bounds):
+                t.outside += 1
+        for x, a, b in bounds:
+            if sof < b and a < end:
+                legit = a <= sof and end <= b and (tag[0] is x if tag is not None else x.kind == ARBITRATING)
+                if not legit:
+                    self.windows[x.index].intrusions += 1
+
+    def _failed(self, node: str, ev: TxFailed) -> None:
+        tag = self._tags.pop(ev.request, None)
+        if tag is not None:
+            w, name = tag
+            if ev.kind == "expired":
+                self.windows[w.index].late_starts += 1
+                self.messages[name].late_starts += 1
+            elif ev.kind != "aborted":
+                self.windows[w.index].failed += 1
+                self.messages[name].failed += 1
+        elif node in self.gated_names and ev.kind == "expired":
+            self.gated[node].late_starts += 1
+
+    # ------------------------------------------------------------------ results
+    def summary(self) -> dict[str, Any]:
+        """The ``tdma`` object of the results (see the README section)."""
+        s = self.schedule
+        bus = self.context.bus
+        missing = self.missing
+        if bus is not None and self.cycle is not None:
+            clock = self.clocks[self.cycle.priority]
+            cycle = s.basic_cycle_ns if clock is None else clock.duration_bus(s.basic_cycle_ns)
+            missing += max(0, (bus.now() - self.cycle.sof - (s.watch_ns - s.basic_cycle_ns)) // cycle)
+        windows = []
+        for w in s.windows:
+            st = self.windows[w.index]
+            windows.append({"window": w.index, "kind": w.kind, "start_us": w.start_ns / 1000,
+                            "length_us": w.length_ns / 1000, "base_cycle": w.base_cycle, "repeat": w.repeat,
+                            "messages": list(w.messages), "frames": st.frames, "late_starts": st.late_starts,
+                            "failed": st.failed, "outside": st.outside, "intrusions": st.intrusions})
+        messages = []
+        for name, st in self.messages.items():
+            rta, latency, note = message_bounds(s, name)
+            off = st.offsets
+            row: dict[str, Any] = {
+                "name": name, "node": s.owners[name], "windows": [s.windows[i].index for i in s.message_windows[name]],
+                "frames": st.frames, "late_starts": st.late_starts, "failed": st.failed, "outside": st.outside,
+                "start_offset_us": None if not off else {"min": min(off) / 1000, "mean": sum(off) / len(off) / 1000,
+                                                         "max": max(off) / 1000},
+                "jitter_us": None if not off else (max(off) - min(off)) / 1000,
+                "rta_ms": None if rta is None else rta / 1e6,
+                "latency_bound_ms": None if latency is None else latency / 1e6}
+            if note:
+                row["rta_note"] = note
+            messages.append(row)
+        nodes = {p.decl.name: p.summary() for p in self.profiles}
+        for name, g in self.gates.items():
+            nodes[name] = dict(g.fse.state(), gated=True)
+        outside = (sum(st.outside for st in self.windows.values()) + sum(t.outside for t in self.gated.values())
+                   + self.unscheduled.outside)
+        return {
+            "level": s.level, "basic_cycle_us": s.basic_cycle_ns / 1000, "matrix_cycles": s.matrix_cycles,
+            "tx_enable_us": s.tx_enable_ns / 1000, "reference_messages": self.reference_messages,
+            "references_by_master": {m: n for m, n in zip(s.masters, self.by_master)},
+            "cycles_without_reference": missing, "late_references": self.late_references,
+            "master_switches": len(self.switches), "switches": self.switches, "outside": outside,
+            "windows": windows, "messages": messages,
+            "gated": {n: vars(t) for n, t in self.gated.items()},
+            "unscheduled": vars(self.unscheduled), "nodes": nodes,
+        }

@@ -1,0 +1,498 @@
+"""The system matrix of a time-triggered CAN network (ISO 11898-4, TTCAN): the ``[tdma]`` table
+of a scenario, checked, and the reference message's layout.
+
+Terms are the standard's. A *basic cycle* starts with the *reference message* of the current
+time master and is cut into *time windows*; ``matrix_cycles`` basic cycles (1, 2, 4 … 64) make
+the *system matrix*, and the reference message's Cycle_Count says which row of the matrix runs.
+A window is *exclusive* (one message of one node, sent without contention and without automatic
+retransmission), *arbitrating* (event messages compete by CAN arbitration inside it) or *free*
+(reserved). A window entry is used in the basic cycles ``c`` with ``c mod repeat == base_cycle``
+(the standard's Repeat_Factor and Cycle_Offset), ``repeat`` a power of two.
+
+Times in the table are µs of the time master's clock; inside they are integer ns of it ("NTU
+ns"). The network time unit (NTU) is the nominal bit time: Tx_Enable, Ref_Trigger_Offset and
+the 16-bit Cycle_Time count in it.
+
+Reference message (the numbers and where they come from):
+
+- identifier: the configured ``reference_id`` with its three least significant bits replaced by
+  the sending time master's priority 0..7 (0 highest: the lowest identifier wins arbitration) —
+  up to 8 potential time masters (Bosch M_TTCAN user's manual §4.1.1; Infineon TC1796 MultiCAN
+  manual §22.5.8: "the 3 least significant bits ID[2:0] … are taken from TMPRIO");
+- data byte 0: bit 7 Next_is_Gap, bit 6 reserved (sent 0, ignored), bits 5..0 Cycle_Count
+  0..63 — one byte at level 1 (DLC ≥ 1, M_TTCAN §4.1.1 and TC1796 "RMDLC at least 1 in level 1");
+- level 2 (DLC ≥ 4, same sources): byte 1 bit 0 Disc_Bit (a discontinuity of the global time),
+  bits 7..1 NTU_Res (the fraction of Master_Ref_Mark, 1/128 NTU); bytes 2..3 Master_Ref_Mark,
+  the master's global time at the reference's start of frame in NTU, 16 bits. The byte order of
+  Master_Ref_Mark (low byte in byte 2) is this module's choice: the sources found name the fields
+  and the DLC but not their order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Mapping, NamedTuple
+
+from profiles.analysis.rta import ERROR_FRAME_BITS, frame_bits_worst
+from profiles.schema import (REQUIRED, Key, ScenarioError, in_range, non_negative, one_of, positive, read_table,
+                             where)
+from stack import Frame
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.scenario import MessageDecl, NodeDecl, Scenario
+
+__all__ = ["Schedule", "Window", "ReferenceInfo", "parse_schedule", "check_scenario", "encode_reference",
+           "decode_reference", "EXCLUSIVE", "ARBITRATING", "FREE", "MATRIX_SIZES", "MAX_TIME_MASTERS",
+           "CYCLE_TIME_NTU", "MARK_MODULUS", "frame_ns_worst", "TDMA_KEYS", "WINDOW_KEYS"]
+
+EXCLUSIVE = "exclusive"
+ARBITRATING = "arbitrating"
+FREE = "free"
+MATRIX_SIZES = (1, 2, 4, 8, 16, 32, 64)
+"""Basic cycles in a system matrix: Cycle_Count has 6 bits (0..63)."""
+MAX_TIME_MASTERS = 8
+"""Three identifier bits carry the time master's priority."""
+CYCLE_TIME_NTU = 0xFFFF
+"""Cycle_Time and the time marks are 16-bit NTU counts: a basic cycle (with its watch trigger)
+fits in 65535 NTU (the Init_Watch_Trigger fires at 2^16 - 1, TC1796 §22.7.3)."""
+REF_OFFSET_LIMIT = 127
+"""Ref_Trigger_Offset is -127..127 NTU (ISO 11898-4 §7.4.3, as quoted by the TTCAN model in
+Pipit); Initial_Ref_Offset is its start value for backup masters, 0..127."""
+NTU_RES_BITS = 7
+MARK_MODULUS = 1 << (16 + NTU_RES_BITS)
+"""Master_Ref_Mark with NTU_Res: 16 integer and 7 fraction bits of NTU, wrapping."""
+DEFAULT_TX_ENABLE_NTU = 16
+DEFAULT_INITIAL_REF_OFFSET = 127
+
+
+def frame_ns_worst(dlc: int, extended: bool, remote: bool, bit_ns: float, *, intermission: bool = True) -> int:
+    """Worst-case length of a frame in ns (stuffing at its worst, Davis et al. 2007 eq. 1), with
+    the 3-bit intermission or without it (SOF to the end of EOF)."""
+    bits = frame_bits_worst(0 if remote else dlc, extended) - (0 if intermission else 3)
+    return math.ceil(bits * bit_ns)
+
+
+class ReferenceInfo(NamedTuple):
+    """What a reference message's data says (see the module docstring for the layout)."""
+
+    cycle_count: int
+    next_is_gap: bool
+    mark: int | None
+    """Master_Ref_Mark with NTU_Res, in 1/128 NTU modulo `MARK_MODULUS` (level 2), else None."""
+    disc: bool
+
+
+def encode_reference(cycle_count: int, *, level: int, mark: int | None = None, disc: bool = False) -> bytes:
+    """The reference message's data bytes: Cycle_Count in byte 0 (Next_is_Gap 0: no gap mode),
+    and at level 2 NTU_Res/Disc_Bit in byte 1 and Master_Ref_Mark in bytes 2..3."""
+    if not 0 <= cycle_count <= 63:
+        raise ValueError(f"Cycle_Count {cycle_count} is outside 0..63")
+    if level == 1:
+        return bytes([cycle_count])
+    m = (mark or 0) % MARK_MODULUS
+    whole = m >> NTU_RES_BITS
+    return bytes([cycle_count, ((m & 0x7F) << 1) | int(disc), whole & 0xFF, whole >> 8])
+
+
+def decode_reference(data: bytes, level: int) -> ReferenceInfo | None:
+    """Read a reference message's data; None when it is too short to be one at this level (a
+    node does not accept it as a reference message, M_TTCAN §4.1.1)."""
+    if len(data) < (1 if level == 1 else 4):
+        return None
+    b0 = data[0]
+    if level == 1:
+        return ReferenceInfo(b0 & 0x3F, bool(b0 & 0x80), None, False)
+    mark = ((data[2] | (data[3] << 8)) << NTU_RES_BITS) | (data[1] >> 1)
+    return ReferenceInfo(b0 & 0x3F, bool(b0 & 0x80), mark, bool(data[1] & 1))
+
+
+@dataclass(frozen=True)
+class Window:
+    """One time window of the system matrix (an entry of ``[[tdma.windows]]``): from
+    ``start_ns`` to ``end_ns`` of the basic cycle (NTU ns), of ``kind``, for ``messages``, in the
+    basic cycles ``c`` with ``c mod repeat == base_cycle``. ``index`` is its number in the file
+    (1-based)."""
+
+    index: int
+    start_ns: int
+    length_ns: int
+    kind: str
+    messages: tuple[str, ...]
+    base_cycle: int
+    repeat: int
+
+    @property
+    def end_ns(self) -> int:
+        """The end of the window in the basic cycle."""
+        return self.start_ns + self.length_ns
+
+    def active(self, cycle_count: int) -> bool:
+        """True when the window is used in basic cycle ``cycle_count`` of the matrix (Repeat_Factor
+        and Cycle_Offset: ``cycle_count mod repeat == base_cycle``)."""
+        return cycle_count % self.repeat == self.base_cycle
+
+    def label(self) -> str:
+        """How errors and tables name it: ``window #3 (exclusive, 1200..1500 µs)``."""
+        return f"window #{self.index} ({self.kind}, {self.start_ns / 1000:g}..{self.end_ns / 1000:g} µs)"
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A checked ``[tdma]`` table: the reference message, the potential time masters in priority
+    order, the basic cycle and matrix, Tx_Enable, the level, the backup masters' Initial_Ref_Offset
+    and the Watch_Trigger, the error budget, and the windows; with the per-message facts the nodes
+    need (worst-case lengths, windows by message, owners)."""
+
+    reference_id: int
+    reference_extended: bool
+    masters: tuple[str, ...]
+    basic_cycle_ns: int
+    matrix_cycles: int
+    tx_enable_ns: int
+    level: int
+    initial_ref_offset: int
+    watch_ns: int
+    error_budget_bits: int
+    bitrate: int
+    windows: tuple[Window, ...]
+    message_windows: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
+    """Message name -> positions in ``windows`` (0-based)."""
+    owners: Mapping[str, str] = field(default_factory=dict)
+    """Message name -> the node that sends it."""
+    frame_ns: Mapping[str, int] = field(default_factory=dict)
+    """Message name -> worst-case length with intermission (ns)."""
+    gated: tuple[str, ...] = ()
+    """CSMA nodes that the schedule gates (``tdma_gated = true``)."""
+
+    @property
+    def bit_ns(self) -> float:
+        """The nominal bit time = one NTU, ns."""
+        return 1e9 / self.bitrate
+
+    def ntu(self, n: float) -> int:
+        """``n`` NTU as ns."""
+        return round(n * 1e9 / self.bitrate)
+
+    @property
+    def reference_dlc(self) -> int:
+        """1 at level 1, 4 at level 2 (the minimum the standard requires)."""
+        return 1 if self.level == 1 else 4
+
+    @property
+    def reference_frame_ns(self) -> int:
+        """Worst-case length of a reference message with intermission."""
+        return frame_ns_worst(self.reference_dlc, self.reference_extended, False, self.bit_ns)
+
+    @property
+    def budget_ns(self) -> int:
+        """The user's error budget per window, ns."""
+        return self.ntu(self.error_budget_bits)
+
+    @property
+    def reference_ids(self) -> tuple[int, ...]:
+        """The identifiers of the reference messages, by time master priority."""
+        return tuple(self.reference_id | p for p in range(len(self.masters)))
+
+    def priority_of(self, can_id: int, extended: bool) -> int | None:
+        """The time master priority a frame's identifier carries, if it is a reference message of
+        this schedule (all identifier bits but the three least significant ones match)."""
+        if extended != self.reference_extended or can_id & ~7 != self.reference_id:
+            return None
+        return can_id & 7
+
+    def reference_frame(self, priority: int, cycle_count: int, *, mark: int | None = None,
+                        disc: bool = False) -> Frame:
+        """The reference message time master ``priority`` sends to open basic cycle ``cycle_count``."""
+        data = encode_reference(cycle_count, level=self.level, mark=mark, disc=disc)
+        return Frame(self.reference_id | priority, data, extended=self.reference_extended)
+
+    def latest_start_ns(self, w: Window, frame_ns: int) -> int:
+        """The last cycle time a frame of worst-case length ``frame_ns`` (with intermission) may
+        start in window ``w``: the end of its Tx_Enable window in an exclusive window; in an
+        arbitrating window the last start that still ends, with the error budget, inside it."""
+        if w.kind == EXCLUSIVE:
+            return w.start_ns + self.tx_enable_ns
+        return w.end_ns - frame_ns - self.budget_ns
+
+    def windows_of(self, message: str) -> list[Window]:
+        """The windows a TDMA message is sent in."""
+        return [self.windows[i] for i in self.message_windows.get(message, ())]
+
+    def arbitrating(self) -> list[Window]:
+        """Arbitrating windows, by start."""
+        return sorted((w for w in self.windows if w.kind == ARBITRATING), key=lambda w: w.start_ns)
+
+
+def _power_of_two(v: int) -> bool:
+    return v >= 1 and v & (v - 1) == 0
+
+
+def _us(v: float) -> int:
+    return round(v * 1000)
+
+
+TDMA_KEYS = {
+    "reference_id": Key(int, REQUIRED, non_negative(), "identifier of the reference message; its 3 LSBs carry the "
+                        "time master's priority"),
+    "reference_extended": Key(bool, False),
+    "time_masters": Key(list, REQUIRED, doc="potential time masters (node names), highest priority first"),
+    "basic_cycle_us": Key(float, REQUIRED, positive("the basic cycle"), "µs"),
+    "matrix_cycles": Key(int, 1, lambda v: None if v in MATRIX_SIZES else
+                         f"{v!r} is not one of {', '.join(map(str, MATRIX_SIZES))} (a system matrix has 2^n basic "
+                         "cycles, Cycle_Count 0..63)"),
+    "tx_enable_us": Key(float, None, positive("the Tx_Enable window"), f"default {DEFAULT_TX_ENABLE_NTU} NTU"),
+    "level": Key(int, 1, lambda v: None if v in (1, 2) else f"{v!r} is not 1 or 2 (TTCAN level 1: cycle "
+                 "synchronisation; level 2: global time and drift correction)"),
+    "initial_ref_offset": Key(int, DEFAULT_INITIAL_REF_OFFSET, in_range(0, REF_OFFSET_LIMIT, "NTU, the backup "
+                              "masters' Initial_Ref_Offset")),
+    "watch_trigger_us": Key(float, None, positive("the Watch_Trigger"), "cycle time at which a missing reference "
+                            "message is an error"),
+    "error_budget_bits": Key(int, 0, non_negative("bits an error may add inside a window")),
+    "windows": Key(list, REQUIRED),
+}
+
+WINDOW_KEYS = {
+    "start_us": Key(float, REQUIRED, non_negative(), "cycle time of the window's start, µs"),
+    "length_us": Key(float, REQUIRED, positive("a window length"), "µs"),
+    "kind": Key(str, REQUIRED, one_of(EXCLUSIVE, ARBITRATING, FREE)),
+    "messages": Key(list, []),
+    "base_cycle": Key(int, 0, non_negative(), "the first basic cycle of the matrix that uses the window"),
+    "repeat": Key(int, 1, positive("a repeat factor"), "the window is used every `repeat` basic cycles"),
+}
+
+
+def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
+    """Check the ``[tdma]`` table of ``scenario`` against its nodes and return the `Schedule`.
+    Every refusal is a `ScenarioError` naming the file, the table, the key and the rule."""
+    src = scenario.source
+    loc = where(src, "[tdma]")
+    t = read_table(raw, TDMA_KEYS, loc)
+    bitrate = scenario.bitrate
+    bit_ns = 1e9 / bitrate
+    tdma_nodes = {n.name: n for n in scenario.nodes if n.profile == "tdma"}
+    owners = {m.name: n.name for n in tdma_nodes.values() for m in n.messages}
+    decls = {m.name: m for n in tdma_nodes.values() for m in n.messages}
+
+    masters = t["time_masters"]
+    if not masters or len(masters) > MAX_TIME_MASTERS:
+        raise ScenarioError(f"{loc}: time_masters: {len(masters)} names given: a TTCAN network has 1 to "
+                            f"{MAX_TIME_MASTERS} potential time masters (three identifier bits carry the priority)")
+    for name in masters:
+        if not isinstance(name, str) or name not in tdma_nodes:
+            raise ScenarioError(f"{loc}: time_masters: {name!r} is not a node with profile = 'tdma'")
+    if len(set(masters)) != len(masters):
+        dup = next(m for m in masters if masters.count(m) > 1)
+        raise ScenarioError(f"{loc}: time_masters: {dup!r} is named twice (each potential time master has one "
+                            "priority)")
+
+    ref_id, ref_ext = t["reference_id"], t["reference_extended"]
+    top = 0x1FFFFFFF if ref_ext else 0x7FF
+    if ref_id & 7:
+        raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X} has its three least significant bits set: they carry "
+                            f"the time master's priority (ISO 11898-4); give 0x{ref_id & ~7:X}")
+    if ref_id + len(masters) - 1 > top:
+        kind = "an extended (29-bit)" if ref_ext else "a standard (11-bit)"
+        raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X} with {len(masters)} time masters is not {kind} "
+                            f"identifier 0..0x{top:X}")
+    for m in scenario.messages:
+        if m.extended == ref_ext and not m.remote and ref_id <= m.can_id < ref_id + len(masters):
+            raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X}..0x{ref_id + len(masters) - 1:X} (the reference "
+                                f"messages of {len(masters)} time masters) includes message {m.name!r} ({m.id_text}): "
+                                "each identifier has one sender")
+
+    basic = _us(t["basic_cycle_us"])
+    ntu = bit_ns
+    if basic > CYCLE_TIME_NTU * ntu:
+        raise ScenarioError(f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is {basic / ntu:.0f} NTU at "
+                            f"{bitrate} bit/s: Cycle_Time counts 16 bits (at most {CYCLE_TIME_NTU} NTU = "
+                            f"{CYCLE_TIME_NTU * ntu / 1000:g} µs)")
+    tx_enable = _us(t["tx_enable_us"]) if t["tx_enable_us"] is not None else round(DEFAULT_TX_ENABLE_NTU * ntu)
+    level = t["level"]
+    ref_dlc = 1 if level == 1 else 4
+    ref_ns = frame_ns_worst(ref_dlc, ref_ext, False, bit_ns)
+    offset = t["initial_ref_offset"]
+    latest_ref = basic + round(offset * ntu) + ref_ns
+    if t["watch_trigger_us"] is None:
+        # past the backups' Tx_Ref_Trigger and room for their reference message and one
+        # retransmission after an error frame
+        watch = latest_ref + 2 * round((frame_bits_worst(ref_dlc, ref_ext) + ERROR_FRAME_BITS) * ntu)
+    else:
+        watch = _us(t["watch_trigger_us"])
+        if watch <= latest_ref:
+            raise ScenarioError(f"{loc}: watch_trigger_us: {t['watch_trigger_us']:g} µs must be after the backup "
+                                f"masters' reference message (the basic cycle {basic / 1000:g} µs + Initial_Ref_Offset "
+                                f"{offset} NTU + its {ref_ns / 1000:g} µs = {latest_ref / 1000:g} µs)")
+    if watch > CYCLE_TIME_NTU * ntu:
+        raise ScenarioError(f"{loc}: watch_trigger_us: the Watch_Trigger at {watch / 1000:g} µs is past the 16-bit "
+                            f"Cycle_Time ({CYCLE_TIME_NTU} NTU = {CYCLE_TIME_NTU * ntu / 1000:g} µs): shorten "
+                            "basic_cycle_us")
+    budget_ns = round(t["error_budget_bits"] * ntu)
+    matrix = t["matrix_cycles"]
+
+    windows: list[Window] = []
+    for i, rw in enumerate(t["windows"], 1):
+        windows.append(_window(rw, i, src, decls, owners, tdma_nodes, scenario, basic, matrix, ref_ns, budget_ns,
+                               tx_enable, bit_ns))
+    _check_overlaps(windows, src, matrix)
+
+    message_windows: dict[str, list[int]] = {}
+    for pos, w in enumerate(windows):
+        for name in w.messages:
+            message_windows.setdefault(name, []).append(pos)
+    for n in tdma_nodes.values():
+        for m in n.messages:
+            mloc = where(src, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+            if m.name not in message_windows:
+                raise ScenarioError(f"{mloc}: in no [[tdma.windows]]: a TDMA message is sent only in its time windows "
+                                    "(name it in a window's messages)")
+            _check_untimed(m, mloc)
+
+    frame_ns = {name: frame_ns_worst(d.dlc, d.extended, d.remote, bit_ns) for name, d in decls.items()}
+    gated = tuple(n.name for n in scenario.nodes if n.profile == "csma" and n.options.get("tdma_gated", True))
+    sched = Schedule(reference_id=ref_id, reference_extended=ref_ext, masters=tuple(masters), basic_cycle_ns=basic,
+                     matrix_cycles=matrix, tx_enable_ns=tx_enable, level=level, initial_ref_offset=offset,
+                     watch_ns=watch, error_budget_bits=t["error_budget_bits"], bitrate=bitrate,
+                     windows=tuple(windows), message_windows={k: tuple(v) for k, v in message_windows.items()},
+                     owners=owners, frame_ns=frame_ns, gated=gated)
+    _check_gated(scenario, sched)
+    return sched
+
+
+def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: dict[str, str],
+            tdma_nodes: "dict[str, NodeDecl]", scenario: "Scenario", basic: int, matrix: int, ref_ns: int,
+            budget_ns: int, tx_enable: int, bit_ns: float) -> Window:
+    loc = where(src, "[tdma]", f"[[tdma.windows]] #{i}")
+    d = read_table(rw, WINDOW_KEYS, loc)
+    start, length = _us(d["start_us"]), _us(d["length_us"])
+    kind = d["kind"]
+    repeat, base = d["repeat"], d["base_cycle"]
+    if not _power_of_two(repeat):
+        raise ScenarioError(f"{loc}: repeat: {repeat} is not a power of two (a message repeats every 1, 2, 4, … "
+                            "basic cycles: the standard's Repeat_Factor)")
+    if repeat > matrix:
+        raise ScenarioError(f"{loc}: repeat: {repeat} is more than matrix_cycles {matrix} (the matrix repeats every "
+                            f"{matrix} basic cycles)")
+    if base >= repeat:
+        raise ScenarioError(f"{loc}: base_cycle: {base} must be below repeat {repeat} (the first basic cycle of the "
+                            f"matrix that uses the window, 0..{repeat - 1}: the standard's Cycle_Offset)")
+    if start < ref_ns:
+        raise ScenarioError(f"{loc}: start_us: {d['start_us']:g} µs overlaps the reference message, which takes the "
+                            f"first {ref_ns / 1000:g} µs of every basic cycle (its worst-case length with intermission)")
+    if start + length > basic:
+        raise ScenarioError(f"{loc}: length_us: the window ends at {(start + length) / 1000:g} µs, past the end of the "
+                            f"basic cycle ({basic / 1000:g} µs, where the next reference message starts)")
+    names = d["messages"]
+    for name in names:
+        if not isinstance(name, str):
+            raise ScenarioError(f"{loc}: messages: {name!r} is not a message name")
+        if name not in decls:
+            other = next((n for n in scenario.nodes for m in n.messages if m.name == name), None)
+            if other is not None:
+                raise ScenarioError(f"{loc}: messages: {name!r} is a message of node {other.name!r} (profile "
+                                    f"{other.profile!r}): only messages of nodes with profile = 'tdma' go in windows "
+                                    "(CSMA nodes are gated into arbitrating windows)")
+            raise ScenarioError(f"{loc}: messages: {name!r} is not a message of a node with profile = 'tdma'")
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"{loc}: messages: {next(n for n in names if names.count(n) > 1)!r} is named twice")
+    if kind == FREE and names:
+        raise ScenarioError(f"{loc}: messages: a free window is reserved: it carries no message (got {len(names)})")
+    if kind == EXCLUSIVE:
+        senders = sorted({owners[n] for n in names})
+        if len(senders) > 1:
+            a = next(n for n in names if owners[n] == senders[0])
+            b = next(n for n in names if owners[n] == senders[1])
+            raise ScenarioError(f"{loc}: messages: {a!r} (node {senders[0]!r}) and {b!r} (node {senders[1]!r}): an "
+                                "exclusive window belongs to one node; make it arbitrating to let nodes compete")
+        if len(names) != 1:
+            raise ScenarioError(f"{loc}: messages: an exclusive window carries exactly one message (got {len(names)}); "
+                                "give each message its own window, or different base_cycle in the matrix")
+    for name in names:
+        m = decls[name]
+        f = frame_ns_worst(m.dlc, m.extended, m.remote, bit_ns)
+        need = f + budget_ns + (tx_enable if kind == EXCLUSIVE else 0)
+        if need > length:
+            parts = f"its worst case {f / 1000:g} µs ({f / bit_ns:.0f} bits with intermission)"
+            if kind == EXCLUSIVE:
+                parts += f" after a Tx_Enable window of {tx_enable / 1000:g} µs"
+            if budget_ns:
+                parts += f" plus the error budget {budget_ns / 1000:g} µs"
+            raise ScenarioError(f"{loc}: length_us: message {name!r} does not fit: {parts} needs {need / 1000:g} µs, "
+                                f"the window is {length / 1000:g} µs")
+    return Window(index=i, start_ns=start, length_ns=length, kind=kind, messages=tuple(names), base_cycle=base,
+                  repeat=repeat)
+
+
+def _share_cycles(a: Window, b: Window) -> int | None:
+    """The first basic cycle both windows are used in, or None (c = base mod repeat for both:
+    with powers of two, they meet iff the bases agree modulo the smaller repeat)."""
+    r = min(a.repeat, b.repeat)
+    if a.base_cycle % r != b.base_cycle % r:
+        return None
+    c = a.base_cycle
+    while c % b.repeat != b.base_cycle:
+        c += a.repeat
+    return c
+
+
+def _check_overlaps(windows: list[Window], src: str, matrix: int) -> None:
+    for j, b in enumerate(windows):
+        for a in windows[:j]:
+            if a.start_ns < b.end_ns and b.start_ns < a.end_ns:
+                c = _share_cycles(a, b)
+                if c is not None:
+                    raise ScenarioError(f"{where(src, '[tdma]', f'[[tdma.windows]] #{b.index}')}: start_us: overlaps "
+                                        f"{a.label()} in basic cycle {c} of the matrix (windows of one basic cycle "
+                                        "do not overlap)")
+
+
+def _check_untimed(m: "MessageDecl", loc: str) -> None:
+    for key, value in (("period_ms", m.period_ns), ("sporadic_ms", m.sporadic_ns), ("mean_ms", m.mean_ns)):
+        if value is not None:
+            raise ScenarioError(f"{loc}: {key}: a TDMA message is released by its time window, not by a period: "
+                                "remove it")
+    for key, value in (("offset_ms", m.offset_ns), ("jitter_ms", m.jitter_ns)):
+        if value:
+            raise ScenarioError(f"{loc}: {key}: a TDMA message is released at its window's start: remove it")
+
+
+def _check_gated(scenario: "Scenario", sched: Schedule) -> None:
+    arb = sched.arbitrating()
+    for n in scenario.nodes:
+        if n.name not in sched.gated:
+            continue
+        for m in n.messages:
+            f = frame_ns_worst(m.dlc, m.extended, m.remote, sched.bit_ns)
+            if not any(w.length_ns >= f + sched.budget_ns for w in arb):
+                loc = where(scenario.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+                widest = max((w.length_ns for w in arb), default=0)
+                raise ScenarioError(f"{loc}: no arbitrating window fits it ({f / 1000:g} µs worst case"
+                                    + (f" + error budget {sched.budget_ns / 1000:g} µs" if sched.budget_ns else "")
+                                    + (f"; the widest is {widest / 1000:g} µs" if arb else "; the schedule has none")
+                                    + "): a gated CSMA node sends only in arbitrating windows (set tdma_gated = false "
+                                    "on the node to let it send at any time)")
+
+
+def check_scenario(scenario: "Scenario", tables: dict[str, Any]) -> None:
+    """The profile's ``parse`` hook: read ``[tdma]`` when the scenario has TDMA nodes (refusing
+    one without the other), store the `Schedule` in ``scenario.tables["tdma"]``, and give each
+    TDMA message that has a single window its period (repeat × basic cycle), so that the
+    per-message rows report its start-to-start jitter like a periodic CSMA message's."""
+    tdma_nodes = [n for n in scenario.nodes if n.profile == "tdma"]
+    if "tdma" not in tables:
+        if tdma_nodes:
+            n = tdma_nodes[0]
+            raise ScenarioError(f"{where(scenario.source, f'[[nodes]] {n.name!r}')}: profile: 'tdma' needs a [tdma] "
+                                "table in the scenario (the schedule: reference_id, time_masters, basic_cycle_us, "
+                                "[[tdma.windows]])")
+        return
+    if not tdma_nodes:
+        raise ScenarioError(f"{where(scenario.source, '[tdma]')}: no node has profile = 'tdma' (a schedule needs its "
+                            "time-triggered nodes)")
+    sched = parse_schedule(scenario, tables["tdma"])
+    scenario.tables["tdma"] = sched
+    for n in tdma_nodes:
+        for m in n.messages:
+            ws = sched.windows_of(m.name)
+            if len(ws) == 1:
+                m.period_ns = ws[0].repeat * sched.basic_cycle_ns
