@@ -2,21 +2,32 @@
 of the basic cycle it fell in, and the figures of the ``tdma`` result.
 
 One `Monitor` per scenario (the first TDMA profile makes it; the others find it through the
-context). It listens to `TxDone`/`TxFailed` of every node of the scenario and reads the bus
-times the requests keep (``sof``, ``t_done``), so its verdicts do not depend on any node's clock:
-the windows of a basic cycle are placed on the bus from the start of frame of its reference
-message, in the time of the time master that sent it (a master whose oscillator drifts has its
-windows drift with it — the schedule *is* the master's clock). It classifies each frame as it
-completes (the reference message of its cycle is always already known then).
+context). The windows of a basic cycle are placed on the bus from the start of frame of its
+reference message, in the time of the time master that sent it (a master whose oscillator drifts
+has its windows drift with it — the schedule *is* the master's clock). Each frame is classified
+as it completes (the reference message of its cycle is always known by then).
+
+Where the frames' times come from:
+
+- on the simulated bus, from `TxDone`/`TxFailed` of every node: the bus times the requests keep
+  (``sof``, ``t_done``) are exact and do not depend on any node being connected;
+- on a python-can bus the driver only estimates a request's times (stamped when ``send``
+  returns), so frames are observed where they are received: at the first node of the scenario
+  (and at the second for the first one's own frames), start of frame and end as the driver
+  reports receptions — exact on the canstack interface and SocketCAN, whose timestamps are the
+  end of the frame; on python-can's ``virtual`` bus, which has no wire time, starts read one
+  frame length early. `TxFailed` still says which instances were withdrawn.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from profiles.tdma.schedule import ARBITRATING, EXCLUSIVE, Window, decode_reference
-from stack import LocalClock, TxDone, TxFailed
+from profiles.base import frame_of
+from stack import LocalClock, Received, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context, Profile
@@ -75,6 +86,7 @@ class _WindowStats:
     frames: int = 0
     late_starts: int = 0
     failed: int = 0
+    lost_arbitration: int = 0
     outside: int = 0
     intrusions: int = 0
 
@@ -84,6 +96,7 @@ class _MessageStats:
     frames: int = 0
     late_starts: int = 0
     failed: int = 0
+    lost_arbitration: int = 0
     outside: int = 0
     offsets: list[int] = field(default_factory=list)
 
@@ -119,7 +132,12 @@ class Monitor:
         self.gated_names = set(schedule.gated)
         self.gates: dict[str, Any] = {}
         self._tags: dict[Any, tuple[Window, str]] = {}
+        self._sent: dict[str, deque[Any]] = {name: deque() for name in schedule.message_windows}
         self._attached = False
+        self.observers: list[str] = []
+        self.senders = {frame_of(m).key: n.name for n in sc.nodes for m in n.messages}
+        self.message_of = {frame_of(m).key: m.name for n in sc.nodes if n.profile == "tdma" for m in n.messages}
+        self.senders.update({schedule.reference_frame(p, 0).key: name for p, name in enumerate(schedule.masters)})
         self.cycle: _Cycle | None = None
         self.reference_messages = 0
         self.by_master = [0] * len(schedule.masters)
@@ -148,9 +166,15 @@ class Monitor:
         if self._attached:
             return
         self._attached = True
+        simulated = self.context.bus is not None
         for name, node in self.context.nodes.items():
-            node.listen(TxDone, lambda ev, name=name: self._done(name, ev))
+            if simulated:
+                node.listen(TxDone, lambda ev, name=name: self._done(name, ev))
             node.listen(TxFailed, lambda ev, name=name: self._failed(name, ev))
+        if not simulated:
+            self.observers = list(self.context.nodes)[:2]
+            for name in self.observers:
+                self.context.nodes[name].subscribe(lambda ev, name=name: self._seen(name, ev))
         for name in self.schedule.gated:
             prof = self.context.profiles.get(name)
             if prof is not None and hasattr(prof, "gate"):
@@ -162,6 +186,8 @@ class Monitor:
     def tag(self, req: Any, window: Window, message: str) -> None:
         """``req`` is an instance of ``message`` sent for ``window``."""
         self._tags[req] = (window, message)
+        if self.observers:
+            self._sent[message].append(req)
 
     # ------------------------------------------------------------------ events
     def _reference(self, sof: int, priority: int, data: bytes) -> None:
@@ -186,14 +212,30 @@ class Monitor:
         self.cycle = _Cycle(sof, count, priority, bounds)
 
     def _done(self, node: str, ev: TxDone) -> None:
-        f = ev.frame
         req = ev.request
+        self._frame(node, ev.frame, req.sof, req.t_done, self._tags.pop(req, None))
+
+    def _seen(self, observer: str, ev: Received) -> None:
+        """A python-can bus: a frame as an observer received it (the first observer reports every
+        frame but its own, which the second reports)."""
+        f = ev.frame
+        sender = self.senders.get(f.key)
+        first = self.observers[0]
+        if sender == observer or (observer != first and sender != first):
+            return
+        tag = None
+        q = self._sent.get(self.message_of.get(f.key, ""))
+        while q and tag is None:  # the oldest instance handed to the bus (withdrawn ones lost their tag)
+            tag = self._tags.pop(q.popleft(), None)
+        sof = ev.sof if ev.sof >= 0 else ev.time
+        self._frame(sender or "", f, sof, ev.time, tag)
+
+    def _frame(self, node: str, f: Any, sof: int, end: int, tag: tuple[Window, str] | None) -> None:
+        """Place a frame that went out (bus times ``sof``..``end``) against the schedule."""
         prio = None if f.remote else self.schedule.priority_of(f.can_id, f.extended)
         if prio is not None:
-            self._reference(req.sof, prio, f.data)
+            self._reference(sof, prio, f.data)
             return
-        sof, end = req.sof, req.t_done
-        tag = self._tags.pop(req, None)
         cyc = self.cycle
         bounds = cyc.bounds if cyc is not None else []
         if tag is not None:
@@ -222,12 +264,10 @@ class Monitor:
         tag = self._tags.pop(ev.request, None)
         if tag is not None:
             w, name = tag
-            if ev.kind == "expired":
-                self.windows[w.index].late_starts += 1
-                self.messages[name].late_starts += 1
-            elif ev.kind != "aborted":
-                self.windows[w.index].failed += 1
-                self.messages[name].failed += 1
+            what = {"expired": "late_starts", "arbitration": "lost_arbitration", "aborted": None}.get(ev.kind, "failed")
+            if what is not None:
+                for st in (self.windows[w.index], self.messages[name]):
+                    setattr(st, what, getattr(st, what) + 1)
         elif node in self.gated_names and ev.kind == "expired":
             self.gated[node].late_starts += 1
 
@@ -247,14 +287,16 @@ class Monitor:
             windows.append({"window": w.index, "kind": w.kind, "start_us": w.start_ns / 1000,
                             "length_us": w.length_ns / 1000, "base_cycle": w.base_cycle, "repeat": w.repeat,
                             "messages": list(w.messages), "frames": st.frames, "late_starts": st.late_starts,
-                            "failed": st.failed, "outside": st.outside, "intrusions": st.intrusions})
+                            "failed": st.failed, "lost_arbitration": st.lost_arbitration, "outside": st.outside,
+                            "intrusions": st.intrusions})
         messages = []
         for name, st in self.messages.items():
             rta, latency, note = message_bounds(s, name)
             off = st.offsets
             row: dict[str, Any] = {
                 "name": name, "node": s.owners[name], "windows": [s.windows[i].index for i in s.message_windows[name]],
-                "frames": st.frames, "late_starts": st.late_starts, "failed": st.failed, "outside": st.outside,
+                "frames": st.frames, "late_starts": st.late_starts, "failed": st.failed,
+                "lost_arbitration": st.lost_arbitration, "outside": st.outside,
                 "start_offset_us": None if not off else {"min": min(off) / 1000, "mean": sum(off) / len(off) / 1000,
                                                          "max": max(off) / 1000},
                 "jitter_us": None if not off else (max(off) - min(off)) / 1000,
@@ -265,7 +307,7 @@ class Monitor:
             messages.append(row)
         nodes = {p.decl.name: p.summary() for p in self.profiles}
         for name, g in self.gates.items():
-            nodes[name] = dict(g.fse.state(), gated=True)
+            nodes[name] = g.state()
         outside = (sum(st.outside for st in self.windows.values()) + sum(t.outside for t in self.gated.values())
                    + self.unscheduled.outside)
         return {

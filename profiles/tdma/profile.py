@@ -104,6 +104,8 @@ class GatedReceiver:
         self.name = name
         self.schedule = schedule
         self.fse = Fse(node, schedule)
+        self.held = 0
+        self.waits: list[int] = []
 
     def start(self) -> None:
         """Follow the reference messages."""
@@ -113,10 +115,14 @@ class GatedReceiver:
         """When a frame released at local time ``now`` may be queued, and its latest start: the
         first arbitrating window, in this basic cycle or a later one of the matrix, whose last
         start for this frame (worst-case length and error budget) is not past. Not in schedule
-        (no reference messages yet, or lost): withdrawn at once (latest start before now)."""
+        (no reference messages yet, or lost): withdrawn at once (latest start before now).
+
+        The spine measures a CSMA message's response from the moment it is queued, so the time a
+        gate holds a frame for its window is not in it: `state` reports it (``gate_wait_ms``)."""
         s = self.schedule
         fse = self.fse
         if not fse.in_schedule or fse.cycle_count is None:
+            self.held += 1
             return now, now - 1
         length = frame_ns_worst(frame.dlc, frame.extended, frame.remote, s.bit_ns)
         ct = fse.cycle_time(now)
@@ -130,7 +136,16 @@ class GatedReceiver:
                 latest = base + s.latest_start_ns(w, length)
                 if latest < base + w.start_ns or latest < ct:
                     continue
-                start = max(base + w.start_ns, ct)
-                return max(now, fse.local(start)), fse.local(latest)
+                start = max(now, fse.local(max(base + w.start_ns, ct)))
+                self.waits.append(start - now)
+                return start, fse.local(latest)
+        self.held += 1
         return now, now - 1
+
+    def state(self) -> dict[str, Any]:
+        """The node's view of the schedule, how often the gate withdrew a frame at once (not in
+        schedule) and how long it held frames for their window (ms, local clock)."""
+        w = self.waits
+        return dict(self.fse.state(), gated=True, withdrawn_unsynchronised=self.held,
+                    gate_wait_ms=None if not w else {"mean": sum(w) / len(w) / 1e6, "max": max(w) / 1e6})
 
