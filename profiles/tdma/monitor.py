@@ -5,7 +5,9 @@ One `Monitor` per scenario (the first TDMA profile makes it; the others find it 
 context). The windows of a basic cycle are placed on the bus from the start of frame of its
 reference message, in the time of the time master that sent it (a master whose oscillator drifts
 has its windows drift with it — the schedule *is* the master's clock). Each frame is classified
-as it completes (the reference message of its cycle is always known by then).
+as it completes (the reference message of its cycle is always known by then): inside its window
+when it starts no earlier and ends no later than one NTU (the schedule's time resolution) beyond
+the window's bounds.
 
 Where the frames' times come from:
 
@@ -21,6 +23,7 @@ Where the frames' times come from:
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -79,6 +82,13 @@ def message_bounds(schedule: "Schedule", name: str) -> tuple[int | None, int | N
     span = schedule.matrix_cycles * schedule.basic_cycle_ns
     gaps = [b - a for a, b in zip(starts, starts[1:])] + [starts[0] + span - starts[-1]]
     return response, max(gaps) + response, None
+
+
+def _stats_us(values: list[int]) -> dict[str, float]:
+    """min, mean, p99 (nearest rank) and max of ns values, in µs."""
+    v = sorted(values)
+    return {"min": v[0] / 1000, "mean": sum(v) / len(v) / 1000, "p99": v[max(0, math.ceil(0.99 * len(v)) - 1)] / 1000,
+            "max": v[-1] / 1000}
 
 
 @dataclass
@@ -149,6 +159,7 @@ class Monitor:
         self.gated = {name: _Traffic() for name in schedule.gated}
         self.unscheduled = _Traffic()
         self.profiles: list["Profile"] = []
+        self.tol = schedule.ntu(1)
 
     @classmethod
     def of(cls, context: "Context", schedule: "Schedule") -> "Monitor":
@@ -238,6 +249,7 @@ class Monitor:
             return
         cyc = self.cycle
         bounds = cyc.bounds if cyc is not None else []
+        tol = self.tol  # the schedule's resolution: one NTU either side
         if tag is not None:
             w, name = tag
             ws, ms = self.windows[w.index], self.messages[name]
@@ -246,17 +258,17 @@ class Monitor:
             mine = next(((a, b) for x, a, b in bounds if x is w), None)
             if mine is not None:
                 ms.offsets.append(sof - mine[0])
-            if mine is None or not (mine[0] <= sof and end <= mine[1]):
+            if mine is None or not (mine[0] - tol <= sof and end <= mine[1] + tol):
                 ws.outside += 1
                 ms.outside += 1
         else:
             t = self.gated[node] if node in self.gated_names else self.unscheduled
             t.frames += 1
-            if not any(x.kind == ARBITRATING and a <= sof and end <= b for x, a, b in bounds):
+            if not any(x.kind == ARBITRATING and a - tol <= sof and end <= b + tol for x, a, b in bounds):
                 t.outside += 1
         for x, a, b in bounds:
-            if sof < b and a < end:
-                legit = a <= sof and end <= b and (tag[0] is x if tag is not None else x.kind == ARBITRATING)
+            if sof < b - tol and a + tol < end:
+                legit = a - tol <= sof and end <= b + tol and (tag[0] is x if tag is not None else x.kind == ARBITRATING)
                 if not legit:
                     self.windows[x.index].intrusions += 1
 
@@ -297,8 +309,7 @@ class Monitor:
                 "name": name, "node": s.owners[name], "windows": [s.windows[i].index for i in s.message_windows[name]],
                 "frames": st.frames, "late_starts": st.late_starts, "failed": st.failed,
                 "lost_arbitration": st.lost_arbitration, "outside": st.outside,
-                "start_offset_us": None if not off else {"min": min(off) / 1000, "mean": sum(off) / len(off) / 1000,
-                                                         "max": max(off) / 1000},
+                "start_offset_us": None if not off else _stats_us(off),
                 "jitter_us": None if not off else (max(off) - min(off)) / 1000,
                 "rta_ms": None if rta is None else rta / 1e6,
                 "latency_bound_ms": None if latency is None else latency / 1e6}
