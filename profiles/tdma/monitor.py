@@ -268,7 +268,8 @@ class Monitor:
                 t.outside += 1
         for x, a, b in bounds:
             if sof < b - tol and a + tol < end:
-                legit = a - tol <= sof and end <= b + tol and (tag[0] is x if tag is not None else x.kind == ARBITRATING)
+                own = tag[0] is x if tag is not None else x.kind == ARBITRATING
+                legit = own and a - tol <= sof and end <= b + tol
                 if not legit:
                     self.windows[x.index].intrusions += 1
 

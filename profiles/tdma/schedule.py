@@ -321,8 +321,9 @@ def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
         watch = _us(t["watch_trigger_us"])
         if watch <= latest_ref:
             raise ScenarioError(f"{loc}: watch_trigger_us: {t['watch_trigger_us']:g} µs must be after the backup "
-                                f"masters' reference message (the basic cycle {basic / 1000:g} µs + Initial_Ref_Offset "
-                                f"{offset} NTU + its {ref_ns / 1000:g} µs = {latest_ref / 1000:g} µs)")
+                                f"masters' reference message (the basic cycle {basic / 1000:g} µs + "
+                                f"Initial_Ref_Offset {offset} NTU + its {ref_ns / 1000:g} µs = "
+                                f"{latest_ref / 1000:g} µs)")
     if watch > CYCLE_TIME_NTU * ntu:
         raise ScenarioError(f"{loc}: watch_trigger_us: the Watch_Trigger at {watch / 1000:g} µs is past the 16-bit "
                             f"Cycle_Time ({CYCLE_TIME_NTU} NTU = {CYCLE_TIME_NTU * ntu / 1000:g} µs): shorten "
@@ -377,11 +378,12 @@ def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: 
         raise ScenarioError(f"{loc}: base_cycle: {base} must be below repeat {repeat} (the first basic cycle of the "
                             f"matrix that uses the window, 0..{repeat - 1}: the standard's Cycle_Offset)")
     if start < ref_ns:
-        raise ScenarioError(f"{loc}: start_us: {d['start_us']:g} µs overlaps the reference message, which takes the "
-                            f"first {ref_ns / 1000:g} µs of every basic cycle (its worst-case length with intermission)")
+        raise ScenarioError(f"{loc}: start_us: {d['start_us']:g} µs overlaps the reference message, which takes "
+                            f"the first {ref_ns / 1000:g} µs of every basic cycle (its worst-case length with "
+                            "intermission)")
     if start + length > basic:
-        raise ScenarioError(f"{loc}: length_us: the window ends at {(start + length) / 1000:g} µs, past the end of the "
-                            f"basic cycle ({basic / 1000:g} µs, where the next reference message starts)")
+        raise ScenarioError(f"{loc}: length_us: the window ends at {(start + length) / 1000:g} µs, past the end of "
+                            f"the basic cycle ({basic / 1000:g} µs, where the next reference message starts)")
     names = d["messages"]
     for name in names:
         if not isinstance(name, str):
