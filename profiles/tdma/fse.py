@@ -28,9 +28,13 @@ the numbers in brackets are those clauses):
   highest priority; a returning primary meets the current master at offset 0 at a cycle boundary
   and wins by arbitration.
 - The reference request stays active until any reference message completes (sent or received)
-  or the Watch_Trigger; a reference that loses arbitration is not retried; one disturbed by an
-  error is repeated at once with an updated Master_Ref_Mark (sent one-shot and re-queued here,
-  because a frame cannot change while the controller holds it).
+  or the Watch_Trigger: a reference that lost arbitration competes again at the next idle point
+  and is withdrawn the moment another master's reference completes — so it never follows the
+  winner's (TC1796 §22.5.8: "not retransmitted, but the message on the bus is received"; its
+  request flag is cleared by a correct reference message) — and keeps the bus when the winner's
+  is destroyed. One disturbed by an error is repeated at once with an updated Master_Ref_Mark
+  (sent one-shot and re-queued here, because a frame cannot change while the controller holds
+  it).
 - Level 2 [global time]: the master's global time is its local time plus a Local_Offset frozen
   when it took over; receivers compute the time unit ratio (TUR, NTU per local ns) from the
   Master_Ref_Marks and their own Ref_Marks of two successive reference messages and measure the
@@ -285,11 +289,15 @@ class Fse:
             return
         self.ref_req = None
         self._marks.pop(ev.request, None)
-        if ev.kind in ERROR_KINDS and self.sync is not SyncMode.OFF:
-            # repeated as soon as possible with an updated Master_Ref_Mark: the bus is idle after
-            # the 3-bit intermission (and 8 bits of suspend transmission when error passive)
+        if (ev.kind in ERROR_KINDS or ev.kind == "arbitration") and self.sync is not SyncMode.OFF:
+            # the request stays active: repeated as soon as possible with an updated
+            # Master_Ref_Mark — the bus is idle after the 3-bit intermission (and 8 bits of
+            # suspend transmission when error passive). After a lost arbitration the winner's
+            # frame is usually still on the wire: if it is a reference message, its completion
+            # withdraws this request before the next arbitration.
             bits = 3 + (8 if self.node.state is ErrorState.PASSIVE else 0)
-            self.reference_retransmissions += 1
+            if ev.kind != "arbitration":
+                self.reference_retransmissions += 1
             self._send_reference(self.node.now() + self.schedule.ntu(bits))
 
     def _state_changed(self, ev: ErrorStateChanged) -> None:

@@ -159,6 +159,37 @@ def test_every_master_gone_the_network_restarts_after_the_init_watch_trigger():
     assert t["nodes"]["gw"]["master_mode"] == "current_master"
 
 
+def test_a_master_stuck_recessive_goes_bus_off_while_the_backup_keeps_the_schedule():
+    """gw's transmitter is stuck recessive from 40 to 120 ms: its reference at 40.254 ms fails
+    (bit errors, error passive), the engine's arrives 254 µs after the cycle end. In later cycles
+    both request at offset 0; the simulated bus gives gw's attempt the bus first (the lower
+    identifier), it fails, and the engine's request — still active, no reference has completed —
+    goes out right after it. gw reaches bus off, recovers, listens until it is synchronised
+    (ISO 11898-4 8.3), fails again …; when the fault ends it takes the schedule back."""
+    def m(raw):
+        raw["bus"]["duration"] = 0.15
+        raw["faults"] = [{"kind": "stuck", "node": "gw", "level": "recessive", "start_ms": 40, "end_ms": 120}]
+    res, data = run(net(m))
+    t = data["tdma"]
+    assert t["switches"][0] == {"at_ms": 40.508, "from": "gw", "to": "eng", "after_cycle_end_us": 254.0}
+    assert t["switches"][-1]["to"] == "gw" and t["switches"][-1]["at_ms"] > 120
+    assert t["cycles_without_reference"] == 0 and t["outside"] == 0
+    assert t["nodes"]["gw"]["bus_off"] >= 1 and t["nodes"]["gw"]["master_mode"] == "current_master"
+    assert t["nodes"]["eng"]["watch_triggers"] == t["nodes"]["abs"]["watch_triggers"] == 0
+    refs = [r for r in res.trace if r.frame.can_id in (0x010, 0x011)]
+    followed = 0
+    for a, b in zip(refs, refs[1:]):
+        # from the second cycle on, both request at the cycle end: the engine's waits for gw's
+        # failed attempt and starts after the intermission
+        if a.kind == "error" and a.start > 41_000_000 and b.start - a.end < CYCLE // 2:
+            assert (b.kind, b.frame.can_id, b.start) == ("frame", 0x011, a.end + 3 * BIT)
+            followed += 1
+    assert followed >= 5
+    ok = [r for r in refs if r.kind == "frame"]
+    assert all(r.frame.can_id == 0x011 for r in ok if 40_500_000 < r.start < 120_000_000)
+    assert max(b.start - a.start for a, b in zip(ok, ok[1:])) < CYCLE + 127 * BIT + 100 * BIT
+
+
 def test_tx_enable_misses_are_counted_and_never_sent_late():
     """An ungated CSMA frame (0x050, 8 bytes) starts 100 µs before A's window in every cycle and
     holds the bus past A's Tx_Enable window (32 µs): A is withdrawn every time, never sent late."""
