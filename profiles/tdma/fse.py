@@ -259,6 +259,7 @@ class Fse:
         req = self.ref_req
         self.ref_req = None
         if req is not None:
+            self._marks.pop(req, None)
             self.node.abort(req)
 
     # ------------------------------------------------------------------ events in
