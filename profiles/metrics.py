@@ -44,6 +44,11 @@ def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
     where it applies) and ``assumptions`` (what was analysed, what was left out and why)."""
     specs: list[MessageSpec] = []
     unmodelled: list[str] = []
+    own: dict[str, tuple[int | None, str | None]] = {}  # the profiles' own bounds (ProfileKind.bounds)
+    for name in sorted({d.profile for d in scenario.nodes}):
+        kind = profile_kind(name)
+        if kind.bounds is not None:
+            own.update(kind.bounds(scenario))
     for d in scenario.nodes:
         kind = profile_kind(d.profile)
         if kind.traffic is None:
@@ -58,7 +63,9 @@ def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
     if unmodelled:
         notes.append("no worst-case model of the traffic of " + ", ".join(unmodelled)
                      + ": the analysis does not apply to this bus")
-        return {"results": {}, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
+        if own:
+            notes.append("messages with a bound of their own profile (a schedule's window) show it as rta_ms")
+        return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
     # nodes that do not send their highest-priority frame first
     lowest_inverting: int | None = None
     for d in scenario.nodes:
@@ -77,7 +84,7 @@ def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
     results = analyse(specs, scenario.bitrate, errors=errors) if specs else {}
     for name in excluded:
         results.pop(name, None)
-    return {"results": results, "excluded": excluded,
+    return {"results": results, "excluded": excluded, "own": own,
             "assumptions": {"applies": True, "notes": notes, "excluded": excluded,
                             "error_model": None if errors is None else {"t_error_ms": scenario.analysis["t_error_ms"]},
                             "method": "Davis, Burns, Bril, Lukkien 2007 (busy period, every instance)"}}
@@ -94,11 +101,17 @@ def message_rows(scenario: "Scenario", recorder: Recorder, analysis: dict[str, A
         rta = None
         rta_release = None
         schedulable = None
+        own_note = None
         if r is not None:
             schedulable = r.schedulable
             if r.response_ns is not None:
                 rta = (r.response_ns - m.jitter_ns) / 1e6
                 rta_release = r.response_ns / 1e6
+        elif m.name in analysis.get("own", {}):
+            bound, own_note = analysis["own"][m.name]
+            if bound is not None:
+                rta = bound / 1e6
+                schedulable = None if m.deadline_ns is None else bound <= m.deadline_ns
         jitter = tr.jitter_ns() if tr is not None else None
         rows.append({
             "name": m.name, "node": m.node, "id": m.can_id, "extended": m.extended, "dlc": m.dlc,
@@ -112,7 +125,7 @@ def message_rows(scenario: "Scenario", recorder: Recorder, analysis: dict[str, A
             "deadline_misses": tr.misses if tr else 0,
             "rta_ms": rta, "rta_release_ms": rta_release, "schedulable": schedulable,
             "tightness": None if rta is None or resp is None or rta <= 0 else resp["max"] / rta,
-            "rta_note": analysis.get("excluded", {}).get(m.name) or (
+            "rta_note": analysis.get("excluded", {}).get(m.name) or own_note or (
                 None if r is None or r.response_ns is not None else r.unbounded_reason),
         })
     return rows

@@ -37,7 +37,10 @@ class ProfileKind:
     ``scenario.tables``; ``result_key`` and ``summarize(profiles, context)`` give the profile's
     own figures in the results (e.g. ``"master_slave"``); ``traffic(decl, scenario)`` is the
     worst-case model of a node's traffic for the response-time analysis (`MessageSpec` list) —
-    without it the analysis does not apply to a bus that carries this profile's frames.
+    without it the analysis does not apply to a bus that carries this profile's frames;
+    ``bounds(scenario)`` gives the profile's own analytic worst case per message where it has one
+    (message name -> (bound on the measured response in ns or None, a note)), printed as
+    ``rta_ms`` where the CAN response-time analysis gives none.
     """
 
     name: str
@@ -50,6 +53,7 @@ class ProfileKind:
     result_key: str | None = None
     summarize: "Callable[[list[Profile], Context], dict[str, Any]] | None" = None
     traffic: "Callable[[NodeDecl, Scenario], list[MessageSpec]] | None" = None
+    bounds: "Callable[[Scenario], dict[str, tuple[int | None, str | None]]] | None" = None
     description: str = ""
 
 

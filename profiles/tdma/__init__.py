@@ -24,13 +24,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from profiles.registry import ProfileKind, register
+from profiles.tdma.monitor import message_bounds
 from profiles.tdma.plots import tdma_schedule
 from profiles.tdma.profile import TdmaProfile
 from profiles.tdma.schedule import check_scenario
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context, Profile
-    from profiles.scenario import NodeDecl
+    from profiles.scenario import NodeDecl, Scenario
     from stack import NodeAPI
 
 __all__ = ["TdmaProfile", "KIND", "PLOTS"]
@@ -45,8 +46,21 @@ def _summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
     return {} if monitor is None else monitor.summary()
 
 
+def _bounds(scenario: "Scenario") -> dict[str, tuple[int | None, str | None]]:
+    """Each TDMA message's analytic worst case (`monitor.message_bounds`): release at its window's
+    start to the end of EOF, for messages in exclusive windows."""
+    schedule = scenario.tables.get("tdma")
+    if schedule is None:
+        return {}
+    out = {}
+    for name in schedule.owners:
+        response, _, note = message_bounds(schedule, name)
+        out[name] = (response, note)
+    return out
+
+
 KIND = register(ProfileKind(name="tdma", build=_build, timed_messages=False, tables=("tdma",), parse=check_scenario,
-                            result_key="tdma", summarize=_summarize,
+                            result_key="tdma", summarize=_summarize, bounds=_bounds,
                             description="time-triggered CAN (TTCAN-like, ISO 11898-4): windows in a system matrix"))
 
 PLOTS = {"tdma_schedule": tdma_schedule}
