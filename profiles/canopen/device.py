@@ -581,10 +581,14 @@ class CanopenDevice:
 
     def _heartbeat_back(self, m: MonitoredNode) -> None:
         self.emcy.clear(f"heartbeat-{m.node_id}")
+        self.emcy.clear(f"remote-reset-{m.node_id}")
 
     def _heartbeat_bootup(self, m: MonitoredNode) -> None:
-        if m.remote_resets and m.status == "unknown":
-            self.emcy.clear(f"heartbeat-{m.node_id}")
+        """A boot-up from a node that was being monitored: CANopenNode's 'heartbeat consumer
+        detected remote node reset', EMCY 0x8130, until its heartbeat comes back."""
+        if m.remote_reset:
+            if self.emcy.report(HEARTBEAT_ERROR, bytes([m.node_id]), key=f"remote-reset-{m.node_id}"):
+                m.lost = True  # cleared with the next heartbeat
 
     def _life_guarding(self, event: str) -> None:
         if event == "lost":
@@ -616,7 +620,7 @@ class CanopenDevice:
             self.sync.sync(d[0] if d else None, ev.time)
             return
         for tp in self._tpdo_ids.get(can_id, ()):
-            if tp.on_done(ev.request, ev.time):
+            if tp.on_done(ev.request, ev.time, ev.sof):
                 return
 
     def _on_tx_failed(self, ev: TxFailed) -> None:

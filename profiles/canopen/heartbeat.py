@@ -121,6 +121,8 @@ class MonitoredNode:
     missed: int = 0
     timeouts: int = 0
     remote_resets: int = 0
+    lost: bool = False  # a timeout not yet followed by a heartbeat
+    remote_reset: bool = False  # the last boot-up came while the node was being monitored
     last: int | None = None
     timer: Any = field(default=None, repr=False)
 
@@ -194,8 +196,8 @@ class HeartbeatConsumer:
         m.received += 1
         m.last = t
         if state == NmtState.INITIALISING:
-            was_active = m.status == "active"
-            if was_active:
+            m.remote_reset = m.status == "active"
+            if m.remote_reset:
                 m.remote_resets += 1
             old = m.state
             m.state = state
@@ -210,10 +212,11 @@ class HeartbeatConsumer:
             return
         old = m.state
         m.state = state
-        resumed = m.status == "timeout"
         m.status = "active"
-        if resumed and self.on_resume is not None:
-            self.on_resume(m)
+        if m.lost:
+            m.lost = False
+            if self.on_resume is not None:
+                self.on_resume(m)
         if m.timer is not None:
             m.timer.cancel()
             m.timer = None
@@ -227,6 +230,7 @@ class HeartbeatConsumer:
         m.missed += 1
         if m.status == "active":
             m.status = "timeout"
+            m.lost = True
             m.timeouts += 1
             if self.on_timeout is not None:
                 self.on_timeout(m)

@@ -172,6 +172,10 @@ class CanopenMaster:
         rec.boot_time = now
         rec.status = "configuring"
         self._event(m.node_id, "boot-up")
+        g = self.guarding.nodes.get(m.node_id) if self.guarding is not None else None
+        if g is not None:
+            g.expect_toggle = 0  # a booted node starts its toggle bit at 0 again
+            g.waiting = False
         client = self.sdo[m.node_id]
         client.cancel_all()
         steps: list[Callable[[Callable[[], None]], None]] = []
@@ -337,8 +341,8 @@ class CanopenMaster:
         reply); 'UNKNOWN' before one and after a heartbeat timeout."""
         m = self.consumer.nodes.get(node_id)
         g = self.guarding.nodes.get(node_id) if self.guarding is not None else None
-        if g is not None and g.state is not None and (m is None or m.state is None):
-            return g.state_name
+        if g is not None and g.state is not None:
+            return "UNKNOWN" if g.waiting and g.missed else g.state_name
         if m is None or m.state is None or m.status == "timeout":
             return "UNKNOWN"
         return m.state_name if m.state != NmtState.INITIALISING else state_name(NmtState.INITIALISING)

@@ -14,8 +14,8 @@ Transmission types (0x1800 + n-1, sub-index 2):
 254/255 event-driven (manufacturer/profile specific): sent when a mapped object changes, when
         the application asks (`Tpdo.request`), when the event timer (sub-index 5, ms) expires
         since the last transmission, and once on entering operational; never sooner than the
-        inhibit time (sub-index 3, 100 µs) after the previous one — an event during the inhibit
-        time is sent, with the data of that moment, when it ends.
+        inhibit time (sub-index 3, 100 µs) after the previous one started — an event during the
+        inhibit time is sent, with the data of that moment, when it ends.
 ======  =====================================================================================
 
 A synchronous TPDO that cannot start inside the synchronous window (0x1007, µs after the SYNC)
@@ -197,7 +197,11 @@ class Tpdo(Pdo):
     def _inhibit_over(self) -> None:
         self._inhibit_timer = None
         if self.pending_event and self.running:
-            self._event()
+            now = self.host.node.now()
+            if now < self.inhibit_until:  # the last frame started later than queued: wait for it
+                self._inhibit_timer = self.host.node.call_at(self.inhibit_until, self._inhibit_over)
+            else:
+                self._event()
 
     def _event_timer_over(self) -> None:
         self._event_timer = None
@@ -216,12 +220,16 @@ class Tpdo(Pdo):
         self.queued += 1
         self.pending[req] = t_sync
 
-    def on_done(self, req: TxRequest, t: int) -> bool:
-        """The controller sent ``req`` at ``t`` (TxDone); False when it was not this PDO's."""
+    def on_done(self, req: TxRequest, t: int, sof: int = -1) -> bool:
+        """The controller sent ``req``: its frame ended at ``t`` and started at ``sof`` (TxDone);
+        False when it was not this PDO's. The inhibit time counts from the start of the frame
+        (CiA 301: the minimum time between two transmissions), not from when it was queued."""
         if req not in self.pending:
             return False
         t_sync = self.pending.pop(req)
         self.sent += 1
+        if self.inhibit_ns and self.event_driven:
+            self.inhibit_until = max(self.inhibit_until, (sof if sof >= 0 else t) + self.inhibit_ns)
         if t_sync is not None:
             self.sync_latencies.append(t - t_sync)
         return True
