@@ -615,6 +615,9 @@ class CanopenDevice:
         if can_id == cob.HEARTBEAT + self.node_id and ev.frame.data[:1] != b"\x00":
             self.heartbeats_sent += 1
             return
+        if can_id == self.emcy.cob_id and self.emcy.enabled:
+            self.emcy.on_sent(ev.sof if ev.sof >= 0 else ev.time)
+            return
         if self.sync.producer and can_id == self.sync.cob_id and self.running:
             d = ev.frame.data
             self.sync.sync(d[0] if d else None, ev.time)

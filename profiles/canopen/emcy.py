@@ -205,6 +205,12 @@ class EmcyProducer:
             self.log.append((now, decode_emcy(data)))
             self._next_allowed = now + self.inhibit_ns
 
+    def on_sent(self, sof: int) -> None:
+        """An EMCY frame went out, started at ``sof``: the inhibit time counts from there (the
+        minimum time between two EMCY messages, not between two queued ones)."""
+        if self.inhibit_ns:
+            self._next_allowed = max(self._next_allowed, sof + self.inhibit_ns)
+
     def _inhibit_over(self) -> None:
         self._timer = None
         self.flush()
