@@ -122,7 +122,7 @@ class PdoOptions:
             elif key == "transmission_type":
                 tt = _int(where, value, 0, 255, "CiA 301 transmission type")
                 if 241 <= tt <= (253 if receive else 251):
-                    raise ValueError(f"{where} {tt}: reserved for an {'RPDO' if receive else 'TPDO'} "
+                    raise ValueError(f"{where} {tt}: reserved for {'an RPDO' if receive else 'a TPDO'} "
                                      f"(0..240, {'' if receive else '252, 253, '}254, 255)")
                 out.transmission_type = tt
             elif key == "inhibit_100us":
