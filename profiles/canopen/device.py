@@ -560,11 +560,13 @@ class CanopenDevice:
             tp.on_sync(counter, t)
 
     def _window_cycle(self) -> int:
-        """SYNCs in a whole cycle of the synchronous TPDOs (the largest type 1..240 in use):
-        the window error is cleared only after a cycle in which none was late, so that a PDO
-        late at every n-th SYNC does not raise and clear its EMCY every n SYNCs."""
-        return max([tp.transmission_type for tp in self.tpdos if tp.valid and 1 <= tp.transmission_type <= 240],
-                   default=1)
+        """SYNCs without a late TPDO before the window error is cleared: two whole cycles of the
+        synchronous TPDOs (twice the largest type 1..240 in use), at least 10 — so that a PDO
+        late now and then does not raise and clear its EMCY over and over (CANopenNode
+        re-evaluates the error at every SYNC; the EMCYs of a flapping error would load the
+        very bus that made the PDOs late)."""
+        return max(10, 2 * max([tp.transmission_type for tp in self.tpdos
+                                if tp.valid and 1 <= tp.transmission_type <= 240], default=1))
 
     def _sync_length_error(self, dlc: int) -> None:
         self.emcy.report(SYNC_LENGTH_ERROR, bytes([dlc]), key="sync-length")

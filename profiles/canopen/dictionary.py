@@ -203,6 +203,7 @@ class ObjectStore:
             self.vars[key] = var
             self.values[key] = _initial(var)
         self.initial = dict(self.values)
+        self._sizes: dict[tuple[int, int], int | None] = {}
         self.validators: dict[int, Validator] = {}
         self.readers: dict[int, Callable[[int], bytes]] = {}
         self._watchers: dict[tuple[int, int], list[Watcher]] = {}
@@ -257,23 +258,29 @@ class ObjectStore:
     def write(self, index: int, sub: int, data: bytes, *, sdo: bool = False) -> bool:
         """Store ``data`` after the checks of the module docstring (with ``sdo``, the access type
         too); tell the watchers. Returns whether the bytes changed. Raises `SdoAbort`."""
-        var = self.variable(index, sub)
+        key = (index, sub)
+        var = self.vars.get(key)
+        if var is None:
+            self.variable(index, sub)  # raises the right abort
         if sdo and not var.writable:
             raise SdoAbort(abort.READ_ONLY, f"0x{index:04X}:{sub} ({var.name}) is {var.access_type}")
-        size = _size(var)
+        size = self._sizes.get(key, -1)
+        if size == -1:
+            size = self._sizes[key] = _size(var)
         if size is not None and len(data) != size:
             code = abort.LENGTH_HIGH if len(data) > size else abort.LENGTH_LOW
             raise SdoAbort(code, f"0x{index:04X}:{sub} is {type_name(var.data_type)} ({size} bytes), got {len(data)}")
-        value = var.decode_raw(data) if size is not None else data
-        if var.data_type in datatypes.NUMBER_TYPES:
-            if var.max is not None and value > var.max:
-                raise SdoAbort(abort.VALUE_HIGH, f"0x{index:04X}:{sub}: {value} above HighLimit {var.max}")
-            if var.min is not None and value < var.min:
-                raise SdoAbort(abort.VALUE_LOW, f"0x{index:04X}:{sub}: {value} below LowLimit {var.min}")
         validator = self.validators.get(index)
-        if validator is not None:
-            validator(sub, value, data)
-        key = (index, sub)
+        limited = var.min is not None or var.max is not None
+        if validator is not None or limited:  # decoding costs ~1 us: only when someone looks
+            value = var.decode_raw(data) if size is not None else data
+            if limited and var.data_type in datatypes.NUMBER_TYPES:
+                if var.max is not None and value > var.max:
+                    raise SdoAbort(abort.VALUE_HIGH, f"0x{index:04X}:{sub}: {value} above HighLimit {var.max}")
+                if var.min is not None and value < var.min:
+                    raise SdoAbort(abort.VALUE_LOW, f"0x{index:04X}:{sub}: {value} below LowLimit {var.min}")
+            if validator is not None:
+                validator(sub, value, data)
         changed = self.values.get(key) != data
         self.values[key] = bytes(data)
         self.writes += 1

@@ -67,7 +67,9 @@ class HeartbeatProducer:
         a heartbeat goes out now and then every period (CANopenNode restarts the same way)."""
         self.period_ns = period_ms * MS
         if self.running:
-            self.start()
+            self._cancel()
+            if self.period_ns:
+                self._beat()
 
     def start(self) -> None:
         """Begin producing after the boot-up message: the first heartbeat one period later."""

@@ -9,7 +9,6 @@ import sys
 import time
 from pathlib import Path
 
-import can
 import canopen
 import pytest
 

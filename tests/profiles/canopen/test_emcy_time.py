@@ -1,7 +1,6 @@
 """EMCY producer (CiA 301 7.2.7; objects 0x1001, 0x1003, 0x1014, 0x1015) decoded by the
 ``canopen`` library's EMCY consumer, and TIME (7.2.6) against the library's TIME producer."""
 
-import struct
 
 import canopen
 import pytest

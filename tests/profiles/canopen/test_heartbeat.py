@@ -3,7 +3,6 @@ the heartbeat event, node guarding with the toggle bit and life guarding (CiA 30
 
 import canopen
 import pytest
-from canopen.emcy import EmcyConsumer
 
 from stack import Frame
 from profiles.canopen.dictionary import DEFAULT_EDS

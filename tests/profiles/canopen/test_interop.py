@@ -26,7 +26,6 @@ import threading
 import time
 from pathlib import Path
 
-import can
 import canopen
 import pytest
 
@@ -183,6 +182,7 @@ def test_heartbeat_timeout_detected_and_emcy_decoded(library_master):
     assert m[1]["heartbeat_consumer"][0]["timeouts"] >= 1
 
 
+@pytest.mark.filterwarnings("ignore::stack.io.pycan.PrivateBusWarning")  # a private bus is meant here
 def test_canstack_master_drives_a_canopen_local_node():
     """What works with LocalNode: once its application boots it (it does not on the master's
     reset), the master configures it by SDO (0x1017, which restarts its heartbeat), reads its

@@ -6,7 +6,6 @@ import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from stack import Frame
 from profiles.canopen.dictionary import DEFAULT_EDS
 
 MS = 1_000_000

@@ -92,7 +92,7 @@ def test_a_value_outside_the_objects_limits_is_skipped(bus, device, master_node)
 
 def test_an_rpdo_that_writes_a_mapped_object_triggers_an_event_driven_tpdo(bus, device, master_node, spy,
                                                                            frames_with):
-    d = device(4, heartbeat_ms=0, rpdo={1: {"mapping": ["0x2001:1/16"]}})  # TPDO2 (255) maps 0x2001:1
+    device(4, heartbeat_ms=0, rpdo={1: {"mapping": ["0x2001:1/16"]}})  # TPDO2 (255) maps 0x2001:1
     start(bus, master_node, 4)
     n = len(frames_with(spy, 0x284))
     master_node.send(Frame(0x204, (77).to_bytes(2, "little")))

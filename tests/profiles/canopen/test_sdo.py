@@ -6,7 +6,7 @@ import struct
 
 import canopen
 import pytest
-from canopen.sdo import SdoAbortedError, SdoCommunicationError
+from canopen.sdo import SdoAbortedError
 from canopen.sdo import constants as lib
 
 from stack import Frame
