@@ -25,19 +25,17 @@ from profiles.canopen._state import NmtState, ResetKind, allows
 from profiles.canopen.dictionary import COMMUNICATION_AREA, EdsError, ObjectStore, load_od
 from profiles.canopen.emcy import EmcyProducer
 from profiles.canopen.guarding import NodeGuardingSlave
-from profiles.canopen.heartbeat import HeartbeatConsumer, HeartbeatProducer, MonitoredNode, parse_consumer_entry
+from profiles.canopen.heartbeat import (HeartbeatConsumer, HeartbeatProducer, MonitoredNode, check_consumer_entry,
+                                        parse_consumer_entry)
 from profiles.canopen.nmt import NmtSlave
-from profiles.canopen.options import DeviceOptions
-from profiles.canopen.pdo.common import NO_RTR, NOT_VALID, Pdo
-from profiles.canopen.pdo.mapping import check_mapping
+from profiles.canopen.options import DeviceOptions, apply_device_options
+from profiles.canopen.pdo.common import Pdo
 from profiles.canopen.pdo.rpdo import Rpdo
 from profiles.canopen.pdo.tpdo import Tpdo
-from profiles.canopen.sdo import abort
-from profiles.canopen.sdo.abort import SdoAbort
 from profiles.canopen.sdo.server import SdoServer
 from profiles.canopen.stats import summary
-from profiles.canopen.sync import SyncConsumer, SyncProducer
-from profiles.canopen.timestamp import EPOCH_1984, TimeProducer, decode_time_of_day
+from profiles.canopen.sync import SyncConsumer, SyncProducer, check_cob_id_sync, check_counter_overflow
+from profiles.canopen.timestamp import EPOCH_1984, TimeProducer, check_cob_id_time, decode_time_of_day
 
 __all__ = ["CanopenDevice", "RpdoUpdate"]
 
@@ -84,7 +82,7 @@ class CanopenDevice:
         self.od = load_od(eds, self.node_id)
         self.store = ObjectStore(self.od)
         self.remap_in_operational = self.options.remap_in_operational
-        self._apply_options()
+        apply_device_options(self.store, self.options)
         self.store.initial = dict(self.store.values)  # resets restore the configured values
         self.running = False
 
@@ -130,84 +128,6 @@ class CanopenDevice:
         self.time_received: int | None = None
         self.state_log: list[tuple[int, str]] = []
 
-    # ------------------------------------------------------------------ options -> dictionary
-    def _apply_options(self) -> None:
-        o, s = self.options, self.store
-
-        def put(index: int, sub: int, value: Any, option: str) -> None:
-            if not s.has(index, sub):
-                raise ValueError(f"{option}: the dictionary has no object 0x{index:04X}:{sub}")
-            try:
-                s.set(index, sub, value)
-            except SdoAbort as exc:
-                raise ValueError(f"{option} {value!r}: {exc}") from None
-
-        if o.heartbeat_ms is not None:
-            put(0x1017, 0, o.heartbeat_ms, "heartbeat_ms")
-        if o.guard_time_ms is not None:
-            put(0x100C, 0, o.guard_time_ms, "guard_time_ms")
-        if o.life_time_factor is not None:
-            put(0x100D, 0, o.life_time_factor, "life_time_factor")
-        if o.heartbeat_consumers:
-            subs = sorted(k for k in self.od.indices[0x1016].subindices if k) if 0x1016 in self.od.indices else []
-            if len(o.heartbeat_consumers) > len(subs):
-                raise ValueError(f"heartbeat_consumers: {len(o.heartbeat_consumers)} nodes, the dictionary's 0x1016 "
-                                 f"has {len(subs)} entries")
-            for sub, (nid, ms) in zip(subs, sorted(o.heartbeat_consumers.items())):
-                put(0x1016, sub, (nid << 16) | ms, "heartbeat_consumers")
-        if o.sync_period_us is not None:
-            put(0x1006, 0, o.sync_period_us, "sync_period_us")
-        if o.sync_window_us is not None:
-            put(0x1007, 0, o.sync_window_us, "sync_window_us")
-        if o.sync_overflow is not None:
-            put(0x1019, 0, o.sync_overflow, "sync_overflow")
-        if o.sync_producer is not None or o.sync_cob_id is not None:
-            word = s.u(0x1005, 0, 0x80)
-            if o.sync_cob_id is not None:
-                word = (word & ~0x7FF) | o.sync_cob_id
-            if o.sync_producer is not None:
-                word = (word | 0x4000_0000) if o.sync_producer else (word & ~0x4000_0000)
-            put(0x1005, 0, word, "sync_producer")
-        if o.emcy_inhibit_100us is not None:
-            put(0x1015, 0, o.emcy_inhibit_100us, "emcy_inhibit_100us")
-        if o.time_producer_ms:
-            put(0x1012, 0, s.u(0x1012, 0, 0x100) | 0x4000_0000, "time_producer_ms")
-        for key, table, comm_base, map_base in (("tpdo", o.tpdo, 0x1800, 0x1A00), ("rpdo", o.rpdo, 0x1400, 0x1600)):
-            for n, p in table.items():
-                comm, mapping = comm_base + n - 1, map_base + n - 1
-                name = f"{key}.{n}"
-                if comm not in self.od.indices:
-                    raise ValueError(f"{name}: the dictionary has no {key.upper()}{n} (0x{comm:04X})")
-                word = s.u(comm, 1)
-                if p.cob_id is not None:
-                    word = (word & ~0x7FF) | p.cob_id
-                if p.valid is not None:
-                    word = (word & ~NOT_VALID) | (0 if p.valid else NOT_VALID)
-                if p.rtr is not None:
-                    word = (word & ~NO_RTR) | (0 if p.rtr else NO_RTR)
-                put(comm, 1, word, f"{name}.cob_id")
-                if p.transmission_type is not None:
-                    put(comm, 2, p.transmission_type, f"{name}.transmission_type")
-                if p.inhibit_100us is not None:
-                    put(comm, 3, p.inhibit_100us, f"{name}.inhibit_100us")
-                if p.event_timer_ms is not None:
-                    put(comm, 5, p.event_timer_ms, f"{name}.event_timer_ms")
-                if p.sync_start is not None:
-                    put(comm, 6, p.sync_start, f"{name}.sync_start")
-                if p.mapping is not None:
-                    try:
-                        check_mapping(s, p.mapping, receive=key == "rpdo")
-                    except SdoAbort as exc:
-                        raise ValueError(f"{name}.mapping: {exc}") from None
-                    entries = sorted(k for k in self.od.indices[mapping].subindices if k)
-                    if len(p.mapping) > len(entries):
-                        raise ValueError(f"{name}.mapping: {len(p.mapping)} entries, 0x{mapping:04X} has {len(entries)}")
-                    for sub, value in zip(entries, p.mapping):
-                        put(mapping, sub, value, f"{name}.mapping")
-                    put(mapping, 0, len(p.mapping), f"{name}.mapping")
-        for (index, sub), value in self.options.values.items():
-            put(index, sub, value, f"values.0x{index:04X}:{sub}")
-
     def _check_pdos(self) -> None:
         """A PDO the dictionary makes valid must have a usable mapping: an option naming it is a
         ValueError, the EDS an EdsError (CANopenNode reports it as EMCY 0x8200 and runs without
@@ -227,11 +147,13 @@ class CanopenDevice:
         if 0x1003 in self.od.indices:
             s.readers[0x1003] = self.emcy.read_history
             s.validators[0x1003] = self.emcy.write_history
-        s.validators[0x1005] = self._check_1005
-        s.validators[0x1019] = self._check_1019
-        s.validators[0x1016] = self._check_1016
-        s.validators[0x1014] = self._check_1014
-        s.validators[0x1012] = self._check_1012
+        s.validators[0x1005] = lambda sub, value, data: check_cob_id_sync(value, self.sync)
+        s.validators[0x1019] = lambda sub, value, data: check_counter_overflow(value, s.u(0x1006))
+        s.validators[0x1014] = lambda sub, value, data: self.emcy.check_cob_id(value)
+        s.validators[0x1012] = lambda sub, value, data: check_cob_id_time(value)
+        if 0x1016 in self.od.indices:
+            s.validators[0x1016] = lambda sub, value, data: check_consumer_entry(
+                sub, value, {k: s.u(0x1016, k) for k in self.od.indices[0x1016].subindices if k})
         for index in (0x1005, 0x1006, 0x1007, 0x1019):
             s.watch(index, None, self._sync_written)
         s.watch(0x1017, None, lambda i, k: self.heartbeat.configure(s.u(0x1017)))
@@ -241,47 +163,6 @@ class CanopenDevice:
         s.watch(0x1014, None, lambda i, k: self._configure_emcy())
         s.watch(0x1015, None, lambda i, k: self._configure_emcy())
         s.watch(0x1012, None, lambda i, k: self._time_written())
-
-    def _check_1005(self, sub: int, value: int, data: bytes) -> None:
-        can_id = value & 0x7FF
-        if value & 0xBFFF_F800:
-            raise SdoAbort(abort.INVALID_VALUE, "0x1005: bits 31 and 29..11 must be 0 (11-bit COB-ID SYNC)")
-        if cob.is_restricted(can_id):
-            raise SdoAbort(abort.INVALID_VALUE, f"0x1005: CAN-ID 0x{can_id:03X} is restricted (CiA 301 7.3.5)")
-        if self.sync.producer and value & 0x4000_0000 and can_id != self.sync.cob_id:
-            raise SdoAbort(abort.INVALID_VALUE, "0x1005: stop producing SYNC (bit 30) before changing its CAN-ID")
-
-    def _check_1019(self, sub: int, value: int, data: bytes) -> None:
-        if value == 1 or value > 240:
-            raise SdoAbort(abort.INVALID_VALUE, f"0x1019: {value}; the counter overflow value is 0 or 2..240")
-        if self.store.u(0x1006):
-            raise SdoAbort(abort.DEVICE_STATE, "0x1019 can change only while 0x1006 (cycle period) is 0")
-
-    def _check_1016(self, sub: int, value: int, data: bytes) -> None:
-        if sub == 0:
-            return
-        nid, ms = parse_consumer_entry(value)
-        if value >> 24 or nid > 127:
-            raise SdoAbort(abort.INVALID_VALUE, f"0x1016:{sub}: bits 31..24 are reserved (0), node-ID 0..127")
-        if nid and ms:
-            for k in self.od.indices[0x1016].subindices:
-                if k and k != sub:
-                    other, other_ms = parse_consumer_entry(self.store.u(0x1016, k))
-                    if other == nid and other_ms:
-                        raise SdoAbort(abort.PARAMETER_INCOMPATIBLE, f"0x1016:{sub}: node {nid} is monitored by "
-                                                                     f"sub-index {k} already")
-
-    def _check_1014(self, sub: int, value: int, data: bytes) -> None:
-        can_id = value & 0x7FF
-        enabled = not value & 0x8000_0000 and can_id != 0
-        if value & 0x7FFF_F800 or cob.is_restricted(can_id) and enabled:
-            raise SdoAbort(abort.INVALID_VALUE, f"0x1014: 0x{value:08X} is no usable COB-ID EMCY")
-        if self.emcy.enabled and enabled and can_id != self.emcy.cob_id:
-            raise SdoAbort(abort.INVALID_VALUE, "0x1014: set bit 31 (not valid) before changing the CAN-ID")
-
-    def _check_1012(self, sub: int, value: int, data: bytes) -> None:
-        if value & 0x3FFF_F800 or cob.is_restricted(value & 0x7FF):
-            raise SdoAbort(abort.INVALID_VALUE, f"0x1012: 0x{value:08X} is no usable COB-ID TIME")
 
     # ------------------------------------------------------------------ configuration -> services
     def _configure(self) -> None:

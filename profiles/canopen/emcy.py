@@ -24,6 +24,7 @@ from typing import Any, Callable, NamedTuple
 
 from stack import Frame
 
+from profiles.canopen import cob
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 
@@ -137,6 +138,16 @@ class EmcyProducer:
         self.cob_id = cob_id_emcy & 0x7FF
         self.enabled = not cob_id_emcy & 0x8000_0000 and self.cob_id != 0
         self.inhibit_ns = inhibit_100us * 100 * US
+
+    def check_cob_id(self, value: int) -> None:
+        """Validator of 0x1014 (CANopenNode's rules): bits 30..11 are 0, an enabled CAN-ID is not
+        restricted, and the CAN-ID changes only while EMCY is disabled (0x0609 0030 otherwise)."""
+        can_id = value & 0x7FF
+        enabled = not value & 0x8000_0000 and can_id != 0
+        if value & 0x7FFF_F800 or cob.is_restricted(can_id) and enabled:
+            raise SdoAbort(abort.INVALID_VALUE, f"0x1014: 0x{value:08X} is no usable COB-ID EMCY")
+        if self.enabled and enabled and can_id != self.cob_id:
+            raise SdoAbort(abort.INVALID_VALUE, "0x1014: set bit 31 (not valid) before changing the CAN-ID")
 
     @property
     def register(self) -> int:

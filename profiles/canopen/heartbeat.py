@@ -23,8 +23,11 @@ from stack import Frame
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtState, state_name
+from profiles.canopen.sdo import abort
+from profiles.canopen.sdo.abort import SdoAbort
 
-__all__ = ["HeartbeatProducer", "HeartbeatConsumer", "MonitoredNode", "consumer_entry", "parse_consumer_entry"]
+__all__ = ["HeartbeatProducer", "HeartbeatConsumer", "MonitoredNode", "consumer_entry", "parse_consumer_entry",
+           "check_consumer_entry"]
 
 MS = 1_000_000
 
@@ -40,6 +43,23 @@ def consumer_entry(node_id: int, time_ms: int) -> int:
 def parse_consumer_entry(value: int) -> tuple[int, int]:
     """(node-ID, time in ms) of a 0x1016 sub-index value."""
     return (value >> 16) & 0xFF, value & 0xFFFF
+
+
+def check_consumer_entry(sub: int, value: int, entries: dict[int, int]) -> None:
+    """Validator of 0x1016 sub-index ``sub`` among the current ``entries`` ({sub: value}):
+    bits 31..24 reserved and a node-ID 0..127 (0x0609 0030), and no node monitored twice with a
+    non-zero time (0x0604 0043, CANopenNode's parameter incompatibility)."""
+    if sub == 0:
+        return
+    nid, ms = parse_consumer_entry(value)
+    if value >> 24 or nid > 127:
+        raise SdoAbort(abort.INVALID_VALUE, f"0x1016:{sub}: bits 31..24 are reserved (0), node-ID 0..127")
+    if nid and ms:
+        for k, other_value in entries.items():
+            other, other_ms = parse_consumer_entry(other_value)
+            if k != sub and other == nid and other_ms:
+                raise SdoAbort(abort.PARAMETER_INCOMPATIBLE, f"0x1016:{sub}: node {nid} is monitored by "
+                                                             f"sub-index {k} already")
 
 
 class HeartbeatProducer:

@@ -12,12 +12,18 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field, fields
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from profiles.canopen import cob
-from profiles.canopen.pdo.mapping import entry_value
+from profiles.canopen.pdo.common import NO_RTR, NOT_VALID
+from profiles.canopen.pdo.mapping import check_mapping, entry_value
+from profiles.canopen.sdo.abort import SdoAbort
 
-__all__ = ["DeviceOptions", "MasterOptions", "PdoOptions", "parse_object_key", "parse_mapping_entry"]
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.canopen.dictionary import ObjectStore
+
+__all__ = ["DeviceOptions", "MasterOptions", "PdoOptions", "parse_object_key", "parse_mapping_entry",
+           "apply_device_options"]
 
 _U16 = 0xFFFF
 _U32 = 0xFFFF_FFFF
@@ -310,3 +316,85 @@ class MasterOptions:
         if out.heartbeat_consumer_ms is None and out.heartbeat_ms:
             out.heartbeat_consumer_ms = out.heartbeat_ms * 3 // 2 + 1
         return out
+
+
+def apply_device_options(s: "ObjectStore", o: DeviceOptions) -> None:
+    """Write the options into the dictionary before boot-up, as a DCF would (every object through
+    `ObjectStore.set`: its type and limits apply); a value the dictionary refuses is a ValueError
+    naming the option. CiA 301 objects: 0x1017, 0x100C/0x100D, 0x1016, 0x1006, 0x1007, 0x1019,
+    0x1005, 0x1015, 0x1012, the PDO parameters 0x1400../0x1600../0x1800../0x1A00.."""
+    od = s.od
+
+    def put(index: int, sub: int, value: Any, option: str) -> None:
+        if not s.has(index, sub):
+            raise ValueError(f"{option}: the dictionary has no object 0x{index:04X}:{sub}")
+        try:
+            s.set(index, sub, value)
+        except SdoAbort as exc:
+            raise ValueError(f"{option} {value!r}: {exc}") from None
+
+    if o.heartbeat_ms is not None:
+        put(0x1017, 0, o.heartbeat_ms, "heartbeat_ms")
+    if o.guard_time_ms is not None:
+        put(0x100C, 0, o.guard_time_ms, "guard_time_ms")
+    if o.life_time_factor is not None:
+        put(0x100D, 0, o.life_time_factor, "life_time_factor")
+    if o.heartbeat_consumers:
+        subs = sorted(k for k in od.indices[0x1016].subindices if k) if 0x1016 in od.indices else []
+        if len(o.heartbeat_consumers) > len(subs):
+            raise ValueError(f"heartbeat_consumers: {len(o.heartbeat_consumers)} nodes, the dictionary's 0x1016 "
+                             f"has {len(subs)} entries")
+        for sub, (nid, ms) in zip(subs, sorted(o.heartbeat_consumers.items())):
+            put(0x1016, sub, (nid << 16) | ms, "heartbeat_consumers")
+    if o.sync_period_us is not None:
+        put(0x1006, 0, o.sync_period_us, "sync_period_us")
+    if o.sync_window_us is not None:
+        put(0x1007, 0, o.sync_window_us, "sync_window_us")
+    if o.sync_overflow is not None:
+        put(0x1019, 0, o.sync_overflow, "sync_overflow")
+    if o.sync_producer is not None or o.sync_cob_id is not None:
+        word = s.u(0x1005, 0, 0x80)
+        if o.sync_cob_id is not None:
+            word = (word & ~0x7FF) | o.sync_cob_id
+        if o.sync_producer is not None:
+            word = (word | 0x4000_0000) if o.sync_producer else (word & ~0x4000_0000)
+        put(0x1005, 0, word, "sync_producer")
+    if o.emcy_inhibit_100us is not None:
+        put(0x1015, 0, o.emcy_inhibit_100us, "emcy_inhibit_100us")
+    if o.time_producer_ms:
+        put(0x1012, 0, s.u(0x1012, 0, 0x100) | 0x4000_0000, "time_producer_ms")
+    for key, table, comm_base, map_base in (("tpdo", o.tpdo, 0x1800, 0x1A00), ("rpdo", o.rpdo, 0x1400, 0x1600)):
+        for n, p in table.items():
+            comm, mapping = comm_base + n - 1, map_base + n - 1
+            name = f"{key}.{n}"
+            if comm not in od.indices:
+                raise ValueError(f"{name}: the dictionary has no {key.upper()}{n} (0x{comm:04X})")
+            word = s.u(comm, 1)
+            if p.cob_id is not None:
+                word = (word & ~0x7FF) | p.cob_id
+            if p.valid is not None:
+                word = (word & ~NOT_VALID) | (0 if p.valid else NOT_VALID)
+            if p.rtr is not None:
+                word = (word & ~NO_RTR) | (0 if p.rtr else NO_RTR)
+            put(comm, 1, word, f"{name}.cob_id")
+            if p.transmission_type is not None:
+                put(comm, 2, p.transmission_type, f"{name}.transmission_type")
+            if p.inhibit_100us is not None:
+                put(comm, 3, p.inhibit_100us, f"{name}.inhibit_100us")
+            if p.event_timer_ms is not None:
+                put(comm, 5, p.event_timer_ms, f"{name}.event_timer_ms")
+            if p.sync_start is not None:
+                put(comm, 6, p.sync_start, f"{name}.sync_start")
+            if p.mapping is not None:
+                try:
+                    check_mapping(s, p.mapping, receive=key == "rpdo")
+                except SdoAbort as exc:
+                    raise ValueError(f"{name}.mapping: {exc}") from None
+                entries = sorted(k for k in od.indices[mapping].subindices if k)
+                if len(p.mapping) > len(entries):
+                    raise ValueError(f"{name}.mapping: {len(p.mapping)} entries, 0x{mapping:04X} has {len(entries)}")
+                for sub, value in zip(entries, p.mapping):
+                    put(mapping, sub, value, f"{name}.mapping")
+                put(mapping, 0, len(p.mapping), f"{name}.mapping")
+    for (index, sub), value in o.values.items():
+        put(index, sub, value, f"values.0x{index:04X}:{sub}")

@@ -19,7 +19,11 @@ from typing import Any, Callable
 
 from stack import Frame
 
-__all__ = ["SyncConsumer", "SyncProducer", "SYNC_TIMEOUT_FACTOR"]
+from profiles.canopen import cob
+from profiles.canopen.sdo import abort
+from profiles.canopen.sdo.abort import SdoAbort
+
+__all__ = ["SyncConsumer", "SyncProducer", "SYNC_TIMEOUT_FACTOR", "check_cob_id_sync", "check_counter_overflow"]
 
 US = 1_000
 
@@ -166,3 +170,24 @@ class SyncProducer:
         self.sent += 1
         self._next += self.period_ns
         self._timer = self.call_at(self._next, self._tick)
+
+
+def check_cob_id_sync(value: int, sync: SyncConsumer) -> None:
+    """Validator of 0x1005 (CANopenNode's rules): bits 31 and 29..11 are 0, the CAN-ID is not
+    restricted, and a producer keeps its CAN-ID while it produces (0x0609 0030 otherwise)."""
+    can_id = value & 0x7FF
+    if value & 0xBFFF_F800:
+        raise SdoAbort(abort.INVALID_VALUE, "0x1005: bits 31 and 29..11 must be 0 (11-bit COB-ID SYNC)")
+    if cob.is_restricted(can_id):
+        raise SdoAbort(abort.INVALID_VALUE, f"0x1005: CAN-ID 0x{can_id:03X} is restricted (CiA 301 7.3.5)")
+    if sync.producer and value & 0x4000_0000 and can_id != sync.cob_id:
+        raise SdoAbort(abort.INVALID_VALUE, "0x1005: stop producing SYNC (bit 30) before changing its CAN-ID")
+
+
+def check_counter_overflow(value: int, period_us: int) -> None:
+    """Validator of 0x1019: 0 or 2..240 (0x0609 0030), and only while the cycle period 0x1006
+    is 0 (0x0800 0022, CANopenNode's ODR_DATA_DEV_STATE)."""
+    if value == 1 or value > 240:
+        raise SdoAbort(abort.INVALID_VALUE, f"0x1019: {value}; the counter overflow value is 0 or 2..240")
+    if period_us:
+        raise SdoAbort(abort.DEVICE_STATE, "0x1019 can change only while 0x1006 (cycle period) is 0")

@@ -16,7 +16,11 @@ from typing import Any, Callable
 
 from stack import Frame
 
-__all__ = ["encode_time_of_day", "decode_time_of_day", "TimeProducer", "EPOCH_1984", "DAY_MS"]
+from profiles.canopen import cob
+from profiles.canopen.sdo import abort
+from profiles.canopen.sdo.abort import SdoAbort
+
+__all__ = ["encode_time_of_day", "decode_time_of_day", "TimeProducer", "EPOCH_1984", "DAY_MS", "check_cob_id_time"]
 
 EPOCH_1984 = 441_763_200
 """1984-01-01T00:00:00Z as a Unix time (s): day 0 of TIME_OF_DAY."""
@@ -39,6 +43,12 @@ def decode_time_of_day(data: bytes) -> int:
         raise ValueError(f"a TIME_OF_DAY is 6 bytes, got {len(data)}")
     ms, days = _TOD.unpack_from(data)
     return EPOCH_1984 * 1000 + days * DAY_MS + (ms & 0x0FFF_FFFF)
+
+
+def check_cob_id_time(value: int) -> None:
+    """Validator of 0x1012: bits 29..11 are 0 and the CAN-ID is not restricted (0x0609 0030)."""
+    if value & 0x3FFF_F800 or cob.is_restricted(value & 0x7FF):
+        raise SdoAbort(abort.INVALID_VALUE, f"0x1012: 0x{value:08X} is no usable COB-ID TIME")
 
 
 class TimeProducer:

@@ -74,6 +74,7 @@ class BlockDownload(Transfer):
         self.retransmissions = 0
 
     def on_request(self, req: bytes) -> None:
+        """A segment of the sub-block (c | seqno, 7 bytes), or the end request after the last."""
         if self.last_segment_seen:
             self._end(req)
             return
@@ -133,6 +134,7 @@ class BlockUpload(Transfer):
         self.retransmissions = 0
 
     def on_request(self, req: bytes) -> None:
+        """The client's start (0xA3), acknowledgement (0xA2) or end (0xA1)."""
         cmd = req[0]
         if self.state == "start":
             if cmd != 0xA3:

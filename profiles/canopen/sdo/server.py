@@ -57,6 +57,7 @@ class SegmentedDownload(Transfer):
         self.buffer = bytearray()
 
     def on_request(self, req: bytes) -> None:
+        """A download segment: toggle bit, data, last-segment bit (CiA 301 7.2.4.3.4)."""
         cmd = req[0]
         if cmd & 0xE0 != 0x00:
             raise SdoAbort(abort.COMMAND, f"expected a download segment, got command 0x{cmd:02X}")
@@ -89,6 +90,7 @@ class SegmentedUpload(Transfer):
         self.toggle = 0
 
     def on_request(self, req: bytes) -> None:
+        """An upload segment request: answered with the next 7 bytes (CiA 301 7.2.4.3.6)."""
         cmd = req[0]
         if cmd & 0xEF != 0x60:
             raise SdoAbort(abort.COMMAND, f"expected an upload segment request, got command 0x{cmd:02X}")
