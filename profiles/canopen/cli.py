@@ -38,7 +38,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--interface", required=True, metavar="NAME",
                    help="python-can interface (socketcan, canstack, virtual, pcan, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
-    p.add_argument("--bitrate", type=_bitrate, default=None, help="bit/s, passed to the python-can bus")
+    p.add_argument("--bitrate", type=_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
     p.add_argument("--heartbeat", type=_ms, default=None, metavar="MS",
                    help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)")
     p.add_argument("--start", action="store_true", help="start operational without waiting for NMT start")

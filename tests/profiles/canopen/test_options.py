@@ -115,3 +115,11 @@ def test_parsers_accept_every_documented_form():
     assert parse_mapping_entry("m", 0x2002_0020) == 0x2002_0020
     assert DeviceOptions.parse({"heartbeat_consumers": [[3, 100]]}).heartbeat_consumers == {3: 100}
     assert MasterOptions.parse({"nodes": ["3"]}).nodes == [3]
+
+
+def test_node_id_and_eds_come_from_the_table_too(bus):
+    from profiles.canopen.dictionary import DEFAULT_EDS
+
+    table = tomllib.loads(f'node_id = 7\neds = "{DEFAULT_EDS}"\nheartbeat_ms = 10\n')
+    d = CanopenDevice(bus.node("d"), **table)
+    assert d.node_id == 7 and d.read(0x1017) == 10 and d.read(0x1014) == 0x87
