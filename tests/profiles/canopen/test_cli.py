@@ -105,6 +105,7 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
             assert "Ctrl-C stops it" in proc.stdout.readline()
             net.connect(interface="canstack", channel=srv.url)
             node = net.add_node(12, str(DEFAULT_EDS))
+            node.sdo.RESPONSE_TIMEOUT = 2.0  # a loaded CI machine is slow, not wrong
             node.nmt.wait_for_heartbeat(5.0)  # its first heartbeat, 100 ms after boot-up
             assert node.sdo[0x1018][2].raw == 1 and node.sdo[0x1008].raw == "canstack CANopen device"
             node.nmt.state = "OPERATIONAL"

@@ -45,6 +45,7 @@ from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError
 
 url, eds = sys.argv[1], sys.argv[2]
+canopen.sdo.SdoClient.RESPONSE_TIMEOUT = 2.0  # a loaded CI machine is slow, not wrong
 net = canopen.Network()
 net.connect(interface="canstack", channel=url)
 nodes = {i: net.add_node(i, eds) for i in (1, 2, 3)}
