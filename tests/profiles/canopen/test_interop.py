@@ -112,6 +112,7 @@ r["boot_up_after_reset"] = until(lambda: 0 in states[1][-3:])
 r["pre_operational_after_reset"] = until(lambda: states[1][-1] == 127)
 
 nodes[3].sdo[0x1017].raw = 0
+time.sleep(0.2)  # a heartbeat queued just before the write may still go out
 try:
     nodes[3].nmt.wait_for_heartbeat(0.5)
     r["heartbeat_3"] = "still beating"
