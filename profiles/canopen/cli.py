@@ -1,0 +1,166 @@
+"""`canstack canopen`: run a CANopen device (CiA 301 NMT slave) on any python-can bus until
+interrupted.
+
+    canstack canopen [EDS] --node-id N --interface I [--channel C] [--bitrate B]
+
+The device boots (boot-up message, pre-operational) and answers NMT, SDO (all three transfer
+modes), SYNC, PDOs, heartbeat/node guarding like the CANopenNode devices it imitates, so a
+master — the ``canopen`` library, a PLC, `CanopenMaster` — can drive it. It prints one line per
+NMT state change; Ctrl-C (or ``--duration``) stops it and prints what it did (``--json``: the
+device's metrics as one JSON object). Registered through the ``canstack.commands`` entry point
+(stack never imports profiles).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+from stack.cli import CliError, plural
+
+__all__ = ["register", "canopen_command"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``canopen`` subcommand."""
+    p = subparsers.add_parser(
+        "canopen", help="run a CANopen device (CiA 301 slave) on a python-can bus",
+        description="Run a CANopen device with the object dictionary of an EDS/DCF (default: canstack's small "
+                    "default device) on a python-can bus until interrupted: NMT, heartbeat, node guarding, SYNC, "
+                    "TPDOs/RPDOs, SDO (expedited, segmented, block), EMCY, TIME.")
+    p.add_argument("eds", metavar="EDS", nargs="?", default=None,
+                   help="EDS or DCF file (default: the default device shipped with canstack)")
+    p.add_argument("--node-id", required=True, type=_node_id, metavar="N", help="CANopen node-ID, 1..127")
+    p.add_argument("--interface", required=True, metavar="NAME",
+                   help="python-can interface (socketcan, canstack, virtual, pcan, ...)")
+    p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
+    p.add_argument("--bitrate", type=_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
+    p.add_argument("--heartbeat", type=_ms, default=None, metavar="MS",
+                   help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)")
+    p.add_argument("--start", action="store_true", help="start operational without waiting for NMT start")
+    p.add_argument("--duration", type=_seconds, default=None, metavar="S",
+                   help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="print the device's metrics as one JSON object at the end")
+    p.set_defaults(func=canopen_command)
+
+
+def _node_id(text: str) -> int:
+    try:
+        v = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 1 <= v <= 127:
+        raise argparse.ArgumentTypeError(f"{v}: a CANopen node-ID is 1..127 (CiA 301; 0 addresses all nodes)")
+    return v
+
+
+def _bitrate(text: str) -> int:
+    try:
+        v = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
+    if not 1_000 <= v <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+    return v
+
+
+def _ms(text: str) -> int:
+    try:
+        v = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of ms") from None
+    if not 0 <= v <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"{v}: the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)")
+    return v
+
+
+def _seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < v < 1e7:
+        raise argparse.ArgumentTypeError(f"{text}: a duration is a positive number of seconds")
+    return v
+
+
+def canopen_command(args: argparse.Namespace) -> int:
+    """Run the device (see the module docstring); returns the exit status."""
+    import can
+
+    from profiles.canopen.device import CanopenDevice
+    from profiles.canopen.dictionary import DEFAULT_EDS, load_od
+    from stack.io.driver import PyCanDriver
+
+    load_od(args.eds, args.node_id)  # a bad EDS is one line (EdsError names the file) before any bus opens
+    if args.interface == "canstack":
+        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
+    kw: dict[str, Any] = {} if args.bitrate is None else {"bitrate": args.bitrate}
+    try:
+        bus = can.Bus(interface=args.interface, channel=args.channel, **kw)
+    except (can.CanError, OSError, NotImplementedError, ValueError, ImportError) as exc:
+        raise CliError(f"cannot open {args.interface} channel {args.channel!r}: {' '.join(str(exc).split())}") from None
+    driver = PyCanDriver(**kw)
+    options: dict[str, Any] = {"start_operational": args.start}
+    if args.heartbeat is not None:
+        options["heartbeat_ms"] = args.heartbeat
+    try:
+        node = driver.add(_node(args.node_id), bus)
+        device = CanopenDevice(node, args.node_id, args.eds, **options)
+    except Exception:
+        bus.shutdown()
+        raise
+    out = sys.stdout
+    lock = threading.Lock()
+
+    def say(text: str) -> None:
+        with lock:
+            print(text, file=out, flush=True)
+
+    if not args.json:
+        device.on_state(lambda old, new: say(f"{node.now() / 1e9:10.3f} s  NMT {old.name} -> {new.name}"))
+        say(f"CANopen device {args.node_id} ({args.eds or DEFAULT_EDS.name}) on {args.interface} "
+            f"{args.channel or ''}: Ctrl-C stops it".replace("  :", ":"))
+    status = 0
+    driver.start()
+    try:
+        driver.submit(device.start)
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.05 if deadline is None else max(0.0, min(0.05, deadline - time.monotonic())))
+    except KeyboardInterrupt:
+        status = 130
+    finally:
+        done = threading.Event()
+        final: dict[str, Any] = {}
+
+        def finish() -> None:
+            final.update(device.metrics())  # the state it ran in, before it powers off
+            device.stop()
+            done.set()
+        driver.submit(finish)
+        done.wait(1.0)
+        driver.stop()
+        bus.shutdown()
+    m = final or device.metrics()
+    if args.json:
+        print(json.dumps(m), file=out)
+    else:
+        say(f"node {m['node_id']}: {m['nmt_state']}, {plural(m['boot_ups'], 'boot-up')}, "
+            f"{plural(m['heartbeats_sent'], 'heartbeat')}, {plural(m['sync_received'], 'SYNC')}, "
+            f"{plural(sum(t['sent'] for t in m['tpdos']), 'TPDO')} sent, "
+            f"{plural(sum(r['received'] for r in m['rpdos']), 'RPDO')} received, "
+            f"{plural(m['sdo']['requests'], 'SDO request')}, {plural(m['emcy_sent'], 'EMCY')}")
+    for err in driver.errors:
+        print(f"canstack canopen: {err}", file=sys.stderr)
+    return status
+
+
+def _node(node_id: int) -> Any:
+    from stack import Node
+
+    return Node(f"canopen-{node_id}")

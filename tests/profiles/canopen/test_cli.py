@@ -1,0 +1,121 @@
+"""`canstack canopen`: one-line errors with exit status 2, and a device run from the command
+line that the ``canopen`` library (in this process) drives over a `canstack serve` bus."""
+
+import importlib.metadata
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import canopen
+import pytest
+
+import stack.cli as cli
+import stack.io.pycan  # noqa: F401  (registers interface="canstack")
+from profiles.canopen.dictionary import DEFAULT_EDS
+from stack.io.serve import BusServer
+
+ROOT = Path(__file__).resolve().parents[3]
+EP = importlib.metadata.EntryPoint(name="canopen", value="profiles.canopen.cli:register", group="canstack.commands")
+
+
+def _installed() -> bool:
+    return any(ep.name == "canopen" for ep in importlib.metadata.entry_points(group="canstack.commands"))
+
+
+@pytest.fixture
+def registered(monkeypatch):
+    """The entry point as pyproject.toml declares it, also before the checkout is re-installed."""
+    if not _installed():
+        real = importlib.metadata.entry_points
+
+        def entry_points(**kw):
+            eps = real(**kw)
+            return importlib.metadata.EntryPoints([*eps, EP]) if kw.get("group") == "canstack.commands" else eps
+        monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+
+
+def run(capsys, *argv):
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_pyproject_registers_the_command():
+    import tomllib
+
+    py = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert py["project"]["entry-points"]["canstack.commands"]["canopen"] == EP.value
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--node-id", "0", "--interface", "virtual"], r"0: a CANopen node-ID is 1\.\.127"),
+    (["--node-id", "128", "--interface", "virtual"], r"128: a CANopen node-ID is 1\.\.127"),
+    (["--node-id", "x", "--interface", "virtual"], r"'x' is not an integer"),
+    (["--node-id", "5"], r"the following arguments are required: --interface"),
+    (["--node-id", "5", "--interface", "virtual", "--heartbeat", "70000"], r"70000: the producer heartbeat time"),
+    (["--node-id", "5", "--interface", "no-such-interface"], r"cannot open no-such-interface channel None"),
+])
+def test_bad_input_is_one_line_and_exit_status_2(capsys, registered, argv, message):
+    import re
+
+    code, out, err = run(capsys, "canopen", *argv)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and re.search(message, err)
+
+
+def test_a_malformed_eds_names_the_file(capsys, registered, tmp_path):
+    bad = tmp_path / "broken.eds"
+    bad.write_text(DEFAULT_EDS.read_text().replace("[1001]", "[1001"))
+    code, out, err = run(capsys, "canopen", str(bad), "--node-id", "5", "--interface", "virtual")
+    assert code == 2 and str(bad) in err and "not a valid EDS" in err and len(err.strip().splitlines()) == 1
+    code, out, err = run(capsys, "canopen", str(tmp_path / "none.eds"), "--node-id", "5", "--interface", "virtual")
+    assert code == 2 and "none.eds: no such file" in err
+
+
+def test_a_short_run_on_the_virtual_bus_prints_the_summary(capsys, registered):
+    code, out, err = run(capsys, "canopen", "--node-id", "9", "--interface", "virtual", "--channel", "co-cli",
+                         "--heartbeat", "50", "--duration", "0.3", "--start")
+    assert code == 0, err
+    assert "NMT INITIALISING -> OPERATIONAL" in out
+    assert "node 9: OPERATIONAL, 1 boot-up," in out
+    code, out, err = run(capsys, "canopen", "--node-id", "9", "--interface", "virtual", "--channel", "co-cli",
+                         "--duration", "0.1", "--json")
+    import json
+
+    m = json.loads(out)
+    assert code == 0 and m["node_id"] == 9 and m["nmt_state"] == "PRE_OPERATIONAL" and m["boot_ups"] == 1
+
+
+def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    if not _installed():  # the entry point of pyproject.toml, for a checkout not re-installed yet
+        dist = tmp_path / "canstack_canopen_entry-0.dist-info"
+        dist.mkdir()
+        (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: canstack-canopen-entry\nVersion: 0\n")
+        (dist / "entry_points.txt").write_text(f"[canstack.commands]\ncanopen = {EP.value}\n")
+    with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
+        proc = subprocess.Popen([sys.executable, "-m", "stack.cli", "canopen", "--node-id", "12", "--interface",
+                                 "canstack", "--channel", srv.url, "--heartbeat", "100"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        net = canopen.Network()
+        try:
+            assert "Ctrl-C stops it" in proc.stdout.readline()
+            net.connect(interface="canstack", channel=srv.url)
+            node = net.add_node(12, str(DEFAULT_EDS))
+            node.sdo.RESPONSE_TIMEOUT = 2.0  # a loaded CI machine is slow, not wrong
+            node.nmt.wait_for_heartbeat(5.0)  # its first heartbeat, 100 ms after boot-up
+            assert node.sdo[0x1018][2].raw == 1 and node.sdo[0x1008].raw == "canstack CANopen device"
+            node.nmt.state = "OPERATIONAL"
+            deadline = time.monotonic() + 3
+            while node.nmt.state != "OPERATIONAL" and time.monotonic() < deadline:
+                node.nmt.wait_for_heartbeat(1.0)
+            assert node.nmt.state == "OPERATIONAL"
+        finally:
+            net.disconnect()
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 130, err
+    assert "NMT PRE_OPERATIONAL -> OPERATIONAL" in out and "node 12: OPERATIONAL" in out
