@@ -13,8 +13,9 @@ Each device (the default EDS, node-IDs 1..5) sends
 
 Synchronous TPDOs must start within 600 µs of the SYNC (0x1007): the ones that cannot are not
 sent late (the "late" column). The heartbeat is 50 ms and the master consumes it with 75 ms.
-Device 3 dies at 500 ms: its heartbeat stops and the master reports it. The scenario file of the experiments will give the same with
-``profile = "canopen"`` / ``"canopen-master"`` tables; the options here are those tables.
+Device 3 dies at 500 ms: its heartbeat stops and the master reports it. examples/canopen.toml is
+the scenario-file form (``profile = "canopen"`` / ``"canopen-master"``; the options here are
+its ``[nodes.canopen]`` tables), without the application code that changes the inputs.
 """
 
 from __future__ import annotations

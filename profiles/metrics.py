@@ -164,6 +164,14 @@ def format_table(result_json: dict[str, Any]) -> str:
         lines.append(f"{m['name'][:16]:<16} {m['node'][:10]:<10} {ident:>10} {m['sent']:>6} {m['deadline_misses']:>5} "
                      f"{_ms(resp.get('min'))} {_ms(resp.get('mean'))} {_ms(resp.get('p99'))} {_ms(resp.get('max'))} "
                      f"{_ms(m['rta_ms'])} {tight} {_ms(m['jitter_ms'])}")
+    from profiles.registry import profile_kinds
+
+    for kind in profile_kinds().values():
+        if kind.text is not None and kind.result_key in r and r[kind.result_key]:
+            lines.append("")
+            lines.extend(kind.text(r[kind.result_key]))
+            r = dict(r)
+            r.pop(kind.result_key)  # a shared key (a master and its devices) is printed once
     notes = r.get("analysis", {}).get("notes") or []
     for n in notes:
         lines.append(f"analysis: {n}")

@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["ProfileKind", "register", "profile_kinds", "profile_kind", "PROFILE_MODULES"]
 
-PROFILE_MODULES = ["profiles.csma", "profiles.tdma"]
+PROFILE_MODULES = ["profiles.csma", "profiles.tdma", "profiles.canopen.scenario"]
 """Modules that register a profile when imported (each scheduling layer adds its own)."""
 
 
@@ -40,7 +40,8 @@ class ProfileKind:
     without it the analysis does not apply to a bus that carries this profile's frames;
     ``bounds(scenario)`` gives the profile's own analytic worst case per message where it has one
     (message name -> (bound on the measured response in ns or None, a note)), printed as
-    ``rta_ms`` where the CAN response-time analysis gives none.
+    ``rta_ms`` where the CAN response-time analysis gives none; ``text(figures)`` the lines the
+    readable table prints of the profile's figures (those under ``result_key``).
     """
 
     name: str
@@ -54,6 +55,7 @@ class ProfileKind:
     summarize: "Callable[[list[Profile], Context], dict[str, Any]] | None" = None
     traffic: "Callable[[NodeDecl, Scenario], list[MessageSpec]] | None" = None
     bounds: "Callable[[Scenario], dict[str, tuple[int | None, str | None]]] | None" = None
+    text: "Callable[[dict[str, Any]], list[str]] | None" = None
     description: str = ""
 
 

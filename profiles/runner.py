@@ -201,7 +201,8 @@ def collect(built: Built, wall_s: float, *, interrupted: bool = False, driver: s
     for kind_name, profs in by_kind.items():
         kind = profile_kind(kind_name)
         if kind.result_key and kind.summarize:
-            profiles_json[kind.result_key] = kind.summarize(profs, built.context)
+            # profiles that share a key (a CANopen master and its devices) share the object
+            profiles_json.setdefault(kind.result_key, {}).update(kind.summarize(profs, built.context))
     nodes = {name: n.counters() for name, n in built.nodes.items()}
     s = summary_of(bus, t_end)
     return Result(scenario=sc, duration_s=t_end / 1e9, bus_load=s["bus_load"] if bus_load is None else bus_load,

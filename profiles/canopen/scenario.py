@@ -1,0 +1,160 @@
+"""CANopen devices and masters in scenario files: ``profile = "canopen"`` (a `CanopenDevice`)
+and ``profile = "canopen-master"`` (a `CanopenMaster`).
+
+    [[nodes]]
+    name = "io1"
+    profile = "canopen"
+    node_id = 1
+    eds = "my_device.eds"        # optional: the default device when absent
+    [nodes.canopen]              # device options (profiles.canopen.options.DeviceOptions)
+    heartbeat_ms = 100
+    sync_window_us = 600
+    [nodes.canopen.tpdo.1]
+    transmission_type = 1
+
+    [[nodes]]
+    name = "plc"
+    profile = "canopen-master"
+    [nodes.canopen]              # master options (MasterOptions)
+    nodes = [1, 2, 3]
+    sync_period_us = 1000
+    heartbeat_consumer_ms = 250
+
+The options are checked when the scenario is read (one line naming the file, the node and the
+rule), the EDS loaded then too; the JSON result gains ``canopen``: per node the NMT state at
+the end, heartbeats sent and missed, and per PDO the SYNC-to-reception latency (min/mean/p99/max)
+and the PDOs not sent inside the synchronous window.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from profiles.canopen.device import CanopenDevice
+from profiles.canopen.master import CanopenMaster
+from profiles.canopen.options import DeviceOptions, MasterOptions
+from profiles.registry import ProfileKind, register
+from profiles.schema import Key, ScenarioError, in_range, where
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.base import Context
+    from profiles.scenario import NodeDecl, Scenario
+    from stack import NodeAPI
+
+__all__ = ["CanopenDeviceProfile", "CanopenMasterProfile", "DEVICE", "MASTER"]
+
+
+class CanopenDeviceProfile:
+    """A `CanopenDevice` as a scenario profile: built from the node's table, started with the
+    others, summarised by its metrics."""
+
+    kind = "canopen"
+
+    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: "Context") -> None:
+        self.decl = decl
+        self.device = CanopenDevice(node, decl.options["node_id"], decl.options["eds"],
+                                    **decl.options["canopen"])
+
+    def start(self) -> None:
+        """Boot the device (boot-up message, pre-operational)."""
+        self.device.start()
+
+    def summary(self) -> dict[str, Any]:
+        """The device's metrics."""
+        return self.device.metrics()
+
+
+class CanopenMasterProfile:
+    """A `CanopenMaster` as a scenario profile (NMT master, SYNC producer, heartbeat consumer)."""
+
+    kind = "canopen-master"
+
+    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: "Context") -> None:
+        self.decl = decl
+        self.master = CanopenMaster(node, **decl.options["canopen"])
+
+    def start(self) -> None:
+        """Start the master: wait for boot-ups, configure, start the nodes, produce SYNC."""
+        self.master.start()
+
+    def summary(self) -> dict[str, Any]:
+        """The master's metrics."""
+        return self.master.metrics()
+
+
+def _check(scenario: "Scenario", tables: dict[str, Any]) -> None:
+    """Check every CANopen node's options now, so that a bad one is a one-line error before the
+    run; node-IDs are unique on a bus."""
+    seen: dict[int, str] = {}
+    for i, d in enumerate(scenario.nodes, 1):
+        if d.profile not in ("canopen", "canopen-master"):
+            continue
+        loc = where(scenario.source, f"[[nodes]] #{i} {d.name!r}")
+        if d.messages:
+            raise ScenarioError(f"{loc}: messages: a {d.profile} node sends what CiA 301 says (PDOs, SDO, NMT, "
+                                "heartbeat): configure its PDOs in [nodes.canopen] instead")
+        try:
+            if d.profile == "canopen":
+                nid = d.options["node_id"]
+                if nid in seen:
+                    raise ScenarioError(f"{loc}: node_id: {nid} is already node {seen[nid]!r}'s (node-IDs are "
+                                        "unique on a CANopen network)")
+                seen[nid] = d.name
+                DeviceOptions.parse(d.options["canopen"])
+                if d.options["eds"] is not None:
+                    from profiles.canopen.dictionary import load_od
+
+                    load_od(d.options["eds"], nid)
+            else:
+                MasterOptions.parse(d.options["canopen"])
+        except ScenarioError:
+            raise
+        except (ValueError, OSError) as exc:
+            raise ScenarioError(f"{loc}: canopen: {exc}") from None
+
+
+def _summarize(profiles: list[Any], context: "Context") -> dict[str, Any]:
+    return {p.decl.name: p.summary() for p in profiles}
+
+
+def _text(figures: dict[str, Any]) -> list[str]:
+    """Per node the NMT state and heartbeats; per PDO the SYNC-to-reception latency the master
+    measured and the PDOs a device did not send inside the synchronous window."""
+    lines = [f"{'CANopen node':<14} {'id':>3} {'NMT state':<16} {'heartbeats sent':>15} {'missed':>6}"]
+    masters = [f for f in figures.values() if f.get("profile") == "canopen-master"]
+    missed = {(m["node"], n["node_id"]): n["heartbeats_missed"] for m in masters for n in m["nodes"]}
+    state = {n["node_id"]: n["nmt_state"] for m in masters for n in m["nodes"]}
+    for f in figures.values():
+        if f.get("profile") == "canopen":
+            miss = sum(v for (_, nid), v in missed.items() if nid == f["node_id"])
+            seen = state.get(f["node_id"], "-")
+            lines.append(f"{f['node']:<14} {f['node_id']:>3} {f['nmt_state'] + (' (' + seen + ')' if seen not in ('-', f['nmt_state']) else ''):<16} "
+                         f"{f['heartbeats_sent']:>15} {miss:>6}")
+    late = {(f["node_id"], tp.get("cob_id")): tp.get("not_in_window", 0)
+            for f in figures.values() if f.get("profile") == "canopen" for tp in f["tpdos"]}
+    for m in masters:
+        lines.append(f"{'PDO (master ' + m['node'] + ')':<24} {'received':>8} {'SYNC->end min/mean/p99/max (ms)':>34} "
+                     f"{'not in window':>13}")
+        for p in m["pdos"]:
+            s = p["sync_latency_ms"] or {}
+            lat = "/".join(f"{s[k]:.3f}" for k in ("min", "mean", "p99", "max")) if s.get("count") else "-"
+            lines.append(f"{p['pdo'] + ' 0x%03X' % p['cob_id']:<24} {p['received']:>8} {lat:>34} "
+                         f"{late.get((p['node_id'], p['cob_id']), 0):>13}")
+    return lines
+
+
+_DEVICE_KEYS = {
+    "node_id": Key(int, doc="CiA 301 node-ID 1..127", rule=in_range(1, 127, "CiA 301 node-ID")),
+    "eds": Key(str, None, doc="EDS/DCF file (default: the shipped default device)"),
+    "canopen": Key(dict, {}, doc="device options (heartbeat_ms, sync_window_us, tpdo, rpdo, values, ...)"),
+}
+
+DEVICE = register(ProfileKind(
+    name="canopen", build=CanopenDeviceProfile, node_keys=_DEVICE_KEYS, timed_messages=False, parse=_check,
+    result_key="canopen", summarize=_summarize, text=_text, description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)"))
+
+MASTER = register(ProfileKind(
+    name="canopen-master", build=CanopenMasterProfile,
+    node_keys={"canopen": Key(dict, {}, doc="master options (nodes, sync_period_us, heartbeat_consumer_ms, ...)")},
+    timed_messages=False, result_key="canopen", summarize=_summarize,
+    description="CiA 301 NMT master, SYNC producer, heartbeat consumer"))
