@@ -69,6 +69,10 @@ class NodeAPI(Protocol):
         """Call ``callback(event)`` for TxDone, TxFailed, ArbitrationLost, ErrorStateChanged."""
         ...
 
+    def unlisten(self, event_type: type, callback: Callable[[Any], Any]) -> bool:
+        """Stop calling ``callback`` for ``event_type``."""
+        ...
+
     def recv(self) -> "tuple[int, Frame] | None":
         """The oldest frame of the receive FIFO (when nothing is subscribed)."""
         ...

@@ -472,6 +472,19 @@ class Node(Receiver):
         if self.bus is not None:
             self.bus.node_changed(self)
 
+    def unlisten(self, event_type: type, callback: Callable[[Any], Any]) -> bool:
+        """Stop calling ``callback`` for ``event_type`` (a layer that stops, e.g. a device taken off
+        the bus); True if it was listening."""
+        cbs = self.listeners.get(event_type)
+        if not cbs or callback not in cbs:
+            return False
+        cbs.remove(callback)
+        if not cbs:
+            del self.listeners[event_type]
+        if self.bus is not None:
+            self.bus.node_changed(self)
+        return True
+
     def _emit(self, event: Any) -> None:
         for cb in self.listeners.get(type(event), ()):
             cb(event)

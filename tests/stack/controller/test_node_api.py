@@ -204,3 +204,22 @@ def test_filters_that_are_not_a_list_are_refused_naming_the_value():
     for bad in (5, True, 1.5, "0x100"):
         with pytest.raises(ValueError, match=r"must be a list of .* or None"):
             validate_filters(bad)  # type: ignore[arg-type]
+
+
+def test_unlisten_stops_the_callbacks_and_the_bus_goes_back_to_its_fast_path():
+    bus, a, b = _pair()
+    done: list[TxDone] = []
+    lost: list[ArbitrationLost] = []
+    a.listen(TxDone, done.append)
+    a.listen(ArbitrationLost, lost.append)
+    a.send(Frame(0x200))
+    b.send(Frame(0x100))
+    bus.run(duration=2_000_000)
+    assert len(done) == 1 and len(lost) == 1 and a in bus._arb_watch
+    assert a.unlisten(TxDone, done.append) and a.unlisten(ArbitrationLost, lost.append)
+    assert not a.unlisten(TxDone, done.append)
+    assert a not in bus._arb_watch  # nobody to tell about lost rounds any more
+    a.send(Frame(0x200))
+    b.send(Frame(0x100))
+    bus.run(duration=2_000_000)
+    assert len(done) == 1 and len(lost) == 1
