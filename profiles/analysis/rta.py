@@ -101,6 +101,8 @@ class MessageSpec:
     ``jitter_ns`` is the queuing jitter J_m. ``frame_bits`` replaces the worst-case length of
     eq. 1 by a frame's exact length in bits (stuff bits and the 3-bit intermission included) when
     its payload is known — the same analysis with C_m exact, as tight as the bus can be.
+    ``remote`` marks a remote frame: it arbitrates just after the data frame of its identifier
+    (RTR recessive), so the two are distinct streams.
     """
 
     name: str
@@ -111,6 +113,7 @@ class MessageSpec:
     deadline_ns: int
     jitter_ns: int = 0
     frame_bits: int | None = None
+    remote: bool = False
 
 
 @dataclass(frozen=True)
@@ -229,7 +232,7 @@ def _prepare(messages: Sequence[MessageSpec], bitrate: int,
                 raise ValueError(f"message {name!r}: frame_bits {m.frame_bits!r} must be 1..{bits} "
                                  "(at most the worst-case length of its DLC)")
             bits = m.frame_bits
-        out.append(_Msg(spec=m, key=arbitration_key(can_id, m.extended, False),
+        out.append(_Msg(spec=m, key=arbitration_key(can_id, m.extended, m.remote),
                         c=bits * _NS_PER_S,
                         t=period * bitrate, d=deadline * bitrate, j=jitter * bitrate))
     out.sort(key=lambda x: x.key)
