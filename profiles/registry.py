@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["ProfileKind", "register", "profile_kinds", "profile_kind", "PROFILE_MODULES"]
 
-PROFILE_MODULES = ["profiles.csma", "profiles.tdma", "profiles.canopen.scenario"]
+PROFILE_MODULES = ["profiles.csma", "profiles.tdma", "profiles.canopen.scenario", "profiles.polling"]
 """Modules that register a profile when imported (each scheduling layer adds its own)."""
 
 

@@ -1,0 +1,137 @@
+"""Master/slave polling: a master runs a poll list as a cycle and is the only node that starts a
+transaction, so its traffic never contends and its cycle is known in advance — DeviceNet's
+Predefined Master/Slave Connection Set, many industrial I/O systems, home-grown ECU networks.
+
+Two profiles: ``profile = "master"`` (`profiles.polling.master`: the poll list, timeouts and
+retries, lost slaves, cycle overruns, bus off) and ``profile = "slave"``
+(`profiles.polling.slave`: answers after its processing delay or from its controller's
+remote-reply mailbox, change-of-state / cyclic production, the watchdog). The identifier plans
+are in `profiles.polling.plan` (DeviceNet, checked against its sources, or user-given), the
+scenario keys in `profiles.polling.config`, the analysis — the cycle's worst case from frame
+lengths, and the holistic response-time model of a shared bus — in
+`profiles.polling.analysis`, the poll-cycle plot in `profiles.polling.plots`.
+
+Results (``master_slave`` in the JSON): per master ``cycles``, ``cycle_ms`` (the measured
+cycle, first request's SOF to the end of the last transaction), ``overruns``, the worst case
+beside them (``cycle_bound_ms``, how it was found, and per transaction); per slave ``polls``,
+``responses``, ``timeouts``, ``missed``, ``lost``, ``response_ms`` (request SOF to response
+end), and what the slave saw (requests, loss of master).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from profiles.polling.analysis import cycle_bound_ns, holistic, transaction_bound_ns
+from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, parse_network
+from profiles.polling.master import Master
+from profiles.polling.plots import poll_cycle
+from profiles.polling.slave import Slave
+from profiles.registry import ProfileKind, register
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.analysis.rta import MessageSpec
+    from profiles.base import Context, Profile
+    from profiles.polling.config import Network
+    from profiles.scenario import NodeDecl, Scenario
+    from stack import NodeAPI
+
+__all__ = ["Master", "Slave", "MASTER", "SLAVE", "PLOTS", "summarize"]
+
+
+def _build_master(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> Master:
+    return Master(node, decl, context)
+
+
+def _build_slave(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> Slave:
+    return Slave(node, decl, context)
+
+
+def _traffic(decl: "NodeDecl", scenario: "Scenario") -> "list[MessageSpec]":
+    """The node's streams in the holistic model (`profiles.polling.analysis`)."""
+    return holistic(scenario).specs.get(decl.name, [])
+
+
+def _alone(scenario: "Scenario", net: "Network", master: str) -> str | None:
+    """Why the frame-length bound does not apply to this master's cycle (None: it does) — it needs
+    the cycle alone on a fault-free bus."""
+    mine = {master, *net.masters[master].slaves}
+    for d in scenario.nodes:
+        if d.name not in mine and d.messages:
+            return f"node {d.name!r} sends on the same bus"
+    for s in net.masters[master].slaves:
+        if net.slaves[s].cos:
+            return f"slave {s!r} produces change-of-state / cyclic messages outside the poll"
+    if scenario.analysis.get("t_error_ms") is not None:
+        return "the error model ([analysis] t_error_ms) adds retransmissions"
+    return None
+
+
+def _ms(v: Any) -> float | None:
+    return None if v is None else float(v) / 1e6
+
+
+def _in_window(scenario: "Scenario", windows: list[tuple[int, int, bool]]) -> list[list[Any]]:
+    w = scenario.plot.get("window_ms")
+    t0, t1 = (round(w[0] * 1e6), round(w[1] * 1e6)) if w else (0, 50_000_000)
+    return [[a / 1e6, b / 1e6, ov] for a, b, ov in windows if b >= t0 and a <= t1]
+
+
+def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
+    """``master_slave`` of the results: every master's cycle beside its worst case, and every
+    slave as its master and itself saw it (see the package docstring)."""
+    sc = context.scenario
+    net: "Network" = sc.tables[NETWORK_TABLE]
+    stuffing = sc.analysis.get("stuffing", "worst")
+    h = holistic(sc)
+    out: dict[str, Any] = {"masters": {}, "slaves": {}}
+    for p in profiles:
+        if not isinstance(p, Master):
+            continue
+        cfg = p.config
+        chain = cycle_bound_ns(cfg, net.slaves, sc.bitrate, stuffing)
+        rta = h.cycle_ns.get(cfg.name)
+        why = _alone(sc, net, cfg.name)
+        fig = p.figures()
+        fig["cycle_period_ms"] = cfg.cycle_ns / 1e6
+        fig["cycle_bound_ms"] = _ms(chain) if why is None else _ms(rta)
+        fig["bound_method"] = ("frame lengths, processing delays and inter-frame spaces (the cycle alone on a "
+                               "fault-free bus)" if why is None else
+                               f"holistic response-time analysis ({why})" if rta is not None else
+                               f"none ({why}; " + ("; ".join(h.notes) or "the analysis does not apply") + ")")
+        fig["chain_bound_ms"] = _ms(chain)
+        fig["rta_cycle_bound_ms"] = _ms(rta)
+        fig["rta_notes"] = h.notes
+        txs = []
+        for tx in cfg.transactions:
+            worst = [p.links[s].response_ns for s in tx.slaves]
+            measured = max((max(a) for a in worst if len(a)), default=None)
+            txs.append({"name": tx.request.name, "style": tx.style, "slaves": list(tx.slaves),
+                        "timeout_ms": tx.timeout_ns / 1e6, "retries": tx.retries,
+                        "bound_ms": _ms(transaction_bound_ns(tx, net.slaves, sc.bitrate, stuffing)),
+                        "rta_bound_ms": _ms(h.transaction_ns.get(tx.request.name)),
+                        "response_ms_max": _ms(measured)})
+        fig["transactions"] = txs
+        fig["window_cycles_ms"] = _in_window(sc, p.windows)
+        out["masters"][cfg.name] = fig
+        for s in cfg.slaves:
+            row = {"master": cfg.name}
+            row.update(p.link_figures(s))
+            slave = context.profiles.get(s)
+            if isinstance(slave, Slave):
+                row.update(slave.figures())
+            out["slaves"][s] = row
+    return out
+
+
+MASTER = register(ProfileKind(
+    name="master", build=_build_master, node_keys=MASTER_KEYS, timed_messages=False, parse=parse_network,
+    result_key="master_slave", summarize=summarize, traffic=_traffic,
+    description="master/slave polling: the master runs its poll list as a cycle"))
+
+SLAVE = register(ProfileKind(
+    name="slave", build=_build_slave, node_keys=SLAVE_KEYS, timed_messages=False, traffic=_traffic,
+    description="master/slave polling: a slave answers its master's requests"))
+
+PLOTS = {"poll_cycle": poll_cycle}
+"""Plots ``canstack experiment --plot`` adds for a scenario with a master."""
