@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from profiles.polling.analysis import cycle_bound_ns, holistic, transaction_bound_ns
+from profiles.polling.analysis import cycle_bound_ns, frame_bits, holistic, transaction_bound_ns
 from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, parse_network
 from profiles.polling.master import Master
 from profiles.polling.plots import poll_cycle
@@ -99,18 +99,36 @@ def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
                                "fault-free bus)" if why is None else
                                f"holistic response-time analysis ({why})" if rta is not None else
                                f"none ({why}; " + ("; ".join(h.notes) or "the analysis does not apply") + ")")
+        if sc.faults:
+            fig["bound_note"] = ("the scenario injects faults: the bound is the fault-free cycle's (clean_cycle_ms: "
+                                 "the cycles in which every slave due answered in time)")
         fig["chain_bound_ms"] = _ms(chain)
         fig["rta_cycle_bound_ms"] = _ms(rta)
         fig["rta_notes"] = h.notes
         txs = []
+        tau = 1e9 / sc.bitrate
+        done = 0.0  # the alone bound on the end of the transactions so far, ns
         for tx in cfg.transactions:
+            alone = float(transaction_bound_ns(tx, net.slaves, sc.bitrate, stuffing))
+            start = done + (3 * tau if done else 0.0)
+            done = start + alone
+            if why is None:
+                offsets = (start + frame_bits(tx.request, stuffing) * tau, done)
+            else:
+                offsets = h.offsets_ns.get(tx.request.name)
             worst = [p.links[s].response_ns for s in tx.slaves]
             measured = max((max(a) for a in worst if len(a)), default=None)
             txs.append({"name": tx.request.name, "style": tx.style, "slaves": list(tx.slaves),
                         "timeout_ms": tx.timeout_ns / 1e6, "retries": tx.retries,
-                        "bound_ms": _ms(transaction_bound_ns(tx, net.slaves, sc.bitrate, stuffing)),
+                        "bound_ms": _ms(alone),
                         "rta_bound_ms": _ms(h.transaction_ns.get(tx.request.name)),
-                        "response_ms_max": _ms(measured)})
+                        "response_ms_max": _ms(measured),
+                        # from the cycle's start (the master queues its first request): when the
+                        # request's data reached the slave(s), and when the last answer came back
+                        "request_end_ms_max": _ms(p.offsets[tx.request.name][0] or None),
+                        "request_end_bound_ms": None if offsets is None else _ms(offsets[0]),
+                        "end_ms_max": _ms(p.offsets[tx.request.name][1] or None),
+                        "end_bound_ms": None if offsets is None else _ms(offsets[1])})
         fig["transactions"] = txs
         fig["window_cycles_ms"] = _in_window(sc, p.windows)
         out["masters"][cfg.name] = fig

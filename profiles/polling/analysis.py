@@ -169,7 +169,8 @@ class Holistic:
     ``applies`` is False when another node's traffic has no model (then nothing is bounded);
     ``converged`` whether the release jitters reached a fixed point (in ``iterations`` rounds);
     ``cycle_ns`` the bound on each master's cycle and ``transaction_ns`` on each transaction (by
-    request name), None where there is none; ``notes`` say why.
+    request name), ``offsets_ns`` on the end of each transaction's request and of its last answer
+    after the cycle's start, None where there is none; ``notes`` say why.
     """
 
     specs: dict[str, list[MessageSpec]]
@@ -178,6 +179,7 @@ class Holistic:
     iterations: int
     cycle_ns: dict[str, float | None] = field(default_factory=dict)
     transaction_ns: dict[str, float | None] = field(default_factory=dict)
+    offsets_ns: dict[str, tuple[float, float] | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
 
@@ -267,10 +269,11 @@ class _Chain:
         return max(Fraction(0), Fraction(max(delays)) - ifs), sum(1 for d in delays if d > ifs)
 
     def bounds(self, foreign: _Foreign | None) -> tuple[dict[str, tuple[Fraction, Fraction]], Fraction,
-                                                        dict[str, Fraction]]:
+                                                        dict[str, tuple[Fraction, Fraction, Fraction]]]:
         """Release windows [o_min, o_max] of the chain's frames, the bound on the cycle (its first
         request's queuing to the end of its last answer) and on each transaction. Without
-        ``foreign`` the chain is alone on the bus."""
+        ``foreign`` the chain is alone on the bus. Per transaction: its own bound, and the bounds on
+        its request's end and its last answer's end after the cycle's start."""
         tau = self.tau
         ifs = INTERMISSION_BITS * tau
         slaves = self.net.slaves
@@ -280,7 +283,7 @@ class _Chain:
             return own if foreign is None else foreign.window(own, gaps, horizon)
 
         out: dict[str, tuple[Fraction, Fraction]] = {}
-        per_tx: dict[str, Fraction] = {}
+        per_tx: dict[str, tuple[Fraction, Fraction, Fraction]] = {}
         lo = Fraction(0)
         own = Fraction(0)
         gaps = 0
@@ -301,7 +304,7 @@ class _Chain:
             own += mine
             gaps += n
             lo, hi = max(ends_lo), window(own, gaps)
-            per_tx[req.name] = window(mine, n)
+            per_tx[req.name] = (window(mine, n), req_end_hi, hi)
         return out, hi, per_tx
 
 
@@ -346,7 +349,7 @@ def _holistic(scenario: "Scenario", net: "Network", stuffing: str, t_err: Any) -
     for ch in chains:
         windows.update(ch.bounds(None)[0])
     jitters: dict[str, Fraction] | None = None
-    last: dict[str, tuple[Fraction, dict[str, Fraction]]] = {}
+    last: dict[str, tuple[Fraction, dict[str, tuple[Fraction, Fraction, Fraction]]]] = {}
     for it in range(1, MAX_ITERATIONS + 1):
         new_j = {name: hi - lo for name, (lo, hi) in windows.items()}
         new_j.update(_ack_jitters(net, w_cos, tau))
@@ -391,8 +394,9 @@ def _holistic(scenario: "Scenario", net: "Network", stuffing: str, t_err: Any) -
     for ch in chains:
         end, per_tx = last[ch.master.name]
         result.cycle_ns[ch.master.name] = None if inverting else float(end)
-        for name, v in per_tx.items():
+        for name, (v, req_end, end_) in per_tx.items():
             result.transaction_ns[name] = None if inverting else float(v)
+            result.offsets_ns[name] = None if inverting else (float(req_end), float(end_))
     return result
 
 
@@ -421,9 +425,10 @@ def _build_specs(net: "Network", jitter: dict[str, Fraction], stuffing: str) -> 
     for master in net.masters.values():
         t = master.cycle_ns
         for tx in master.transactions:
-            specs[master.name].append(_spec(tx.request, t, tx.timeout_ns, jitter[tx.request.name], stuffing))
+            # deadline: within its cycle (the timeout spans request and answer together)
+            specs[master.name].append(_spec(tx.request, t, t, jitter[tx.request.name], stuffing))
             for resp, slave in zip(tx.responses, tx.slaves):
-                specs[slave].append(_spec(resp, t, tx.timeout_ns, jitter[resp.name], stuffing))
+                specs[slave].append(_spec(resp, t, t, jitter[resp.name], stuffing))
         for link in master.cos:
             if link.ack is None:
                 continue

@@ -248,13 +248,13 @@ class _Parser:
             return None
         for d in slaves:
             self.net.slaves[d.name] = self.slave(d)
+        self.check_macs(masters, slaves)
         for d in masters:
             self.net.masters[d.name] = self.master(d)
         for d in slaves:
             if d.name not in self.owner:
                 raise self.err(self.loc(d), "no master polls this slave: name it in a master's [[nodes.poll]] "
                                             "(slave = ...) — a slave answers one master")
-        self.check_macs(masters, slaves)
         for d in slaves:
             self.classify(d)
         for d in masters:
@@ -504,13 +504,13 @@ class _Parser:
 
     # -- checks across nodes
     def check_macs(self, masters: "list[NodeDecl]", slaves: "list[NodeDecl]") -> None:
-        """MAC IDs are unique on a DeviceNet network (the identifiers are made from them)."""
+        """MAC IDs are unique on a DeviceNet network (its identifiers are made from them): among
+        the DeviceNet masters and every slave that has one."""
         seen: dict[int, str] = {}
-        for d in masters + slaves:
-            cfg = self.net.masters.get(d.name)
-            plan = cfg.plan if cfg else self.net.masters[self.owner[d.name][0]].plan
-            mac = cfg.mac_id if cfg else self.net.slaves[d.name].mac_id
-            if plan != "devicenet" or mac is None:
+        nodes = [d for d in masters if d.options["plan"] == "devicenet"] + slaves
+        for d in sorted(nodes, key=lambda x: self.index[x.name]):
+            mac = d.options["mac_id"]
+            if mac is None:
                 continue
             if mac in seen:
                 raise self.err(self.loc(d), f"mac_id: {mac} is already the MAC ID of node {seen[mac]!r} (MAC IDs are "

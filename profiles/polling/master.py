@@ -57,13 +57,14 @@ def rx_filters(messages: "list[MessageDecl]") -> list[dict[str, Any]]:
 
 class SlaveLink:
     """The master's view of one slave: polls sent (requests that reached the bus), answers and
-    their response times (request SOF to response end, master's clock), timeouts (attempts
+    their response times (request SOF to response end, master's clock) and period jitter (max −
+    min distance between the ends of answers to consecutive polls), timeouts (attempts
     without an answer in time), missed polls (all attempts of a transaction), the lost state with
     its periods, late answers (after the timeout, or from a lost slave between its slow polls),
     and COS/cyclic messages consumed and acknowledged."""
 
     __slots__ = ("name", "polls", "responses", "timeouts", "missed", "in_a_row", "lost", "lost_cycle",
-                 "lost_periods", "response_ns", "late", "cos", "acks")
+                 "lost_periods", "response_ns", "late", "cos", "acks", "last_end", "gap_min", "gap_max")
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -79,6 +80,18 @@ class SlaveLink:
         self.late = 0
         self.cos = 0
         self.acks = 0
+        self.last_end: int | None = None  # end of the last answer, if the poll before it was answered
+        self.gap_min: int | None = None
+        self.gap_max: int | None = None
+
+    def answered(self, t_end: int) -> None:
+        """An answer ended at ``t_end``: the distance from the previous one (when that one answered
+        the previous poll) makes the answers' period jitter."""
+        if self.last_end is not None:
+            gap = t_end - self.last_end
+            self.gap_min = gap if self.gap_min is None else min(self.gap_min, gap)
+            self.gap_max = gap if self.gap_max is None else max(self.gap_max, gap)
+        self.last_end = t_end
 
     def due(self, cycle: int, every: int) -> bool:
         """Polled in this cycle: always, or every ``every`` cycles from the one it was lost in."""
@@ -123,6 +136,8 @@ class Master(Profile):
         self.overruns = 0
         self.windows: list[tuple[int, int, bool]] = []  # (first SOF, end) bus ns, overrun — for the plot
         self.unsent = 0
+        # per transaction, the latest end of its request and of its last answer after the cycle's start
+        self.offsets: dict[str, list[int]] = {t.request.name: [0, 0] for t in self.config.transactions}
         # the transaction in progress
         self._idx = 0
         self._tx: "Transaction | None" = None
@@ -218,6 +233,8 @@ class Master(Profile):
             self.first_sof_bus = ev.request.sof if ev.request.sof >= 0 else None
         for s in self._awaiting:
             self.links[s].polls += 1
+        off = self.offsets[self._tx.request.name]  # type: ignore[union-attr]
+        off[0] = max(off[0], ev.time - self.cycle_start)
         self.state = WAITING
         self._arm(self._sof + self._tx.timeout_ns)  # type: ignore[union-attr]
 
@@ -236,15 +253,19 @@ class Master(Profile):
         if hit is not None:
             tx, slave = hit
             link = self.links[slave]
-            if tx is self._tx and slave in self._awaiting and self.state in (SENDING, WAITING):
-                sof = self._sof if self._sof is not None else self._queued_at
+            # only an answer to the request that went out counts; one that comes while a retry is
+            # still queued answers the attempt that timed out: late
+            if tx is self._tx and slave in self._awaiting and self.state == WAITING:
                 link.responses += 1
-                link.response_ns.append(ev.time - sof)
+                link.response_ns.append(ev.time - self._sof)  # type: ignore[operator]
+                link.answered(ev.time)
                 link.in_a_row = 0
                 if link.lost:
                     self._back(link, ev.time)
                 self._awaiting.discard(slave)
                 if not self._awaiting:
+                    off = self.offsets[tx.request.name]
+                    off[1] = max(off[1], ev.time - self.cycle_start)
                     if self._timer is not None:
                         self._timer.cancel()
                         self._timer = None
@@ -285,6 +306,7 @@ class Master(Profile):
         self._next(now)
 
     def _miss(self, link: SlaveLink, t: int) -> None:
+        link.last_end = None
         link.missed += 1
         link.in_a_row += 1
         if not link.lost and link.in_a_row >= self.config.lost_after:
@@ -360,4 +382,6 @@ class Master(Profile):
         return {"polls": ln.polls, "responses": ln.responses, "timeouts": ln.timeouts, "missed": ln.missed,
                 "lost": ln.lost, "lost_ms": [[a / 1e6 if a is not None else None, b / 1e6 if b is not None else None]
                                              for a, b in ln.lost_periods],
-                "late": ln.late, "response_ms": stats_ms(ln.response_ns), "cos": ln.cos, "acks": ln.acks}
+                "late": ln.late, "response_ms": stats_ms(ln.response_ns),
+                "jitter_ms": None if ln.gap_min is None else (ln.gap_max - ln.gap_min) / 1e6,  # type: ignore[operator]
+                "cos": ln.cos, "acks": ln.acks}
