@@ -216,7 +216,7 @@ class _Foreign:
             (self.higher if key < chain_top else self.lower).append(row)
         self.lower_c = max((row[0] for row in self.lower), default=Fraction(0))
         # the simple error model: an error frame and the longest frame again per error
-        self.per_error = ERROR_FRAME_BITS * _tau(bitrate) + max([longest] + [row[0] for row in self.higher + self.lower])
+        self.per_error = ERROR_FRAME_BITS * _tau(bitrate) + max([longest] + [r[0] for r in self.higher + self.lower])
 
     @staticmethod
     def _count(rows: list[tuple[Fraction, int, int, Fraction]], length: Fraction) -> Fraction:

@@ -290,11 +290,12 @@ class _Parser:
             style = e["style"]
             for k in POLL_KEYS:
                 if k != "style" and k in raw and k not in _STYLE_KEYS[style]:
-                    why = _WHY_NOT.get((style, k), f"only {', '.join(sorted(s for s in STYLES if k in _STYLE_KEYS[s]))} "
-                                                   "entries have it")
+                    having = ", ".join(sorted(s for s in STYLES if k in _STYLE_KEYS[s]))
+                    why = _WHY_NOT.get((style, k), f"only {having} entries have it")
                     raise self.err(loc, f"{k}: not a key of a {style} entry ({why})")
             if e["extended"] and cfg.plan == "devicenet":
-                raise self.err(loc, "extended: the DeviceNet plan uses 11-bit identifiers (plan = \"custom\" for others)")
+                raise self.err(loc, "extended: the DeviceNet plan uses 11-bit identifiers "
+                                    "(plan = \"custom\" for others)")
             if style == "cos":
                 cfg.cos.append(self.cos_link(d, cfg, j, e, loc))
                 continue
@@ -323,7 +324,8 @@ class _Parser:
             raise self.err(loc, f"{key}: {slave!r} is a {prof} node, not a slave (give it profile = \"slave\")")
         prev = self.owner.get(slave)
         if prev is not None and prev[0] != master.name:
-            raise self.err(loc, f"{key}: {slave!r} is already polled by master {prev[0]!r} (a slave answers one master)")
+            raise self.err(loc, f"{key}: {slave!r} is already polled by master {prev[0]!r} "
+                                "(a slave answers one master)")
         self.owner[slave] = (master.name, j)
         s.master = master.name
         return s
@@ -412,10 +414,10 @@ class _Parser:
             slaves = [self.claim(d, n, j, loc, "slaves") for n in names]
             macs = [self.mac(s, cfg, loc) for s in slaves]
             if cfg.plan == "devicenet":
-                if e["response_ids"] is not None and list(e["response_ids"]) != [ids.bit_strobe_response(m) for m in macs]:
-                    raise self.err(loc, "response_ids: not the DeviceNet bit-strobe responses 0x380 | MAC of the slaves "
-                                        "(leave it out, or set plan = \"custom\")")
                 resp_ids = [ids.bit_strobe_response(m) for m in macs]  # type: ignore[arg-type]
+                if e["response_ids"] is not None and list(e["response_ids"]) != resp_ids:
+                    raise self.err(loc, "response_ids: not the DeviceNet bit-strobe responses 0x380 | MAC of the "
+                                        "slaves (leave it out, or set plan = \"custom\")")
             else:
                 resp_ids = e["response_ids"]
                 if resp_ids is None:
@@ -537,14 +539,14 @@ class _Parser:
                 role = roles.get(m.can_id)
                 if role is None:
                     listed = ", ".join(f"{v} 0x{k:03X}" for k, v in roles.items())
-                    raise self.err(loc, f"id: 0x{m.can_id:03X} is not an I/O identifier of MAC ID {mac} in the DeviceNet "
-                                        f"plan ({listed})")
+                    raise self.err(loc, f"id: 0x{m.can_id:03X} is not an I/O identifier of MAC ID {mac} in the "
+                                        f"DeviceNet plan ({listed})")
                 if timed and role != "change of state / cyclic":
                     raise self.err(loc, f"the {role} 0x{m.can_id:03X} is released by the poll: remove period_ms / "
                                         "sporadic_ms")
                 if not timed and role == "change of state / cyclic":
-                    raise self.err(loc, f"a change of state / cyclic message (0x{m.can_id:03X}) is produced by the slave: "
-                                        "give it period_ms (cyclic) or sporadic_ms (change of state)")
+                    raise self.err(loc, f"a change of state / cyclic message (0x{m.can_id:03X}) is produced by the "
+                                        "slave: give it period_ms (cyclic) or sporadic_ms (change of state)")
             if timed:
                 s.cos.append(m)
             elif id(m) not in answering:

@@ -208,6 +208,12 @@ def test_the_mixed_example_is_bounded_by_the_analysis_not_by_frame_lengths():
     assert door["cos"] == door["acks"] == door["acks_received"] == cos["door4_cos"]["sent"] == cos["ack_door4"]["sent"]
     for row in data["messages"]:
         assert row["response_ms"]["max"] <= row["rta_ms"]
+    worst = max(m["transactions"], key=lambda t: t["response_ms_max"])
+    readme = (EXAMPLES.parent / "README.md").read_text(encoding="utf-8")
+    assert (f"the frame-length bound ({m['chain_bound_ms']:.3f} ms) no longer applies and `master_slave` says so; the\n"
+            f"measured cycle reaches {m['cycle_ms']['max']:.3f} ms against the analysis' {m['cycle_bound_ms']:.3f} ms, "
+            f"the slowest transaction {worst['response_ms_max']:.3f} ms\n"
+            f"against {worst['rta_bound_ms']:.3f} ms") in readme
 
 
 def test_an_overrun_is_reported_and_the_next_cycle_starts_at_once():
@@ -261,6 +267,9 @@ def test_an_unplugged_slave_is_timed_out_lost_polled_slower_and_taken_back():
         if name != "valve2":
             assert s["polls"] == s["responses"] == 200 and s["timeouts"] == 0, name
     assert m["clean_cycle_ms"]["max"] <= m["cycle_bound_ms"]
+    # ten cycles wait for valve2's two timeouts: three before it is lost, then one every 50 ms
+    assert len(scanner.clean_ns) == 190
+    assert sorted(scanner.cycle_ns)[190] > m["cycle_bound_ms"] * 1e6 + 2 * 1e6 - 1e6
     # valve2's own watchdog: 20 ms (4 cycles) after the last request it received, and back at the next
     slave = profiles["valve2"]
     gone = [e for e in slave.events if isinstance(e, MasterLost)]
@@ -330,14 +339,13 @@ def test_the_same_scenario_and_seed_give_the_same_results():
 # ---------------------------------------------------------------------------------------------- elsewhere
 
 
-def test_the_example_runs_on_python_cans_virtual_bus():
-    """The wall clock: a cycle of 20 ms with 10 ms timeouts leaves Python's thread wake-ups room
-    (the example's 1 ms timeouts do not: see the README)."""
-    raw = network(duration=0.4)
-    raw["nodes"][0].update(cycle_ms=20, timeout_ms=10)
-    res = run_on_pycan(parse_scenario(raw, "ms.toml"), "virtual", f"polling-test-{random.random()}")
+def test_the_wall_clock_example_runs_on_python_cans_virtual_bus():
+    """examples/master_slave_wallclock.toml: a cycle of 20 ms with 10 ms timeouts leaves Python's
+    thread wake-ups room (the simulated example's 1 ms timeouts do not: see the README)."""
+    sc = load_scenario(EXAMPLES / "master_slave_wallclock.toml")
+    res = run_on_pycan(sc, "virtual", f"polling-test-{random.random()}", duration_s=0.4)
     ms = res.to_json()["master_slave"]
-    assert res.driver.startswith("virtual") and ms["masters"]["m"]["cycles"] >= 10
+    assert res.driver.startswith("virtual") and ms["masters"]["scanner"]["cycles"] >= 10
     for s in ms["slaves"].values():
         assert s["polls"] >= 10 and s["responses"] >= s["polls"] - 1 and not s["lost"]
         assert 0 < s["response_ms"]["min"]
@@ -360,3 +368,28 @@ def test_plot_of_the_poll_cycle(tmp_path):
     assert all(x <= bound for x in lengths[:2] + lengths[5:])  # 315: valve2 lost, not polled
     assert all(x > 2 + 1.5 for x in lengths[2:5])
     assert not any(overrun for _, _, overrun in cycles)
+
+
+def test_the_readmes_comparison_table_is_what_the_two_examples_measure():
+    """README, "Master/slave against CSMA/CR, the same I/O": every figure of the table, from a run
+    of both scenario files."""
+    readme = (EXAMPLES.parent / "README.md").read_text(encoding="utf-8")
+    ms = run_scenario(load_scenario(EXAMPLES / "master_slave_vs_csma_polled.toml")).to_json()
+    cs = run_scenario(load_scenario(EXAMPLES / "master_slave_vs_csma_csma.toml")).to_json()
+    tx = {t["slaves"][0]: t for t in ms["master_slave"]["masters"]["plc"]["transactions"]}
+    rows = {r["name"]: r for r in cs["messages"]}
+    for i in range(1, 9):
+        t, s = tx[f"io{i}"], ms["master_slave"]["slaves"][f"io{i}"]
+        out, inp = rows[f"out{i}"], rows[f"in{i}"]
+        want = (f"| io{i} | {t['request_end_ms_max']:.3f} ({t['request_end_bound_ms']:.3f}) | "
+                f"{t['response_ms_max']:.3f} ({t['bound_ms']:.3f}) | {s['jitter_ms']:.3f} | "
+                f"{out['response_ms']['max']:.3f} ({out['rta_ms']:.3f}) | "
+                f"{inp['response_ms']['max']:.3f} ({inp['rta_ms']:.3f}) | {inp['jitter_ms']:.3f} |")
+        assert want in readme
+    m = ms["master_slave"]["masters"]["plc"]
+    last = max(r["response_ms"]["max"] for r in cs["messages"])
+    bound = max(r["rta_ms"] for r in cs["messages"])
+    assert (f"| **all 16 frames of a period** | **{m['cycle_ms']['max']:.3f} ({m['cycle_bound_ms']:.3f})** | | | "
+            f"**{last:.3f} ({bound:.3f})** | | |") in readme
+    assert ms["frames"] == cs["frames"] == 6400
+    assert f"**{100 * ms['bus_load']:.1f} %, 6400**" in readme and round(ms["bus_load"], 4) == round(cs["bus_load"], 4)
