@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.scenario import NodeDecl, Scenario
     from stack import NodeAPI
 
-__all__ = ["Master", "Slave", "MASTER", "SLAVE", "PLOTS", "summarize"]
+__all__ = ["Master", "Slave", "MASTER", "SLAVE", "PLOTS", "summarize", "text"]
 
 
 def _build_master(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> Master:
@@ -142,9 +142,39 @@ def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
     return out
 
 
+def _f(v: Any, width: int = 7) -> str:
+    return f"{v:{width}.3f}" if v is not None else f"{'-':>{width}}"
+
+
+def text(figures: dict[str, Any]) -> list[str]:
+    """The readable table's lines of ``master_slave``: per master its measured cycle beside the
+    worst case, per transaction its slowest exchange beside its bound, per slave what happened."""
+    lines = []
+    for name, m in figures.get("masters", {}).items():
+        c, clean = m["cycle_ms"] or {}, m["clean_cycle_ms"] or {}
+        lines.append(f"master {name}: {m['cycles']} cycles of {m['cycle_period_ms']:g} ms, {m['overruns']} overruns; "
+                     f"cycle {_f(c.get('min'), 0)}..{_f(c.get('max'), 0)} ms (answered in time: max "
+                     f"{_f(clean.get('max'), 0)}), worst case {_f(m['cycle_bound_ms'], 0)} ms by {m['bound_method']}")
+        lines.append(f"{'transaction':<16} {'style':<10} {'exchange max':>12} {'bound':>7}  (ms, request SOF -> end of "
+                     "the last answer)")
+        for t in m["transactions"]:
+            bound = t["bound_ms"] if m["bound_method"].startswith("frame") else t["rta_bound_ms"]
+            lines.append(f"{t['name'][:16]:<16} {t['style']:<10} {_f(t['response_ms_max'], 12)} {_f(bound)}")
+    slaves = figures.get("slaves", {})
+    if slaves:
+        lines.append(f"{'slave':<12} {'polls':>6} {'answers':>7} {'timeouts':>8} {'missed':>6} {'lost':>5} "
+                     f"{'resp max':>8} {'jitter':>7} {'cos':>5} {'master lost':>11}")
+        for name, s in slaves.items():
+            r = s["response_ms"] or {}
+            lines.append(f"{name[:12]:<12} {s['polls']:>6} {s['responses']:>7} {s['timeouts']:>8} {s['missed']:>6} "
+                         f"{'yes' if s['lost'] else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
+                         f"{s.get('master_lost', 0):>11}")
+    return lines
+
+
 MASTER = register(ProfileKind(
     name="master", build=_build_master, node_keys=MASTER_KEYS, timed_messages=False, parse=parse_network,
-    result_key="master_slave", summarize=summarize, traffic=_traffic,
+    result_key="master_slave", summarize=summarize, traffic=_traffic, text=text,
     description="master/slave polling: the master runs its poll list as a cycle"))
 
 SLAVE = register(ProfileKind(
