@@ -57,8 +57,9 @@ def _alone(scenario: "Scenario", net: "Network", master: str) -> str | None:
     the cycle alone on a fault-free bus."""
     mine = {master, *net.masters[master].slaves}
     for d in scenario.nodes:
-        if d.name not in mine and d.messages:
-            return f"node {d.name!r} sends on the same bus"
+        # a silent CSMA node (it only acknowledges) is the one other kind that sends nothing
+        if d.name not in mine and not d.listen_only and (d.messages or d.profile != "csma"):
+            return f"node {d.name!r} ({d.profile}) sends on the same bus"
     for s in net.masters[master].slaves:
         if net.slaves[s].cos:
             return f"slave {s!r} produces change-of-state / cyclic messages outside the poll"
