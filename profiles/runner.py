@@ -177,7 +177,7 @@ def run_scenario(scenario: Scenario, *, record: bool | None = None, progress: bo
         p.start()
     wall0 = time.perf_counter()
     # the run covers [0, duration): a release at the end would have no time to go out
-    interrupted = not run_sliced(bus, scenario.duration_ns - 1, progress=progress or None, desc=_desc(scenario))
+    interrupted = not run_sliced(bus, scenario.duration_ns - 1, progress=progress, desc=_desc(scenario))
     return collect(built, time.perf_counter() - wall0, interrupted=interrupted,
                    t_end=bus.now() if interrupted else scenario.duration_ns)
 
