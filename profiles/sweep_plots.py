@@ -1,0 +1,165 @@
+"""Plots of sweeps and studies (matplotlib, the optional ``plot`` extra; `profiles.plots.pyplot`
+gives the non-interactive backend).
+
+- `sweep_plot`: a metric against one varied key (a line, the mean over seeds with their min..max
+  as a band), or against two (one line per value of the second key); a key whose values are not
+  all numbers is drawn as categories in the order given.
+- `schedulability_plot`: fractions of sets against utilisation, with each curve's breakdown
+  utilisation (50 % crossing) marked.
+- `profiles_plot`: worst response and jitter per message, and the bus load, per profile, side by
+  side.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
+
+from profiles.plots import pyplot
+
+if TYPE_CHECKING:  # pragma: no cover
+    from profiles.studies import ProfilesStudy, SchedulabilityStudy
+
+__all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label"]
+
+_LABELS = {"bus_load": "bus load (%)", "worst_misses": "deadline misses of the worst message",
+           "deadline_misses": "deadline misses (all messages)", "unschedulable": "messages the analysis rejects"}
+
+
+def metric_label(metric: str) -> str:
+    """The axis label of a metric column."""
+    if metric in _LABELS:
+        return _LABELS[metric]
+    name, _, what = metric.rpartition(".")
+    units = {"max_ms": "worst response (ms)", "mean_ms": "mean response (ms)", "jitter_ms": "jitter (ms)",
+             "misses": "deadline misses", "rta_ms": "analysis bound (ms)"}
+    return f"{name}: {units[what]}" if name and what in units else metric
+
+
+def _numeric(values: Sequence[Any]) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def _distinct(values: Sequence[Any]) -> list[Any]:
+    return list(dict.fromkeys(values))
+
+
+def sweep_plot(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metric: str, path: str | Path) -> Path:
+    """``metric`` against the first varied key, one line per value of the second (if any): the
+    mean over the seeds of each combination, their min..max as a band. Failed runs are left out
+    (the title says how many)."""
+    if not 1 <= len(keys) <= 2:
+        raise ValueError(f"a sweep plot draws one or two varied keys, not {len(keys)}")
+    plt = pyplot()
+    ok = [r for r in rows if not r.get("error") and isinstance(r.get(metric), (int, float))]
+    scale = 100.0 if metric == "bus_load" else 1.0
+    xkey = keys[0]
+    xs = _distinct([r[xkey] for r in rows])
+    numeric = _numeric(xs)
+    pos = {x: (x if numeric else i) for i, x in enumerate(xs)}
+    series = _distinct([r[keys[1]] for r in rows]) if len(keys) == 2 else [None]
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    for s in series:
+        pts = []
+        for x in xs:
+            vals = [r[metric] * scale for r in ok if r[xkey] == x and (s is None or r[keys[1]] == s)]
+            if vals:
+                pts.append((pos[x], sum(vals) / len(vals), min(vals), max(vals)))
+        if not pts:
+            continue
+        label = None if s is None else f"{keys[1]} = {s}"
+        line = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=label)[0]
+        if any(p[2] != p[3] for p in pts):
+            ax.fill_between([p[0] for p in pts], [p[2] for p in pts], [p[3] for p in pts], alpha=0.2,
+                            color=line.get_color(), linewidth=0)
+    if not numeric:
+        ax.set_xticks(range(len(xs)), [str(x) for x in xs])
+    ax.set_xlabel(xkey)
+    ax.set_ylabel(metric_label(metric))
+    failed = sum(1 for r in rows if r.get("error"))
+    ax.set_title(f"{metric_label(metric)} against {xkey}" + (f" ({failed} failed runs left out)" if failed else ""),
+                 fontsize=10)
+    if len(series) > 1:
+        ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def write_sweep_plots(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str],
+                      directory: str | Path) -> list[Path]:
+    """One `sweep_plot` per metric, ``<metric>.png`` in ``directory`` (created if missing)."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    return [sweep_plot(rows, keys, m, d / f"{m.replace('/', '_')}.png") for m in metrics]
+
+
+_CURVE_STYLE = {"analysis": ("analysis: every message guaranteed (Davis et al. 2007)", "tab:blue", "-"),
+                "simulation": ("simulation, priority queues: no deadline miss", "tab:green", "--"),
+                "fifo": ("simulation, FIFO queues: no deadline miss", "tab:red", "-.")}
+
+
+def schedulability_plot(study: "SchedulabilityStudy", path: str | Path, curves: Sequence[str] = ("analysis",
+                                                                                                   "simulation"),
+                        title: str | None = None) -> Path:
+    """The fraction of sets per utilisation for ``curves`` (analysis, simulation, fifo), each
+    curve's breakdown utilisation (where it falls through 50 %) as a dotted vertical line."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    for c in curves:
+        label, colour, style = _CURVE_STYLE[c]
+        pts = [(100 * p["utilisation"], 100 * p[c]) for p in study.points if p[c] is not None]
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colour, label=label)
+        b = study.breakdown.get(c)
+        if b is not None:
+            ax.axvline(100 * b, color=colour, linestyle=":", linewidth=1)
+            ax.annotate(f"{100 * b:.0f} %", (100 * b, 50), xytext=(3, 4 + 12 * list(curves).index(c)),
+                        textcoords="offset points", fontsize=8, color=colour)
+    ax.axhline(50, color="grey", linewidth=0.5)
+    s = study.settings
+    ax.set_xlabel("bus utilisation, worst-case frames (%)")
+    ax.set_ylabel("message sets (%)")
+    ax.set_ylim(-3, 103)
+    ax.set_title(title or (f"{s.get('sets')} sets per point, {s.get('messages')} messages, "
+                           f"{s.get('per_node')} per node, {s.get('generator')}; breakdown dotted"), fontsize=9)
+    ax.legend(fontsize=8, loc="lower left")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
+    """Worst response and jitter of each message (grouped bars, one colour per profile, the
+    deadline as a tick) and the bus load of each profile."""
+    plt = pyplot()
+    rows = [r for r in study.rows if not r.get("error")]
+    names = [m.name for m in study.mset.messages]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), gridspec_kw={"width_ratios": [3, 3, 1]})
+    width = 0.8 / max(1, len(rows))
+    cmap = plt.get_cmap("tab10")
+    for k, r in enumerate(rows):
+        xs = [i - 0.4 + width * (k + 0.5) for i in range(len(names))]
+        for ax, col in ((axes[0], "max_ms"), (axes[1], "jitter_ms")):
+            ax.bar(xs, [r.get(f"{n}.{col}") or 0.0 for n in names], width=width, color=cmap(k % 10),
+                   label=r["profile"])
+        axes[2].bar([k], [100 * r["bus_load"]], color=cmap(k % 10))
+    deadlines = [m.deadline_ns / 1e6 for m in study.mset.messages]
+    axes[0].scatter(range(len(names)), deadlines, marker="_", s=200, color="black", label="deadline", zorder=3)
+    for ax, label in ((axes[0], "worst response (ms)"), (axes[1], "start-to-start jitter (ms)")):
+        ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].legend(fontsize=8)
+    axes[2].set_xticks(range(len(rows)), [r["profile"] for r in rows], rotation=45, ha="right", fontsize=8)
+    axes[2].set_ylabel("bus load (%)")
+    axes[2].set_ylim(0, 100)
+    fig.suptitle(f"one message set under each profile ({len(names)} messages, {study.mset.bitrate // 1000} kbit/s)",
+                 fontsize=10)
+    return _save(fig, path)
+
+
+def _save(fig: Any, path: str | Path) -> Path:
+    p = Path(path)
+    fig.tight_layout()
+    fig.savefig(p, dpi=100)
+    pyplot().close(fig)
+    return p
