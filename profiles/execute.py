@@ -223,10 +223,14 @@ def _dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
             return Client(scheduler, timeout="10s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise ExecuteError(f"--scheduler {scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
+    import dask
+
     # one single-threaded process per worker: a run holds the GIL; a random dashboard port so
-    # that two sweeps (or a user's own cluster on 8787) do not collide
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR)
+    # that two sweeps (or a user's own cluster on 8787) do not collide; no statistical profiler
+    # in the workers (it samples the run's deep stack every 10 ms)
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 

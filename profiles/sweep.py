@@ -393,7 +393,8 @@ def run_one(task: RunTask) -> dict[str, Any]:
 class SweepResult:
     """What a sweep produced: the rows done in canonical order (failed runs included, with their
     ``error``), the varied keys, how many runs were planned, whether Ctrl-C stopped it, and the
-    engine that ran it (sequential, processes, dask)."""
+    engine that ran it (sequential, processes, dask), its wall time and, of it, the seconds spent
+    starting a pool or cluster."""
 
     rows: list[dict[str, Any]]
     keys: list[str]
@@ -402,6 +403,7 @@ class SweepResult:
     engine: str
     wall_s: float
     columns: list[str] = field(default_factory=list)
+    startup_s: float = 0.0
 
     @property
     def failed(self) -> list[dict[str, Any]]:
@@ -421,7 +423,7 @@ def run_sweep(raw: Mapping[str, Any], source: str, varies: Sequence[Vary], *, se
                             desc="sweep")
     keys = [v.key for v in resolved]
     return SweepResult(rows=ex.rows, keys=keys, total=len(tasks), interrupted=ex.interrupted, engine=ex.engine,
-                       wall_s=ex.wall_s, columns=table_columns(ex.rows, keys))
+                       wall_s=ex.wall_s, columns=table_columns(ex.rows, keys), startup_s=ex.startup_s)
 
 
 # --- tables ----------------------------------------------------------------------------------------
