@@ -6,15 +6,27 @@
   message a `Node.send_periodic` with its period and offset, no recorder, no analysis). The
   scenario is examples/powertrain_90.toml's network (17 periodic messages, 5 nodes, 500 kbit/s,
   about 83 % bus load). Target: at most 1.5.
+- ``sweep_parallel``: the wall time of a sweep of that network (``runs`` runs of ``seconds``
+  simulated each, different seeds) in one process, divided by the same sweep with two workers —
+  the standard library's process pool, and a Dask LocalCluster when dask is installed (its
+  start-up, about a second, included and also given apart). The tables must be equal. Target on
+  a 2-core machine: at least 1.7.
+- ``sweep_overhead``: the wall time per run of a sequential sweep (the raw scenario copied, the
+  run's values and seed put in, checked by `parse_scenario`, run, its row built) against a bare
+  `run_scenario` of the already-checked scenario with the same seeds: (sweep − bare) / bare.
+  Target: at most 0.10.
+
+Sweep figures are the best of ``repeat`` rounds, as `timeit` does: noise only slows a run.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["benchmark", "runner_overhead"]
+__all__ = ["benchmark", "runner_overhead", "sweep_parallel", "sweep_overhead"]
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "powertrain_90.toml"
 
@@ -53,9 +65,91 @@ def runner_overhead(seconds: float = 4.0, repeat: int = 3) -> dict[str, float]:
     return {"bare_s": bare, "runner_s": runner, "ratio": runner / bare, "simulated_s": seconds}
 
 
+def _example_raw(seconds: float) -> dict[str, Any]:
+    from profiles.scenario import load_scenario
+
+    raw = copy.deepcopy(load_scenario(EXAMPLE).raw)
+    raw["bus"]["duration"] = seconds
+    return raw
+
+
+def sweep_parallel(runs: int = 16, seconds: float = 1.0, repeat: int = 2) -> dict[str, Any]:
+    """Best-of-``repeat`` wall times of one sweep (``runs`` seeds of the example network, ``seconds``
+    simulated each) in one process, on a process pool of 2, and on a Dask LocalCluster of 2 (when
+    dask is installed), and the speed-ups. Raises AssertionError if a table differs."""
+    from profiles.execute import dask_available
+    from profiles.sweep import run_sweep
+
+    raw = _example_raw(seconds)
+
+    def timed(**kw: Any) -> tuple[float, float, list[dict[str, Any]]]:
+        best = (float("inf"), 0.0, [])
+        for _ in range(repeat):
+            res = run_sweep(raw, str(EXAMPLE), [], seeds=runs, progress=False, **kw)
+            if res.wall_s < best[0]:
+                best = (res.wall_s, res.startup_s, res.rows)
+        return best
+
+    seq_s, _, rows = timed(workers=1)
+    pool_s, _, pool_rows = timed(workers=2, engine="processes")
+    assert pool_rows == rows, "the process pool's table differs from the sequential one"
+    out: dict[str, Any] = {"runs": runs, "simulated_s": seconds, "sequential_s": seq_s, "processes_s": pool_s,
+                           "processes_speedup": seq_s / pool_s}
+    if dask_available():
+        dask_s, startup, dask_rows = timed(workers=2, engine="dask")
+        assert dask_rows == rows, "the Dask table differs from the sequential one"
+        out.update(dask_s=dask_s, dask_startup_s=startup, dask_speedup=seq_s / dask_s,
+                   dask_speedup_after_startup=seq_s / (dask_s - startup))
+    return out
+
+
+def sweep_overhead(runs: int = 20, seconds: float = 0.25, repeat: int = 3) -> dict[str, float]:
+    """Best-of-``repeat`` wall time per run of a sequential sweep against a bare `run_scenario` of
+    the same checked scenario with the same seeds (see the module docstring)."""
+    from profiles.runner import run_scenario
+    from profiles.scenario import parse_scenario
+    from profiles.sweep import plan_runs, run_sweep
+
+    raw = _example_raw(seconds)
+    seeds = [t.seed for t in plan_runs(raw, str(EXAMPLE), [], seeds=runs)]
+    scenario = parse_scenario(raw, str(EXAMPLE))
+
+    def bare() -> float:
+        t0 = time.perf_counter()
+        for seed in seeds:
+            scenario.seed = seed
+            run_scenario(scenario, progress=False)
+        return time.perf_counter() - t0
+
+    def sweep() -> float:
+        t0 = time.perf_counter()
+        run_sweep(raw, str(EXAMPLE), [], seeds=runs, progress=False)
+        return time.perf_counter() - t0
+
+    b = s = float("inf")
+    for _ in range(repeat):  # interleaved, so that a busy moment of the machine hits both
+        b = min(b, bare())
+        s = min(s, sweep())
+    return {"runs": runs, "simulated_s": seconds, "bare_per_run_s": b / runs, "sweep_per_run_s": s / runs,
+            "overhead": (s - b) / b}
+
+
 def benchmark(seconds: float = 3.0) -> dict[str, Any]:
     """Every figure of the experiments, with the lines `python -m stack.bench` prints."""
     r = runner_overhead(seconds=max(0.5, seconds))
-    return {"runner_vs_engine": r, "lines": [
+    lines = [
         f"experiment runner on {r['simulated_s']:g} s of the 90 % powertrain network: {r['runner_s']:.2f} s vs the bare "
-        f"engine {r['bare_s']:.2f} s on the same traffic: {r['ratio']:.2f}x (target <= 1.5)"]}
+        f"engine {r['bare_s']:.2f} s on the same traffic: {r['ratio']:.2f}x (target <= 1.5)"]
+    scale = max(0.25, seconds / 3.0)
+    p = sweep_parallel(runs=16, seconds=round(scale, 3))
+    text = (f"sweep of {p['runs']} runs x {p['simulated_s']:g} s of that network: 1 process {p['sequential_s']:.2f} s; "
+            f"--workers 2 on a process pool {p['processes_s']:.2f} s: {p['processes_speedup']:.2f}x")
+    if "dask_s" in p:
+        text += (f"; on a Dask LocalCluster {p['dask_s']:.2f} s ({p['dask_startup_s']:.2f} s of it starting the "
+                 f"cluster): {p['dask_speedup']:.2f}x, {p['dask_speedup_after_startup']:.2f}x after start-up")
+    lines.append(text + " (target >= 1.7)")
+    o = sweep_overhead(seconds=round(0.25 * scale, 3))
+    lines.append(f"sweep machinery per run ({o['runs']} runs x {o['simulated_s']:g} s): {o['sweep_per_run_s'] * 1e3:.1f} "
+                 f"ms vs a bare run_scenario {o['bare_per_run_s'] * 1e3:.1f} ms: {100 * o['overhead']:+.1f} % "
+                 "(target <= 10 %)")
+    return {"runner_vs_engine": r, "sweep_parallel": p, "sweep_overhead": o, "lines": lines}
