@@ -34,6 +34,7 @@ import logging
 import multiprocessing
 import signal
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import as_completed as futures_completed
@@ -228,9 +229,17 @@ def _dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     # one single-threaded process per worker: a run holds the GIL; a random dashboard port so
     # that two sweeps (or a user's own cluster on 8787) do not collide; no statistical profiler
     # in the workers (it samples the run's deep stack every 10 ms)
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               silence_logs=logging.ERROR)
+    # The worker processes are started with Ctrl-C ignored (a disposition a child inherits, and
+    # Python and asyncio leave in place): the terminal sends SIGINT to the whole foreground group,
+    # and a LocalCluster worker that gets it dies with a traceback; the sweep stops them instead.
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() else None
+    try:
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                   silence_logs=logging.ERROR)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGINT, old)
     return Client(cluster), cluster
 
 

@@ -302,13 +302,14 @@ def _profiles_table(study: Any) -> str:
     rows = [r for r in study.rows if not r.get("error")]
     head = f"{'message':<12} {'ID':>6} {'period':>9} " + " ".join(f"{r['profile'][:22]:>22}" for r in rows)
     lines = [head, f"{'':<12} {'':>6} {'(ms)':>9} " + " ".join(f"{'worst / jitter / miss':>22}" for _ in rows)]
-    for m in study.mset.messages:
+    for m in sorted(study.mset.messages, key=lambda m: (m.extended, m.can_id)):  # priority order
         cells = []
         for r in rows:
             mx, jt, ms = r.get(f"{m.name}.max_ms"), r.get(f"{m.name}.jitter_ms"), r.get(f"{m.name}.misses")
             cells.append(f"{_fmt3(mx)} / {_fmt3(jt)} / {'-' if ms is None else ms}".rjust(22))
         lines.append(f"{m.name[:12]:<12} {m.can_id:>#6x} {m.period_ns / 1e6:>9.3f} " + " ".join(cells))
     lines.append(f"{'bus load %':<29} " + " ".join(f"{100 * r['bus_load']:>22.1f}" for r in rows))
+    lines.append(f"{'deadline misses':<29} " + " ".join(f"{r['deadline_misses']:>22}" for r in rows))
     for r in study.rows:
         if r.get("error"):
             lines.append(f"{r['profile']}: failed: {r['error']}")

@@ -6,8 +6,8 @@ gives the non-interactive backend).
   all numbers is drawn as categories in the order given.
 - `schedulability_plot`: fractions of sets against utilisation, with each curve's breakdown
   utilisation (50 % crossing) marked.
-- `profiles_plot`: worst response and jitter per message, and the bus load, per profile, side by
-  side.
+- `profiles_plot`: worst response and jitter per message (in priority order), and the bus load,
+  per profile, side by side.
 """
 
 from __future__ import annotations
@@ -108,8 +108,9 @@ def schedulability_plot(study: "SchedulabilityStudy", path: str | Path, curves: 
     for c in curves:
         label, colour, style = _CURVE_STYLE[c]
         pts = [(100 * p["utilisation"], 100 * p[c]) for p in study.points if p[c] is not None]
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colour, label=label)
         b = study.breakdown.get(c)
+        label += f" (breakdown {100 * b:.0f} %)" if b is not None else " (never below 50 %)"
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colour, label=label)
         if b is not None:
             ax.axvline(100 * b, color=colour, linestyle=":", linewidth=1)
             ax.annotate(f"{100 * b:.0f} %", (100 * b, 50), xytext=(3, 4 + 12 * list(curves).index(c)),
@@ -131,7 +132,8 @@ def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
     deadline as a tick) and the bus load of each profile."""
     plt = pyplot()
     rows = [r for r in study.rows if not r.get("error")]
-    names = [m.name for m in study.mset.messages]
+    msgs = sorted(study.mset.messages, key=lambda m: (m.extended, m.can_id))  # priority order
+    names = [m.name for m in msgs]
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), gridspec_kw={"width_ratios": [3, 3, 1]})
     width = 0.8 / max(1, len(rows))
     cmap = plt.get_cmap("tab10")
@@ -141,7 +143,7 @@ def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
             ax.bar(xs, [r.get(f"{n}.{col}") or 0.0 for n in names], width=width, color=cmap(k % 10),
                    label=r["profile"])
         axes[2].bar([k], [100 * r["bus_load"]], color=cmap(k % 10))
-    deadlines = [m.deadline_ns / 1e6 for m in study.mset.messages]
+    deadlines = [m.deadline_ns / 1e6 for m in msgs]
     axes[0].scatter(range(len(names)), deadlines, marker="_", s=200, color="black", label="deadline", zorder=3)
     for ax, label in ((axes[0], "worst response (ms)"), (axes[1], "start-to-start jitter (ms)")):
         ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
