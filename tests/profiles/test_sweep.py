@@ -219,6 +219,22 @@ def test_identical_tables_sequential_process_pool_and_dask(monkeypatch):
     assert dask.engine == "dask" and dask.rows == seq.rows
 
 
+def test_a_sweep_on_a_running_scheduler(monkeypatch):
+    """--scheduler: the runs go to a cluster this process did not start (here a LocalCluster's
+    scheduler, as `dask scheduler` would be), with the same table."""
+    distributed = pytest.importorskip("distributed")
+    import logging
+
+    monkeypatch.setenv("PYTHONPATH", str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    raw = small_raw()
+    varies = [vary(raw, "nodes.body.messages.Doors.period_ms=2,4,8")]
+    seq = run_sweep(raw, "s.toml", varies, seeds=2)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.ERROR) as cluster:
+        remote = run_sweep(raw, "s.toml", varies, seeds=2, scheduler=cluster.scheduler_address)
+    assert remote.engine == "dask" and remote.rows == seq.rows
+
+
 def test_a_value_that_breaks_a_rule_fails_that_run_only():
     raw = small_raw()
     res = run_sweep(raw, "small.toml", [vary(raw, "bus.bitrate=500000,2000000,fast")])
