@@ -378,12 +378,12 @@ def schedulability_study(utilisations: Sequence[float], *, sets: int = 100, mess
         raise ValueError(f"--generator {generator!r}: one of {', '.join(GENERATORS)}")
     if priorities not in PRIORITIES:
         raise ValueError(f"--priorities {priorities!r}: one of {', '.join(PRIORITIES)}")
-    period_range_ms = period_range_ms or PERIOD_RANGES_MS[generator]
+    lo, hi = period_range_ms or PERIOD_RANGES_MS[generator]
     tasks = []
     for u in utilisations:
         for s in range(sets):
             tasks.append(SchedTask(len(tasks), float(u), s, run_seed(seed, (("set", s),)), messages, per_node,
-                                   bitrate, tuple(period_range_ms), generator, priorities))  # type: ignore[arg-type]
+                                   bitrate, (lo, hi), generator, priorities))
     ex = execute(schedulability_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress,
                  desc="schedulability")
     points = []
@@ -396,7 +396,7 @@ def schedulability_study(utilisations: Sequence[float], *, sets: int = 100, mess
     bd = {curve: breakdown([(p["utilisation"], p[curve]) for p in points if p[curve] is not None])
           for curve in CURVES}
     settings = {"sets": sets, "messages": messages, "per_node": per_node, "bitrate": bitrate,
-                "period_range_ms": list(period_range_ms), "generator": generator, "priorities": priorities, "seed": seed,
+                "period_range_ms": [lo, hi], "generator": generator, "priorities": priorities, "seed": seed,
                 "release": "synchronous (offsets 0)"}
     return SchedulabilityStudy(ex.rows, points, bd, len(tasks), ex.interrupted, ex.engine, ex.wall_s, settings)
 

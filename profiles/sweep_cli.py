@@ -19,7 +19,7 @@ import importlib.util
 import json
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from stack.cli import CliError, plural
 from stack.cli.runs import check_output, writing
@@ -58,7 +58,8 @@ def _check_engine(args: argparse.Namespace) -> None:
     choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
 
 
-def _positive_int(what: str):  # type: ignore[no-untyped-def]
+def _positive_int(what: str) -> Callable[[str], int]:
+    """An argparse type: a whole number >= 1 (``what`` names it in the error)."""
     def parse(text: str) -> int:
         try:
             v = int(text)
@@ -148,12 +149,13 @@ def _expected_metrics(scenario: Any) -> set[str]:
 
 
 def _check_metrics(metrics: Sequence[str], scenario: Any) -> None:
+    """Each --metric must be a column the sweep will have (a profile's figures: any under its key)."""
     known = _expected_metrics(scenario)
+    example = f", {scenario.messages[0].name}.max_ms" if scenario.messages else ""
     for m in metrics:
-        if m in known or any(m.startswith(k + ".") for k in known):
-            continue
-        raise CliError(f"--metric {m!r}: not a column of this sweep (e.g. bus_load, worst_misses, deadline_misses, "
-                       f"{scenario.messages[0].name}.max_ms)" if scenario.messages else f"--metric {m!r}: not a column")
+        if m not in known and not any(m.startswith(k + ".") for k in known):
+            raise CliError(f"--metric {m!r}: not a column of this sweep (e.g. bus_load, worst_misses, "
+                           f"deadline_misses{example})")
 
 
 def _sweep(args: argparse.Namespace) -> int:
