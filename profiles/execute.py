@@ -243,6 +243,11 @@ def _dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     return Client(cluster), cluster
 
 
+def _warm(module: str) -> None:
+    """On a worker: import the module of the runs (returns nothing: a module does not pickle)."""
+    importlib.import_module(module)
+
+
 def _guarded_chunk(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task]) -> list[dict[str, Any]]:
     return [_guarded(fn, t) for t in tasks]
 
@@ -298,8 +303,15 @@ def execute(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], *, worke
     startup = 0.0
     if name == "dask":
         client, cluster = _dask_client(workers, scheduler)
-        startup = time.perf_counter() - wall0
         try:
+            # every worker imports the run's module now (LocalCluster workers are fresh interpreters:
+            # half a second each), so that the start-up is counted as such, not in the first runs
+            try:
+                client.run(_warm, fn.__module__)
+            except Exception as exc:
+                raise ExecuteError(f"the Dask workers cannot import {fn.__module__} ({error_text(exc)}): install "
+                                   "canstack (the same version) on every worker") from None
+            startup = time.perf_counter() - wall0
             out = _Rows(len(tasks), progress, desc)
             if scheduler is not None and out.bar is not None:
                 print(f"dask: {scheduler}, dashboard {client.dashboard_link}", file=sys.stderr)
