@@ -165,6 +165,7 @@ class _Rows:
             self.bar = tqdm(total=total, unit="run", desc=desc, file=sys.stderr, dynamic_ncols=True, leave=True)
 
     def add(self, index: int, row: dict[str, Any]) -> None:
+        """Keep the row of run ``index`` and advance the bar (failures counted beside it)."""
         self.rows[index] = row
         if row.get("error"):
             self.failed += 1
@@ -174,6 +175,7 @@ class _Rows:
                 self.bar.set_postfix(failed=self.failed, refresh=False)
 
     def close(self) -> list[dict[str, Any]]:
+        """Close the bar; the rows in canonical (index) order."""
         if self.bar is not None:
             self.bar.close()
         return [self.rows[i] for i in sorted(self.rows)]
