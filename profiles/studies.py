@@ -433,8 +433,9 @@ def profile_run(task: ProfileTask) -> dict[str, Any]:
 
 @dataclass
 class ProfilesStudy:
-    """One row per compared profile (canonical order: the registry's, sorted by name), the
-    message set, and the profiles left out with the reason."""
+    """One row per compared profile (canonical order: by name; profiles that share a converter
+    share a row, labelled ``master/slave``), the message set, and the profiles left out with the
+    reason."""
 
     mset: MessageSet
     rows: list[dict[str, Any]]
@@ -452,20 +453,26 @@ def profiles_study(mset: MessageSet, *, workers: int = 1, scheduler: str | None 
     tasks: list[ProfileTask] = []
     skipped: dict[str, str] = {}
     failed: list[dict[str, Any]] = []
+    # profiles of one module (master and slave, canopen and canopen-master) share its converter:
+    # one run, labelled with all their names
+    groups: dict[Converter, list[str]] = {}
     for name in sorted(profile_kinds()):
         fn = converter_for(name)
         if fn is None:
             mod = profile_kind(name).build.__module__
             skipped[name] = f"no converter ({mod} has no express_message_set)"
             continue
+        groups.setdefault(fn, []).append(name)
+    for fn, names in groups.items():
+        label = "/".join(names)
         try:
             raw = fn(mset)
         except Exception as exc:
             from profiles.execute import error_text
 
-            failed.append({"run": None, "profile": name, "error": f"converter: {error_text(exc)}"})
+            failed.append({"run": None, "profile": label, "error": f"converter: {error_text(exc)}"})
             continue
-        tasks.append(ProfileTask(len(tasks), name, raw))
+        tasks.append(ProfileTask(len(tasks), label, raw))
     ex = execute(profile_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress,
                  desc="profiles")
     rows = ex.rows + failed

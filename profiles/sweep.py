@@ -383,7 +383,10 @@ def run_one(task: RunTask) -> dict[str, Any]:
     if result.interrupted:
         raise KeyboardInterrupt
     row = task.head()
-    row.update(summary_row(result))
+    for k, v in summary_row(result).items():
+        # a profile's figure may have the name of a varied key (tdma.basic_cycle_us): the
+        # parameter keeps its column, the figure gets one of its own
+        row[f"{k} (result)" if k in row else k] = v
     return row
 
 

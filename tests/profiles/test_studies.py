@@ -257,6 +257,17 @@ def test_a_registered_converter_wins_and_a_failing_one_is_a_row(second_profile):
     assert row["error"] == "converter: RuntimeError: no slot for 'fast'"
 
 
+def test_profiles_of_one_module_share_one_run(second_profile):
+    """master and slave live in one module: its converter runs once, labelled with both names."""
+    def build_peer(node, decl, context):
+        return second_profile.build(node, decl, context)
+
+    build_peer.__module__ = second_profile.__name__
+    registry.register(registry.ProfileKind(name="fake_peer", build=build_peer))
+    res = profiles_study(SMALL_SET)
+    assert [r["profile"] for r in res.rows] == ["csma", "fake_fifo/fake_peer"]
+
+
 def test_a_profile_without_a_converter_is_skipped_with_the_reason(monkeypatch):
     from profiles.csma import CsmaProfile
 

@@ -235,6 +235,23 @@ def test_a_sweep_on_a_running_scheduler(monkeypatch):
     assert remote.engine == "dask" and remote.rows == seq.rows
 
 
+def test_a_profile_table_key_is_varied_and_keeps_its_column():
+    """A profile's own table (here TDMA's [tdma]) is varied by the keys the file has; a profile
+    figure of the same name as the varied key gets a column of its own."""
+    from profiles.scenario import load_scenario
+
+    raw = load_scenario(ROOT / "examples" / "tdma.toml").raw
+    raw = dict(raw, bus=dict(raw["bus"], duration=0.05))
+    v = vary(raw, "tdma.basic_cycle_us=5000,10000")
+    assert v.path == ("tdma", "basic_cycle_us") and v.values == (5000, 10000)
+    res = run_sweep(raw, "tdma.toml", [v])
+    assert not res.failed
+    assert [r["tdma.basic_cycle_us"] for r in res.rows] == [5000, 10000]
+    assert [r["tdma.basic_cycle_us (result)"] for r in res.rows] == [5000, 10000]  # the schedule that ran
+    with pytest.raises(SweepError, match="has no key 'bogus'"):
+        vary(raw, "tdma.bogus=1")
+
+
 def test_a_value_that_breaks_a_rule_fails_that_run_only():
     raw = small_raw()
     res = run_sweep(raw, "small.toml", [vary(raw, "bus.bitrate=500000,2000000,fast")])
