@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from profiles.registry import ProfileKind, register
+from profiles.tdma.convert import express_message_set  # noqa: F401  (the profiles study finds it here)
 from profiles.tdma.monitor import message_bounds
 from profiles.tdma.plots import tdma_schedule
 from profiles.tdma.profile import TdmaProfile
