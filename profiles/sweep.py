@@ -32,14 +32,14 @@ import math
 import re
 import sys
 from dataclasses import dataclass, field
-from decimal import Decimal, InvalidOperation
+from decimal import Decimal
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from profiles.execute import Execution, execute
 from profiles.registry import profile_kind, profile_kinds
 from profiles.scenario import (ANALYSIS_KEYS, BUS_KEYS, FAULT_KEYS, MESSAGE_KEYS, NODE_KEYS, PLOT_KEYS, Scenario,
-                               ScenarioError, parse_scenario)
+                               parse_scenario)
 from profiles.schema import Key
 
 if sys.version_info >= (3, 11):
