@@ -23,7 +23,7 @@ class BitLevelAttempts:
 
     nodes: "list[Node]"
     trace: list[TraceRecord]
-    _now: int
+    now_ns: int
     _tx: Any
     _tx_end: int
 
@@ -49,7 +49,7 @@ class BitLevelAttempts:
 
     def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
         """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
-        node.set_counters(tec, rec, self._now)
+        node.set_counters(tec, rec, self.now_ns)
 
     def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
         """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,

@@ -58,18 +58,18 @@ class BusStatistics:
     collisions: int
     busy_ns: int
     id_stats: dict[int, IdStats]
-    _now: int
+    now_ns: int
     _bus_listeners: list[Callable[[TraceRecord], Any]]
 
     @property
     def elapsed(self) -> int:
         """Virtual time since the start of the simulation, ns."""
-        return self._now
+        return self.now_ns
 
     def bus_load(self) -> float:
         """Fraction of elapsed time the bus was not idle (frames and error frames with their
         intermission), 0..1."""
-        return self.busy_ns / self._now if self._now else 0.0
+        return self.busy_ns / self.now_ns if self.now_ns else 0.0
 
     def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
         """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""
@@ -90,7 +90,7 @@ class BusStatistics:
         """Bus load, frame and error counts, per-ID latency and per-node counters."""
         return {
             "bitrate": self.bitrate,
-            "elapsed_s": self._now / 1e9,
+            "elapsed_s": self.now_ns / 1e9,
             "frames": self.frames_ok,
             "error_frames": self.error_frames,
             "collisions": self.collisions,

@@ -79,6 +79,10 @@ class Driver(Protocol):
     date (a driver that delivers at once keeps it at 0)."""
     bit_ns: float | None
     """The bit time of the bus in ns, or None when the driver does not know the bitrate."""
+    now_ns: int
+    """The current bus time, ns, as `now()` gives it — an attribute a node reads without a call
+    where it pays (`Node.send`, once per frame: 2 % of `python -m stack.bench`'s 1 -> 1); read-only
+    to nodes (a driver with a live clock makes it a property)."""
     capabilities: frozenset[str]
     seqs: Iterator[int]
     """Increasing sequence numbers, shared by requests and timers (``next(driver.seqs)``: a C

@@ -30,7 +30,7 @@ from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, 
 from stack.controller.filters import AcceptanceFilter
 from stack.controller.receiver import Receiver, Subscription
 from stack.controller.periodic import PeriodicTask
-from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, TxRequest, make_queue  # noqa: F401
+from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, SpecialRequest, TxRequest, make_queue  # noqa: F401
 from stack.wire.frame import Frame
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
@@ -216,10 +216,10 @@ class Node(Receiver):
         if type(frame) is not Frame:
             frame = self._coerce(frame)
         bus = self.bus
-        if bus is None or self.listen_only or self.state is BUS_OFF:
+        if bus is None or self._listen_only or self.state is BUS_OFF:
             self._refuse()
-        if one_shot is None and not_after is None:
-            req = TxRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot, None)
+        if one_shot is None and not_after is None and not self._one_shot:
+            req = TxRequest(self, frame, next(bus.seqs), bus.now_ns)
         else:
             req = self._special_request(bus, frame, one_shot, not_after)
         q = self.queue
@@ -258,7 +258,8 @@ class Node(Receiver):
             if isinstance(not_after, bool) or not isinstance(not_after, int):
                 raise ValueError(f"not_after {not_after!r}: a time in integer ns on the node's clock")
             nb = self.to_bus(not_after)
-        req = TxRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot if one_shot is None else one_shot, nb)
+        req = SpecialRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot if one_shot is None else one_shot,
+                             nb)
         if req.one_shot and not self._one_shot:
             self._one_shot_pending += 1
             if self._one_shot_pending == 1:

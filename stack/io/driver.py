@@ -137,6 +137,11 @@ class PyCanDriver:
         """Wall-clock ns since the driver was created."""
         return time.monotonic_ns() - self._t0
 
+    @property
+    def now_ns(self) -> int:
+        """`now` as the contract's attribute (computed here: the wall clock)."""
+        return time.monotonic_ns() - self._t0
+
     def call_at(self, time_ns: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer:
         """Run ``callback(*args)`` at driver time ``time_ns`` (thread-safe)."""
         t = Timer(int(time_ns), callback, args)
