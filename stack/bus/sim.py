@@ -435,9 +435,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                         self.offer(node, nxt)
                 else:
                     # Node.confirm's plain case, inlined (a plain request: not one-shot — a one-shot
-                    # node is watched, which keeps this loop off — no latest start; no local clock): calling it costs 1 -> 1 frames 16 % and 10 nodes 18 % of the
-                    # figures of `python -m stack.bench` (callgrind: 10 nodes 25.9 k -> 42.5 k
-                    # instructions a frame); the differential test guards this copy
+                    # node is watched, which keeps this loop off — no latest start, no local clock).
+                    # Calling it costs 1 -> 1 frames 16 % and 10 nodes 18 % of the figures of
+                    # `python -m stack.bench` (callgrind: 10 nodes 25.9 k -> 42.5 k instructions a
+                    # frame); test_fast_loop_matches_the_general_path_* guard this copy
                     req.state = SENT
                     req.t_done = end
                     req.sof = t0
