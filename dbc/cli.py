@@ -9,7 +9,7 @@ import sys
 import time
 from typing import Any
 
-from stack.cli import CliError, format_id, plural
+from stack.cli import CliError, format_id, parse_bitrate, plural
 from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, trace_note, trc_dropped, writing
 
 from .errors import load_database
@@ -32,7 +32,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--bus", choices=["sim"], default=None, help="the built-in simulated bus (default)")
     p.add_argument("--interface", metavar="NAME", help="python-can interface (socketcan, canstack, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, bus0, ...)")
-    p.add_argument("--bitrate", type=_bitrate, default=None,
+    p.add_argument("--bitrate", type=parse_bitrate, default=None,
                    help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
                         "connection (default: the interface's own)")
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
@@ -44,15 +44,6 @@ def register(subparsers: Any) -> None:
                    help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)")
     p.set_defaults(func=restbus_command)
 
-
-def _bitrate(text: str) -> int:
-    try:
-        v = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
-    if not 1_000 <= v <= 1_000_000:
-        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-    return v
 
 
 def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from stack.cli import CliError
+from stack.cli import CliError, seconds_type
 from stack.cli.runs import check_output
 
 __all__ = ["register"]
@@ -74,15 +74,6 @@ def _profile_plots(scenario: Any) -> dict[str, Any]:
     return out
 
 
-def _seconds(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v <= 1e6:
-        raise argparse.ArgumentTypeError(f"{text!r}: a duration is > 0 and at most 1e6 s")
-    return v
-
 
 def register(sub: Any) -> None:
     """Add the `experiment` subcommand."""
@@ -96,7 +87,7 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here "
                    "(needs the plot extra)")
-    p.add_argument("--duration", type=_seconds, help="run this many seconds instead of the scenario's [bus] duration")
+    p.add_argument("--duration", type=seconds_type(1e6), help="run this many seconds instead of the scenario's [bus] duration")
     p.add_argument("--progress", action="store_true", default=None,
                    help="draw a progress bar (default: on a terminal, for runs over 2 s)")
     p.add_argument("--interface", help="run on this python-can interface (socketcan, virtual, canstack, ...)")

@@ -19,9 +19,9 @@ import importlib.util
 import json
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
-from stack.cli import CliError, plural
+from stack.cli import CliError, count_type, plural, seconds_type
 from stack.cli.runs import check_output, writing
 
 __all__ = ["register", "register_sweep", "register_study", "check_table_output"]
@@ -58,18 +58,6 @@ def _check_engine(args: argparse.Namespace) -> None:
     choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
 
 
-def _positive_int(what: str) -> Callable[[str], int]:
-    """An argparse type: a whole number >= 1 (``what`` names it in the error)."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number ({what})") from None
-        if v < 1:
-            raise argparse.ArgumentTypeError(f"{text!r}: {what} is at least 1")
-        return v
-    return parse
-
 
 def _int(text: str) -> int:
     try:
@@ -77,15 +65,6 @@ def _int(text: str) -> int:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
 
-
-def _seconds(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v <= 1e6:
-        raise argparse.ArgumentTypeError(f"{text!r}: a duration is > 0 and at most 1e6 s")
-    return v
 
 
 def _period_range(text: str) -> tuple[float, float]:
@@ -100,7 +79,7 @@ def _period_range(text: str) -> tuple[float, float]:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--workers", type=_positive_int("the number of worker processes"), default=1,
+    p.add_argument("--workers", type=count_type("the number of worker processes"), default=1,
                    help="run on N processes: a Dask LocalCluster with the dask extra, else a standard library "
                    "process pool (default 1: in this process)")
     p.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on a Dask cluster (the dask extra; "
@@ -219,10 +198,10 @@ def register_sweep(sub: Any) -> None:
         "included when it falls on a step).")
     p.add_argument("scenario", help="the scenario file (TOML)")
     p.add_argument("--vary", action="append", metavar="KEY=V1,V2,…", help="a key and its values (repeatable)")
-    p.add_argument("--seeds", type=_positive_int("the number of seeds"), default=1,
+    p.add_argument("--seeds", type=count_type("the number of seeds"), default=1,
                    help="runs per combination, each with its own derived seed (default 1)")
     p.add_argument("--seed", type=_int, help="the sweep seed every run's seed derives from (default: [bus] seed)")
-    p.add_argument("--duration", type=_seconds, help="simulated seconds of every run instead of [bus] duration")
+    p.add_argument("--duration", type=seconds_type(1e6), help="simulated seconds of every run instead of [bus] duration")
     p.add_argument("--metric", action="append", metavar="COLUMN",
                    help="what --plot draws (repeatable; default worst_misses and bus_load)")
     _common(p)
@@ -374,9 +353,9 @@ def _profiles(args: argparse.Namespace) -> int:
 
 
 def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) -> None:
-    p.add_argument("--messages", type=_positive_int("messages per set"), default=messages,
+    p.add_argument("--messages", type=count_type("messages per set"), default=messages,
                    help=f"messages per set (default {messages})")
-    p.add_argument("--per-node", type=_positive_int("messages per node"), default=per_node,
+    p.add_argument("--per-node", type=count_type("messages per node"), default=per_node,
                    help=f"messages per node (default {per_node})")
     p.add_argument("--bitrate", type=_int, default=500_000, help="bit/s (default 500000; the loguniform generator "
                    "chooses its own)")
@@ -406,7 +385,7 @@ def register_study(sub: Any) -> None:
         "(synchronous release) with priority and with FIFO transmit queues.")
     s.add_argument("--utilisation", type=_utilisations, default=_utilisations("0.1:1.0:0.1"), metavar="U1,U2|A:B:S",
                    help="utilisation points, fractions (default 0.1:1.0:0.1, i.e. 10 %% .. 100 %%)")
-    s.add_argument("--sets", type=_positive_int("sets per point"), default=100, help="sets per point (default 100)")
+    s.add_argument("--sets", type=count_type("sets per point"), default=100, help="sets per point (default 100)")
     _set_options(s, messages=10, per_node=3)
     _common(s)
     s.set_defaults(func=_schedulability)
@@ -416,7 +395,7 @@ def register_study(sub: Any) -> None:
         "converter (express_message_set), and compare worst-case latency, jitter and bus load.")
     q.add_argument("--scenario", help="take the message set from this scenario file (default: a random set)")
     q.add_argument("--utilisation", type=float, default=0.5, help="utilisation of the random set (default 0.5)")
-    q.add_argument("--duration", type=_seconds, help="simulated seconds (default: ten of the longest periods, at least "
+    q.add_argument("--duration", type=seconds_type(1e6), help="simulated seconds (default: ten of the longest periods, at least "
                    "1 s; or the scenario's)")
     _set_options(q, messages=8, per_node=2)
     _common(q)

@@ -20,7 +20,7 @@ import threading
 import time
 from typing import Any
 
-from stack.cli import CliError, plural
+from stack.cli import CliError, parse_bitrate, plural, seconds_type
 
 __all__ = ["register", "canopen_command"]
 
@@ -38,11 +38,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--interface", required=True, metavar="NAME",
                    help="python-can interface (socketcan, canstack, virtual, pcan, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
-    p.add_argument("--bitrate", type=_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
+    p.add_argument("--bitrate", type=parse_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
     p.add_argument("--heartbeat", type=_ms, default=None, metavar="MS",
                    help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)")
     p.add_argument("--start", action="store_true", help="start operational without waiting for NMT start")
-    p.add_argument("--duration", type=_seconds, default=None, metavar="S",
+    p.add_argument("--duration", type=seconds_type(1e7), default=None, metavar="S",
                    help="stop after S seconds (default: run until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="print the device's metrics as one JSON object at the end")
     p.set_defaults(func=canopen_command)
@@ -58,15 +58,6 @@ def _node_id(text: str) -> int:
     return v
 
 
-def _bitrate(text: str) -> int:
-    try:
-        v = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
-    if not 1_000 <= v <= 1_000_000:
-        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-    return v
-
 
 def _ms(text: str) -> int:
     try:
@@ -77,15 +68,6 @@ def _ms(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{v}: the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)")
     return v
 
-
-def _seconds(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v < 1e7:
-        raise argparse.ArgumentTypeError(f"{text}: a duration is a positive number of seconds")
-    return v
 
 
 def canopen_command(args: argparse.Namespace) -> int:

@@ -12,11 +12,11 @@ import argparse
 import importlib
 import math
 import sys
-from typing import Sequence
+from typing import Callable, Sequence
 
 from stack.wire.frame import id_text
 
-__all__ = ["CliError", "main", "parse_int", "parse_sample_point", "version", "format_id", "plural"]
+__all__ = ["CliError", "main", "parse_int", "parse_bitrate", "seconds_type", "count_type", "parse_sample_point", "version", "format_id", "plural"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -67,6 +67,44 @@ def parse_int(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
+
+
+def parse_bitrate(text: str) -> int:
+    """A CAN 2.0 bit rate: a whole number of bit/s in 1000..1000000 (ISO 11898-1 specifies
+    classical CAN up to 1 Mbit/s; the simulated bus refuses less than 1 kbit/s)."""
+    try:
+        v = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
+    if not 1_000 <= v <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+    return v
+
+
+def seconds_type(most: float) -> Callable[[str], float]:
+    """An argparse type for a duration: a number of seconds > 0 and at most ``most``."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+        if not 0 < v <= most:
+            raise argparse.ArgumentTypeError(f"{text}: a duration is > 0 and at most {most:g} s")
+        return v
+    return parse
+
+
+def count_type(what: str) -> Callable[[str], int]:
+    """An argparse type for a count: a whole number >= 1 (``what`` names it in the error)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number ({what})") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{text!r}: {what} is at least 1")
+        return v
+    return parse
 
 
 def parse_sample_point(text: str) -> float:

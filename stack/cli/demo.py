@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.wire.coding import INTERMISSION_BITS, worst_case_length
-from stack.cli import CliError, parse_int, plural
+from stack.cli import CliError, parse_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced,
                             trace_note, trc_dropped, writing)
 from stack.wire.frame import Frame
@@ -216,21 +216,6 @@ def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
     return len(recs)
 
 
-def _duration(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v <= MAX_SIM_SECONDS:
-        raise argparse.ArgumentTypeError(f"{v:g}: the duration must be > 0 and at most {MAX_SIM_SECONDS:g} s")
-    return v
-
-
-def _bitrate(text: str) -> int:
-    v = parse_int(text)
-    if not 1_000 <= v <= 1_000_000:
-        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-    return v
 
 
 def _frame_from_args(args: argparse.Namespace) -> Frame:
@@ -276,9 +261,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "per-identifier latency and arbitration losses, and each node's counters. With --faults, three "
         "ECUs instead, one of which goes error passive, bus off, and recovers. Ctrl-C stops the run and "
         "prints the summary so far.")
-    p.add_argument("--duration", type=_duration, default=1.0, metavar="S",
+    p.add_argument("--duration", type=seconds_type(MAX_SIM_SECONDS), default=1.0, metavar="S",
                    help=f"simulated seconds, at most {MAX_SIM_SECONDS:g} (default 1)")
-    p.add_argument("--bitrate", type=_bitrate, default=None,
+    p.add_argument("--bitrate", type=parse_bitrate, default=None,
                    help="bit/s (default 500000; on --interface, passed to the bus when given)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated bus (the same seed gives the same trace)")
     p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4; "

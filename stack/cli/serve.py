@@ -70,17 +70,11 @@ def _serve(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `serve`."""
-    from stack.cli import parse_int
-
-    def bitrate(text: str) -> int:
-        v = parse_int(text)
-        if not 1_000 <= v <= 1_000_000:
-            raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-        return v
+    from stack.cli import parse_bitrate
 
     p = sub.add_parser("serve", help="serve a simulated bus in real time to python-can clients in other processes",
                        description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--bitrate", type=bitrate, default=500_000,
+    p.add_argument("--bitrate", type=parse_bitrate, default=500_000,
                    help="the bus's bit rate in bit/s, 1000..1000000 (default 500000); a client that asks for "
                         "another one is refused")
     p.add_argument("--listen", type=_parse_listen, metavar="HOST:PORT",
