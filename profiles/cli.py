@@ -10,22 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from stack.cli import CliError, seconds_type
-from stack.cli.runs import check_output
+from stack.cli.runs import check_output, check_plot_dir
 
 __all__ = ["register"]
-
-
-def _check_plot_dir(path: str) -> None:
-    import importlib.util
-
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise CliError(f"--plot {path!r}: is a file; give a directory for the plots")
-    parent = p if p.exists() else p.parent
-    if not parent.exists():
-        raise CliError(f"--plot {path!r}: the directory {str(parent)!r} does not exist")
-    if importlib.util.find_spec("matplotlib") is None:
-        raise CliError("--plot needs matplotlib, which is not installed: pip install 'canstack[plot]'")
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -34,7 +21,7 @@ def _experiment(args: argparse.Namespace) -> int:
     from profiles.scenario import load_scenario
 
     if args.plot:
-        _check_plot_dir(args.plot)
+        check_plot_dir(args.plot)
     if args.out:
         check_output(args.out, "--out")
     if (args.interface is None) != (args.channel is None):

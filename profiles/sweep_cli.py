@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from stack.cli import CliError, count_type, plural, seconds_type
-from stack.cli.runs import check_output, writing
+from stack.cli.runs import check_output, check_plot_dir, writing
 
 __all__ = ["register", "register_sweep", "register_study", "check_table_output"]
 
@@ -39,17 +39,6 @@ def check_table_output(path: str, option: str = "--out") -> None:
     if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
         raise CliError(f"{option} {path!r}: Parquet needs pyarrow, which is not installed: "
                        "pip install 'canstack[parquet]' (or write .csv)")
-
-
-def _check_plot_dir(path: str) -> None:
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise CliError(f"--plot {path!r}: is a file; give a directory for the plots")
-    parent = p if p.exists() else p.parent
-    if not parent.exists():
-        raise CliError(f"--plot {path!r}: the directory {str(parent)!r} does not exist")
-    if importlib.util.find_spec("matplotlib") is None:
-        raise CliError("--plot needs matplotlib, which is not installed: pip install 'canstack[plot]'")
 
 
 def _check_engine(args: argparse.Namespace) -> None:
@@ -145,7 +134,7 @@ def _sweep(args: argparse.Namespace) -> int:
         check_table_output(args.out)
     n_keys = len(args.vary or [])
     if args.plot:
-        _check_plot_dir(args.plot)
+        check_plot_dir(args.plot)
         if not 1 <= n_keys <= 2:
             raise CliError(f"--plot draws one or two varied keys; this sweep varies {n_keys}")
     elif args.metric:
@@ -248,7 +237,7 @@ def _schedulability(args: argparse.Namespace) -> int:
     if args.out:
         check_table_output(args.out)
     if args.plot:
-        _check_plot_dir(args.plot)
+        check_plot_dir(args.plot)
     _check_engine(args)
     study = schedulability_study(args.utilisation, sets=args.sets, messages=args.messages, per_node=args.per_node,
                                  bitrate=args.bitrate, period_range_ms=args.period_range, generator=args.generator,
@@ -312,7 +301,7 @@ def _profiles(args: argparse.Namespace) -> int:
     if args.out:
         check_table_output(args.out)
     if args.plot:
-        _check_plot_dir(args.plot)
+        check_plot_dir(args.plot)
     _check_engine(args)
     if args.scenario:
         from profiles.scenario import load_scenario

@@ -4,9 +4,9 @@ clock (ns). A profile keeps every event in ``events`` and calls the callbacks gi
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, Callable, NamedTuple
 
-__all__ = ["CycleOverrun", "SlaveLost", "SlaveBack", "MasterStopped", "MasterResumed", "MasterLost", "MasterBack"]
+__all__ = ["Reporter", "CycleOverrun", "SlaveLost", "SlaveBack", "MasterStopped", "MasterResumed", "MasterLost", "MasterBack"]
 
 
 class CycleOverrun(NamedTuple):
@@ -67,3 +67,21 @@ class MasterBack(NamedTuple):
     time: int
     slave: str
     master: str
+
+
+class Reporter:
+    """What masters and slaves share: every event kept in ``events``, and the callbacks given to
+    `listen` called with it."""
+
+    def __init__(self) -> None:
+        self.events: list[Any] = []
+        self._listeners: list[Callable[[Any], Any]] = []
+
+    def listen(self, callback: Callable[[Any], Any]) -> None:
+        """Call ``callback(event)`` for every event reported from now on (the classes above)."""
+        self._listeners.append(callback)
+
+    def _emit(self, event: Any) -> None:
+        self.events.append(event)
+        for cb in self._listeners:
+            cb(event)

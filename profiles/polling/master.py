@@ -32,11 +32,11 @@ callbacks of the node API, so the master runs unchanged on the simulated bus and
 from __future__ import annotations
 
 from array import array
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of, stats_ms
 from profiles.polling.config import NETWORK_TABLE
-from profiles.polling.events import CycleOverrun, MasterResumed, MasterStopped, SlaveBack, SlaveLost
+from profiles.polling.events import CycleOverrun, MasterResumed, MasterStopped, Reporter, SlaveBack, SlaveLost
 from stack import ErrorStateChanged, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -98,7 +98,7 @@ class SlaveLink:
         return not self.lost or (cycle - self.lost_cycle) % every == 0
 
 
-class Master(Profile):
+class Master(Profile, Reporter):
     """A poll-list master on one node (see the module docstring)."""
 
     kind = "master"
@@ -122,8 +122,7 @@ class Master(Profile):
                 watched.append(m)
         self._filters = rx_filters(watched)
         self.state = IDLE
-        self.events: list[Any] = []
-        self._listeners: list[Callable[[Any], Any]] = []
+        Reporter.__init__(self)
         # the cycle
         self.cycle = 0
         self.cycle_start = 0
@@ -160,15 +159,6 @@ class Master(Profile):
         self.node.listen(TxFailed, self._on_failed)
         self.node.listen(ErrorStateChanged, self._on_state)
         self._cycle_timer = self.node.call_at(self.node.now() + self.config.offset_ns, self._begin_cycle)
-
-    def listen(self, callback: Callable[[Any], Any]) -> None:
-        """Call ``callback(event)`` for every event the master reports (`profiles.polling.events`)."""
-        self._listeners.append(callback)
-
-    def _emit(self, event: Any) -> None:
-        self.events.append(event)
-        for cb in self._listeners:
-            cb(event)
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the output data the next requests of message ``name`` carry."""

@@ -18,11 +18,11 @@ States (``state``): ``running``, or ``master lost`` while the watchdog has expir
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of, source_for
 from profiles.polling.config import NETWORK_TABLE
-from profiles.polling.events import MasterBack, MasterLost
+from profiles.polling.events import MasterBack, MasterLost, Reporter
 from profiles.polling.master import rx_filters
 from stack import TxDone
 
@@ -36,7 +36,7 @@ __all__ = ["Slave", "RUNNING", "MASTER_LOST"]
 RUNNING, MASTER_LOST = "running", "master lost"
 
 
-class Slave(Profile):
+class Slave(Profile, Reporter):
     """A polled slave on one node (see the module docstring)."""
 
     kind = "slave"
@@ -52,8 +52,7 @@ class Slave(Profile):
         self.sources = [s for m in self.config.cos
                         if (s := source_for(node, m, self._produce, context.rng("release", decl.name, m.name)))]
         self.state = RUNNING
-        self.events: list[Any] = []
-        self._listeners: list[Callable[[Any], Any]] = []
+        Reporter.__init__(self)
         self._deadline = 0
         self._armed = False
         self.requests = 0
@@ -76,15 +75,6 @@ class Slave(Profile):
         for s in self.sources:
             s.start()
         self._kick(self.node.now())
-
-    def listen(self, callback: Callable[[Any], Any]) -> None:
-        """Call ``callback(event)`` for every event the slave reports (`profiles.polling.events`)."""
-        self._listeners.append(callback)
-
-    def _emit(self, event: Any) -> None:
-        self.events.append(event)
-        for cb in self._listeners:
-            cb(event)
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry (a mailbox

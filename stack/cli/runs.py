@@ -16,7 +16,7 @@ from typing import Any, Callable, Iterator, TypeVar
 
 from stack.cli import CliError, plural
 
-__all__ = ["check_output", "check_trace_output", "check_plot_output", "writing", "run_sliced", "show_progress",
+__all__ = ["check_output", "check_trace_output", "check_plot_output", "check_plot_dir", "writing", "run_sliced", "show_progress",
            "WRITER_EXTRAS", "MAX_SIM_SECONDS", "trace_note", "trc_dropped"]
 
 T = TypeVar("T")
@@ -79,6 +79,19 @@ def check_plot_output(path: str, option: str = "--plot") -> None:
     if suffix and suffix not in known:
         raise CliError(f"{option} {path!r}: unknown image suffix '.{suffix}'; use one of "
                        + ", ".join("." + k for k in known))
+
+
+def check_plot_dir(path: str, option: str = "--plot") -> None:
+    """A directory for plots: an existing directory, or a new one in an existing parent, and
+    matplotlib installed (the optional ``plot`` extra)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise CliError(f"{option} {path!r}: is a file; give a directory for the plots")
+    parent = p if p.exists() else p.parent
+    if not parent.exists():
+        raise CliError(f"{option} {path!r}: the directory {str(parent)!r} does not exist")
+    if importlib.util.find_spec("matplotlib") is None:
+        raise CliError(f"{option} needs matplotlib, which is not installed: pip install 'canstack[plot]'")
 
 
 def writing(path: str, option: str, write: Callable[[], T]) -> T:

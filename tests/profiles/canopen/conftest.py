@@ -84,6 +84,19 @@ def device(bus):
 
 
 @pytest.fixture
+def remote(request, lib, device):
+    """Device 5 (default EDS; the test module's ``REMOTE_OPTIONS``, if any, as its options) and
+    the canopen library's RemoteNode for it."""
+    from profiles.canopen.dictionary import DEFAULT_EDS
+
+    dev = device(5, **getattr(request.module, "REMOTE_OPTIONS", {}))
+    node = canopen.RemoteNode(5, str(DEFAULT_EDS))
+    lib.add_node(node)
+    lib.run(2 * MS)
+    return dev, node
+
+
+@pytest.fixture
 def master_node(bus):
     """A plain node that plays master by hand: ``master_node.send(Frame(...))``."""
     return bus.node("master")

@@ -2,26 +2,16 @@
 ``canopen`` library's EMCY consumer, and TIME (7.2.6) against the library's TIME producer."""
 
 
-import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 from canopen.timestamp import TIME_OF_DAY_STRUCT, TimeProducer
 
 from stack import Frame
-from profiles.canopen.dictionary import DEFAULT_EDS
 from profiles.canopen.emcy import decode_emcy, describe, register_bits
 from profiles.canopen.timestamp import decode_time_of_day, encode_time_of_day
 
 MS = 1_000_000
-
-
-@pytest.fixture
-def remote(lib, device):
-    dev = device(5, heartbeat_ms=0)
-    node = canopen.RemoteNode(5, str(DEFAULT_EDS))
-    lib.add_node(node)
-    lib.run(2 * MS)
-    return dev, node
+REMOTE_OPTIONS = {"heartbeat_ms": 0}  # the `remote` fixture's device: no heartbeat frames
 
 
 def test_emcy_message_layout_decoded_by_the_library(remote, lib, spy, frames_with):

@@ -9,15 +9,7 @@ from canopen.sdo import SdoAbortedError
 from profiles.canopen.dictionary import DEFAULT_EDS
 
 MS = 1_000_000
-
-
-@pytest.fixture
-def remote(lib, device):
-    dev = device(5, heartbeat_ms=0)
-    node = canopen.RemoteNode(5, str(DEFAULT_EDS))
-    lib.add_node(node)
-    lib.run(2 * MS)
-    return dev, node
+REMOTE_OPTIONS = {"heartbeat_ms": 0}  # the `remote` fixture's device: no heartbeat frames
 
 
 def test_the_library_reads_the_pdo_configuration(remote):

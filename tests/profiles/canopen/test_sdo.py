@@ -4,28 +4,16 @@ the abort codes of CiA 301."""
 
 import struct
 
-import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 from canopen.sdo import constants as lib
 
 from stack import Frame
-from profiles.canopen.dictionary import DEFAULT_EDS
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import ABORT_TEXT
 from profiles.canopen.sdo.block import crc16
 
 MS = 1_000_000
-
-
-@pytest.fixture
-def remote(lib, device):
-    """Device 5 (default EDS) and the canopen library's RemoteNode for it."""
-    dev = device(5)
-    node = canopen.RemoteNode(5, str(DEFAULT_EDS))
-    lib.add_node(node)
-    lib.run(2 * MS)
-    return dev, node
 
 
 def test_abort_codes_are_the_canopen_librarys():

@@ -35,16 +35,6 @@ def msg(can_id, data=b""):
     return can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
 
 
-def drain(bus, n, timeout=3.0):
-    got = []
-    end = time.monotonic() + timeout
-    while len(got) < n and time.monotonic() < end:
-        m = bus.recv(0.1)
-        if m is not None:
-            got.append(m)
-    return got
-
-
 def nodes_on(runner):
     return runner.call(lambda: sorted(n.name for n in runner.sim.nodes))
 
@@ -193,7 +183,7 @@ def test_served_clients_that_leave_are_removed_from_the_bus(server):
 
 
 # ------------------------------------------------------------------------ frames queued at shutdown
-def test_shutdown_delivers_the_frames_still_queued_in_process():
+def test_shutdown_delivers_the_frames_still_queued_in_process(drain):
     ch = chan()
     rx = can.Bus(interface="canstack", channel=ch, bitrate=125_000)
     try:
@@ -216,7 +206,7 @@ bus.shutdown()
 """
 
 
-def test_processes_that_send_and_shut_down_at_once_lose_nothing(tmp_path):
+def test_processes_that_send_and_shut_down_at_once_lose_nothing(drain, tmp_path):
     with BusServer(125_000, listen=("127.0.0.1", 0)) as srv:
         rx = can.Bus(interface="canstack", channel=srv.url)
         try:
@@ -231,7 +221,7 @@ def test_processes_that_send_and_shut_down_at_once_lose_nothing(tmp_path):
         assert [int.from_bytes(m.data, "big") for m in got if m.arbitration_id == 0x200 + i] == list(range(20))
 
 
-def test_can_player_plays_the_whole_log_onto_a_served_bus(tmp_path):
+def test_can_player_plays_the_whole_log_onto_a_served_bus(drain, tmp_path):
     log = tmp_path / "play.log"
     sent = [can.Message(timestamp=1.0 + 0.002 * i, arbitration_id=0x300 + i, data=bytes([i] * (i % 9)),
                         is_extended_id=False) for i in range(8)]
@@ -357,7 +347,7 @@ def test_going_passive_while_the_own_frame_is_on_the_wire_stops_its_retransmissi
         lone.shutdown()
 
 
-def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(tmp_path, server):
+def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(drain, tmp_path, server):
     asc = tmp_path / "rec.asc"
     proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive",
                              "-f", str(asc)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -406,7 +396,7 @@ def test_failed_one_shot_frame_arrives_as_an_error_frame_in_process():
         lone.shutdown()
 
 
-def test_lost_arbitration_of_a_one_shot_frame_is_reported_as_socketcan_does():
+def test_lost_arbitration_of_a_one_shot_frame_is_reported_as_socketcan_does(drain):
     ch = chan()
     c = can.Bus(interface="canstack", channel=ch, bitrate=10_000)  # ~6 ms per frame
     a = can.Bus(interface="canstack", channel=ch, one_shot=True)

@@ -20,7 +20,7 @@ import pytest
 import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from stack.cli import CliError
 from stack.cli.serve import register
-from stack.io.serve import BYE, ERROR, FILTERS, HELLO, MAX_MESSAGE, SEND, TXEND, WELCOME, BusServer, encode_message
+from stack.io.serve import BYE, ERROR, FILTERS, HELLO, SEND, TXEND, WELCOME, BusServer, encode_message
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -35,17 +35,7 @@ def server():
         yield srv
 
 
-def drain(bus, n, timeout=3.0):
-    got = []
-    end = time.monotonic() + timeout
-    while len(got) < n and time.monotonic() < end:
-        m = bus.recv(0.1)
-        if m is not None:
-            got.append(m)
-    return got
-
-
-def test_three_clients_in_threads_get_every_frame_once_in_order(server):
+def test_three_clients_in_threads_get_every_frame_once_in_order(drain, server):
     buses = [can.Bus(interface="canstack", channel=server.url) for _ in range(3)]
     n = 200
     received = {}
@@ -75,7 +65,7 @@ def test_three_clients_in_threads_get_every_frame_once_in_order(server):
             b.shutdown()
 
 
-def test_unix_socket_and_receive_own(tmp_path):
+def test_unix_socket_and_receive_own(drain, tmp_path):
     path = str(tmp_path / "bus.sock")
     with BusServer(250_000, unix=path, name="body") as srv:
         assert srv.url == f"unix://{path}/body"
@@ -113,7 +103,7 @@ while True:
 """
 
 
-def test_a_client_process_that_dies_does_not_disturb_the_others(server):
+def test_a_client_process_that_dies_does_not_disturb_the_others(drain, server):
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-c", CLIENT, server.url], stdout=subprocess.PIPE, text=True, env=env)
     a = can.Bus(interface="canstack", channel=server.url)
@@ -169,7 +159,7 @@ def _hello(**kw):
                                              "config": {}, **kw}).encode())
 
 
-def test_hostile_clients_are_rejected_and_the_server_keeps_serving(server):
+def test_hostile_clients_are_rejected_and_the_server_keeps_serving(drain, server):
     good_a = can.Bus(interface="canstack", channel=server.url)
     good_b = can.Bus(interface="canstack", channel=server.url)
     try:
