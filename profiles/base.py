@@ -243,7 +243,7 @@ class PeriodicSource:
 
     def __init__(self, node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
                  rng: random.Random) -> None:
-        if decl.period_ns is None:
+        if decl.period_ns is None and type(self) is PeriodicSource:
             raise ValueError(f"message {decl.name!r} has no period")
         self.node = node
         self.decl = decl
@@ -275,11 +275,7 @@ class SporadicSource(PeriodicSource):
                  rng: random.Random) -> None:
         if decl.sporadic_ns is None:
             raise ValueError(f"message {decl.name!r} is not sporadic")
-        self.node = node
-        self.decl = decl
-        self.on_release = on_release
-        self.rng = rng
-        self.nominal = 0
+        super().__init__(node, decl, on_release, rng)
         self.extra_mean = (decl.mean_ns if decl.mean_ns is not None else 2 * decl.sporadic_ns) - decl.sporadic_ns
 
     def start(self) -> None:
