@@ -391,7 +391,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 if busoff:
                     self._recessive_events += 1
                 listeners = node.listeners
-                called = eager or rec_nonzero or node.tec or record or (listeners and TxDone in listeners)
+                tx_listeners = listeners.get(TxDone) if listeners else None
+                called = eager or rec_nonzero or node.tec or record or tx_listeners
                 if called:  # user code may run (callbacks, state-change listeners): bus state first
                     self.rounds = rounds
                     self.now_ns = end
@@ -428,8 +429,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                     st.min = lat
                 if lat > st.max:
                     st.max = lat
-                self.rounds = rounds  # the node offers its next head at this round
-                if type(req) is not TxRequest or node.clock is not None:  # one-shot, latest start, drift
+                if req.special or node.clock is not None:  # one-shot, latest start, drift
+                    self.rounds = rounds  # the node offers its next head at this round
                     nxt = node.confirm(req, end, t0)  # the one bookkeeping of a success
                     if nxt is not None:
                         self.offer(node, nxt)
@@ -454,8 +455,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                         q.remove(req)
                     if node.tec:
                         node.on_tx_success()
-                    tx_listeners = listeners.get(TxDone) if listeners else None
-                    if tx_listeners:
+                    if tx_listeners:  # (`called`: the bus's state is stored)
                         # confirm first, then pick the next head once (sends from the callbacks included)
                         node.offered = None
                         ev = _tuple_new(TxDone, (end, frame, req, t0))
@@ -464,8 +464,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                         if node.offered is None:
                             node.update_head()
                     elif by is not None and not called:
-                        # PriorityQueue.head, inlined: the same key again unless a lower key waits
-                        if dq and dq[0].state is QUEUED and q.keys[0] == req.key:
+                        # PriorityQueue.head, inlined: the same key again if one is queued (no
+                        # lower key can wait: no user code ran since req, the queue's head, was
+                        # offered, and a send of a lower key between runs re-offers at once)
+                        if dq and dq[0].state is QUEUED:
                             nxt = dq[0]
                         else:
                             nxt = q.head()
@@ -474,6 +476,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                             nxt.head_since = rounds
                             heappush(heap, (nxt.key, nxt.seq, nxt))
                     else:
+                        self.rounds = rounds  # the node offers its next head at this round
                         node.update_head()
                 done += 1
                 if called:  # user code ran: it may have changed what the loop relies on
