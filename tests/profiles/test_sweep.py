@@ -310,7 +310,8 @@ def test_chunks_keep_the_order_and_cover_every_task():
     tasks = list(range(1000))
     parts = chunks(tasks, 2)
     assert [t for p in parts for t in p] == tasks
-    assert len(parts) == 32 and max(map(len, parts)) <= 50
+    assert len(parts) == 20 and max(map(len, parts)) <= 50      # 4 a slot would be 8 chunks of 125: 50 at most
+    assert len(chunks(list(range(40)), 2)) == 8                      # 4 chunks a slot
     assert chunks(list(range(5)), 4) == [[0], [1], [2], [3], [4]]
 
 
