@@ -69,12 +69,13 @@ def _period_range(text: str) -> tuple[float, float]:
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=count_type("the number of worker processes"), default=1,
-                   help="run on N processes: a Dask LocalCluster with the dask extra, else a standard library "
-                   "process pool (default 1: in this process)")
+                   help="run on N processes: a standard library process pool, or a Dask LocalCluster with "
+                   "--engine dask (default 1: in this process)")
     p.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on a Dask cluster (the dask extra; "
                    "canstack installed on every worker)")
     p.add_argument("--engine", choices=("auto", "sequential", "processes", "dask"), default="auto",
-                   help="where --workers runs go (default auto: dask if installed, else processes)")
+                   help="where --workers runs go (default auto: one worker in this process, more on a process pool, "
+                        "--scheduler on Dask)")
     p.add_argument("--out", help="write the table here: .csv, or .parquet (the parquet extra)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text table")
     p.add_argument("--plot", metavar="DIR", help="write the plots into DIR (the plot extra)")

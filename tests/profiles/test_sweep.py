@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from profiles.execute import ExecuteError, choose_engine, chunks
+from profiles.execute import ExecuteError, choose_engine, chunks, dask_available
 from profiles.runner import run_scenario
 from profiles.scenario import parse_scenario
 from profiles.sweep import (SweepError, Vary, apply_values, parse_vary, plan_runs, resolve_vary, run_seed, run_sweep,
@@ -295,6 +295,10 @@ def test_ctrl_c_keeps_the_runs_done(tmp_path, monkeypatch):
 def test_engine_choice(monkeypatch):
     assert choose_engine(1, None) == "sequential"
     assert choose_engine(2, None, "processes") == "processes"
+    assert choose_engine(2, None) == "processes"                     # the default (DESIGN.md), dask or not
+    if dask_available():
+        assert choose_engine(2, None, "dask") == "dask"                 # a LocalCluster on request
+        assert choose_engine(1, "tcp://127.0.0.1:8786") == "dask"       # a scheduler means Dask
     with pytest.raises(ExecuteError, match="--workers 0: at least 1"):
         choose_engine(0, None)
     with pytest.raises(ExecuteError, match="runs in this process"):
