@@ -44,6 +44,7 @@ from stack.controller.queues import QUEUED, SENT, TxRequest
 
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
+_heappush = heapq.heappush
 INF = float("inf")
 NEVER = 1 << 62  # a time no simulation reaches (ns: 146 years)
 _tuple_new = tuple.__new__
@@ -255,7 +256,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     def offer(self, node: Node, req: TxRequest) -> None:
         """``req`` is ``node``'s new offered request: it enters the next arbitration."""
         if node.on_bus and not node.suspended:  # a suspended node joins again in _wake
-            heapq.heappush(self._contenders, (req.key, req.seq, req))
+            _heappush(self._contenders, (req.key, req.seq, req))  # (once a frame: a module global)
 
     def counters_changed(self, node: Node) -> None:
         """TEC/REC of ``node`` changed: it is in the set rule 8 visits while its REC is above 0."""
