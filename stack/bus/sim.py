@@ -465,10 +465,11 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                         if node.offered is None:
                             node.update_head()
                     elif by is not None and not called:
-                        # PriorityQueue.head, inlined: the same key again if one is queued (no
-                        # lower key can wait: no user code ran since req, the queue's head, was
-                        # offered, and a send of a lower key between runs re-offers at once)
-                        if dq and dq[0].state is QUEUED:
+                        # PriorityQueue.head, inlined: the same key again unless a lower key waits
+                        # (one queued while req was on the wire of an attempt that failed: `retry`
+                        # offers req again without looking at the queue; kept although such a
+                        # node's TEC is above 0, which takes the branch below, as `confirm` has it)
+                        if dq and dq[0].state is QUEUED and q.keys[0] == req.key:
                             nxt = dq[0]
                         else:
                             nxt = q.head()
