@@ -20,7 +20,7 @@ import threading
 import time
 from typing import Any
 
-from stack.cli import CliError, parse_bitrate, plural, seconds_type
+from stack.cli import CliError, int_type, parse_bitrate, plural, seconds_type
 
 __all__ = ["register", "canopen_command"]
 
@@ -34,12 +34,12 @@ def register(subparsers: Any) -> None:
                     "TPDOs/RPDOs, SDO (expedited, segmented, block), EMCY, TIME.")
     p.add_argument("eds", metavar="EDS", nargs="?", default=None,
                    help="EDS or DCF file (default: the default device shipped with canstack)")
-    p.add_argument("--node-id", required=True, type=_node_id, metavar="N", help="CANopen node-ID, 1..127")
+    p.add_argument("--node-id", required=True, type=_NODE_ID, metavar="N", help="CANopen node-ID, 1..127")
     p.add_argument("--interface", required=True, metavar="NAME",
                    help="python-can interface (socketcan, canstack, virtual, pcan, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
     p.add_argument("--bitrate", type=parse_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
-    p.add_argument("--heartbeat", type=_ms, default=None, metavar="MS",
+    p.add_argument("--heartbeat", type=_HEARTBEAT_MS, default=None, metavar="MS",
                    help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)")
     p.add_argument("--start", action="store_true", help="start operational without waiting for NMT start")
     p.add_argument("--duration", type=seconds_type(1e7), default=None, metavar="S",
@@ -48,26 +48,9 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=canopen_command)
 
 
-def _node_id(text: str) -> int:
-    try:
-        v = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 1 <= v <= 127:
-        raise argparse.ArgumentTypeError(f"{v}: a CANopen node-ID is 1..127 (CiA 301; 0 addresses all nodes)")
-    return v
-
-
-
-def _ms(text: str) -> int:
-    try:
-        v = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of ms") from None
-    if not 0 <= v <= 0xFFFF:
-        raise argparse.ArgumentTypeError(f"{v}: the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)")
-    return v
-
+_NODE_ID = int_type(1, 127, "an integer", "a CANopen node-ID is 1..127 (CiA 301; 0 addresses all nodes)")
+_HEARTBEAT_MS = int_type(0, 0xFFFF, "a whole number of ms",
+                         "the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)")
 
 
 def canopen_command(args: argparse.Namespace) -> int:

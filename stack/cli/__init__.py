@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 from stack.wire.frame import id_text
 
-__all__ = ["CliError", "main", "parse_int", "parse_bitrate", "seconds_type", "count_type", "parse_sample_point", "version", "format_id", "plural"]
+__all__ = ["CliError", "main", "parse_int", "parse_bitrate", "int_type", "seconds_type", "count_type", "parse_sample_point", "version", "format_id", "plural"]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -69,16 +69,23 @@ def parse_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer (decimal or 0x hex)") from None
 
 
-def parse_bitrate(text: str) -> int:
-    """A CAN 2.0 bit rate: a whole number of bit/s in 1000..1000000 (ISO 11898-1 specifies
-    classical CAN up to 1 Mbit/s; the simulated bus refuses less than 1 kbit/s)."""
-    try:
-        v = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s") from None
-    if not 1_000 <= v <= 1_000_000:
-        raise argparse.ArgumentTypeError(f"{v}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-    return v
+def int_type(low: int, high: int, noun: str, rule: str) -> Callable[[str], int]:
+    """An argparse type for a whole number (decimal or 0x hex) in ``low..high``: the errors say
+    "'x' is not ``noun``" and "v: ``rule``"."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text, 0)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {noun}") from None
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"{v}: {rule}")
+        return v
+    return parse
+
+
+#: A CAN 2.0 bit rate: a whole number of bit/s in 1000..1000000 (ISO 11898-1 specifies classical
+#: CAN up to 1 Mbit/s; the simulated bus refuses less than 1 kbit/s).
+parse_bitrate = int_type(1_000, 1_000_000, "a whole number of bit/s", "a CAN 2.0 bus runs at 1000..1000000 bit/s")
 
 
 def seconds_type(most: float) -> Callable[[str], float]:
