@@ -55,6 +55,22 @@ MOVED = {
     "stack.pycan": "stack.io.pycan", "stack.serve": "stack.io.serve", "stack.commands": "stack.cli.demo",
 }
 
+# what else a flat module held: the modules its other names live in now (command registration and
+# benchmarks moved to `stack.cli`) ...
+ALSO = {
+    "stack.bits": ("stack.wire.decoder",), "stack.bittiming": ("stack.cli.bittiming",),
+    "stack.sync": ("stack.cli.sync",), "stack.waveform": ("stack.cli.waveform",), "stack.serve": ("stack.cli.serve",),
+}
+# ... and the names that changed on the way ("module:name")
+RENAMED = {
+    "stack.errors": {"ACTIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
+                     "PASSIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED"},
+    "stack.pycan": {"benchmark": "stack.cli.bench_io:benchmark", "wire_limit_fps": "stack.cli.bench_io:wire_limit_fps"},
+    "stack.serve": {"benchmark": "stack.cli.bench_io:serve_benchmark"},
+    "stack.waveform": {"benchmark": "stack.cli.bench_io:decode_benchmark"},
+    "stack.driver": {"run_demo_on_bus": "stack.cli.demo:run_demo_on_bus"},
+}
+
 
 def __getattr__(name: str) -> Any:
     """Load a public name from its layer on first use (PEP 562)."""
@@ -83,21 +99,23 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return None  # a plain module, filled in by exec_module
 
     def exec_module(self, module: Any) -> None:
-        new = MOVED[module.__name__]
-        warnings.warn(f"{module.__name__} moved to {new}; import it from there", DeprecationWarning, stacklevel=2)
-        sources = [importlib.import_module(new)]
-        if module.__name__ == "stack.bits":  # the flat module held the decoder as well
-            sources.append(importlib.import_module("stack.wire.decoder"))
+        name = module.__name__
+        new = MOVED[name]
+        warnings.warn(f"{name} moved to {new}; import it from there", DeprecationWarning, stacklevel=2)
+        sources = [importlib.import_module(m) for m in (new, *ALSO.get(name, ()))]
+        renamed = RENAMED.get(name, {})
 
-        def __getattr__(name: str) -> Any:
+        def __getattr__(attr: str) -> Any:
+            if attr in renamed:
+                where, real = renamed[attr].split(":")
+                return getattr(importlib.import_module(where), real)
             for src in sources:
-                if hasattr(src, name):
-                    return getattr(src, name)
-            raise AttributeError(f"module {module.__name__!r} (now {new}) has no attribute {name!r}")
+                if hasattr(src, attr):
+                    return getattr(src, attr)
+            raise AttributeError(f"module {name!r} (now {new}) has no attribute {attr!r}")
 
         module.__getattr__ = __getattr__
-        module.__all__ = [n for src in sources for n in getattr(src, "__all__", ())]
-
+        module.__all__ = [n for src in sources for n in getattr(src, "__all__", ())] + list(renamed)
 
 if not any(isinstance(f, _MovedModules) for f in sys.meta_path):
     sys.meta_path.insert(0, _MovedModules())  # before path finders: an old checkout's files never shadow it

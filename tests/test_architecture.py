@@ -133,3 +133,22 @@ def test_modules_of_the_flat_layout_import_from_their_new_place_with_a_warning()
         for name in getattr(real, "__all__", [])[:5]:
             assert getattr(mod, name) is getattr(real, name)
     from stack.bits import BitDecoder, crc15  # noqa: F401  (the flat module held the decoder too)
+
+
+def test_every_public_name_of_the_flat_layout_still_imports_from_its_old_module():
+    """Nothing a user imported before the split stopped working: each name in the ``__all__`` of
+    each module of the flat layout (recorded from that tree) is still there, under its old module."""
+    import importlib
+    import json
+    import warnings
+    from pathlib import Path
+
+    old_api = json.loads((Path(__file__).parent / "data" / "flat_layout_api.json").read_text())
+    old_api.pop("_comment")
+    missing = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for module, names in old_api.items():
+            mod = importlib.import_module(module)
+            missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
+    assert missing == []
