@@ -344,19 +344,26 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         rounds = self.rounds
         delivered = self.delivered
         log_limit = LOG_LIMIT
-        # int bounds: int-to-int comparisons are cheaper than against float('inf')
+        # one int bound: a frame starts and ends before the next timer (tt) and at or before
+        # ``limit`` (int-to-int comparisons are cheaper than against float('inf'))
         if tt == INF:
             tt = NEVER
-        if limit == INF:
-            limit = NEVER
-        done = 0
+        after = NEVER if limit == INF else int(limit // 1) + 1  # the first whole ns past limit
+        bound = tt if tt < after else after
+        first = frames_ok
         busy = self.busy_ns
+        # what makes every frame run code beyond the loop, the node's own aside (re-read whenever
+        # user code ran: nothing else changes them while the loop runs)
+        watched = eager or rec_nonzero or record
         try:
             while frames_ok < stop:
                 t0 = idle_at if idle_at > now else now
-                if t0 >= tt or t0 > limit or not heap:
+                if t0 >= bound:
                     break
-                req = heap[0][2]
+                try:
+                    req = heap[0][2]
+                except IndexError:  # nothing to send
+                    break
                 node = req.node
                 if req.state is not QUEUED or node.offered is not req or not node.on_bus or node.ready_at > t0 \
                         or node.state is PASSIVE:
@@ -370,16 +377,15 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                     break
                 nbits = frame._nbits or frame.wire_bits
                 end = t0 + dur[nbits]
-                if end >= tt or end > limit:
+                if end >= bound:
                     heappush(heap, (req.key, req.seq, req))
                     break
                 # arbitration; the bus's clock and counters live in locals and are stored back
                 # before any user code can run (and when the loop ends)
-                r = rounds
-                rounds = r + 1
                 if t0 > idle_at and busoff:
                     self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
-                lost = r - req.head_since
+                lost = rounds - req.head_since
+                rounds += 1
                 if lost > 0:
                     req.losses += lost
                     node.rounds_lost += lost
@@ -391,9 +397,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 busy += idle_at - t0
                 if busoff:
                     self._recessive_events += 1
-                listeners = node.listeners
-                tx_listeners = listeners.get(TxDone) if listeners else None
-                called = eager or rec_nonzero or node.tec or record or tx_listeners
+                tx_listeners = node.tx_done_listeners
+                called = tx_listeners or watched or node.tec
                 if called:  # user code may run (callbacks, state-change listeners): bus state first
                     self.rounds = rounds
                     self.now_ns = end
@@ -480,12 +485,13 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                     else:
                         self.rounds = rounds  # the node offers its next head at this round
                         node.update_head()
-                done += 1
                 if called:  # user code ran: it may have changed what the loop relies on
                     if timers:
                         tt = timers[0][0]
+                        bound = tt if tt < after else after
                     eager = self._eager
                     lazy = self._lazy
+                    watched = eager or rec_nonzero or record
                     if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
                         break
         finally:
@@ -495,7 +501,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             self._idle_at = idle_at
             self.frames_ok = frames_ok
             self.busy_ns = busy
-        return done
+        return frames_ok - first
 
     def next_event_time(self) -> float:
         """Virtual time (ns) of the next thing the engine will do: a timer, the end of the

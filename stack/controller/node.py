@@ -51,7 +51,8 @@ class Node(Receiver):
 
     Driver-side state (`stack.controller.contract`): ``offered`` is the request the controller
     offers to arbitration now; ``listeners`` the callbacks by event type (drivers read it to know
-    whether a report runs user code); ``rounds_lost`` the arbitration rounds lost so far (a
+    whether a report runs user code) and ``tx_done_listeners`` its `TxDone` list (None when there
+    is none: read once a frame sent); ``rounds_lost`` the arbitration rounds lost so far (a
     driver settling a round adds to it); ``on_bus``, ``suspended``, ``ready_at`` and
     ``rx_cursor`` are the driver's bookkeeping about this node, written by the driver only.
     """
@@ -112,6 +113,7 @@ class Node(Receiver):
         self.offered: TxRequest | None = None
         self._subs: list[Subscription] = []
         self.listeners: dict[type, list[Callable[[Any], Any]]] = {}  # by event type (read by drivers)
+        self.tx_done_listeners: list[Callable[[Any], Any]] | None = None  # listeners[TxDone], kept by listen
         self.remote_replies: dict[tuple[int, bool], Frame] = {}
         # the driver's bookkeeping (written by the driver only)
         self.rx_cursor = 0  # lazy reception: position in the driver's delivery log
@@ -235,7 +237,18 @@ class Node(Receiver):
                 heappush(q.keys, key)
             dq.append(req)
             q.size += 1
-        elif q.push(req):
+            cur = self.offered
+            if cur is None:
+                # nothing offered yet: the new head is the queue's — this request when its key is
+                # the lowest and nothing waits before it (PriorityQueue.head, inlined)
+                new = req if dq[0] is req and q.keys[0] == key else q.head()
+                self.offered = new
+                new.head_since = bus.rounds
+                bus.offer(self, new)
+            elif not cur.on_wire and key < cur.key:
+                self.update_head()
+            return req
+        if q.push(req):
             for m in q.moved:  # aborted out of a mailbox: not offered any more
                 self.settle_losses(m)
         cur = self.offered
@@ -399,7 +412,7 @@ class Node(Receiver):
                     self.bus.node_changed(self)
         if self.tec and rule7:
             self.on_tx_success()
-        listeners = self.listeners.get(TxDone) if self.listeners else None
+        listeners = self.tx_done_listeners
         if listeners:
             # confirm first, then pick the next head once (sends from the callbacks included)
             self.offered = None
@@ -470,6 +483,7 @@ class Node(Receiver):
         """Call ``callback(event)`` for events of ``event_type``: TxDone, TxFailed,
         ArbitrationLost, ErrorStateChanged."""
         self.listeners.setdefault(event_type, []).append(callback)
+        self.tx_done_listeners = self.listeners.get(TxDone)
         if self.bus is not None:
             self.bus.node_changed(self)
 
@@ -482,6 +496,7 @@ class Node(Receiver):
         cbs.remove(callback)
         if not cbs:
             del self.listeners[event_type]
+        self.tx_done_listeners = self.listeners.get(TxDone)
         if self.bus is not None:
             self.bus.node_changed(self)
         return True

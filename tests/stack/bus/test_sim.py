@@ -365,3 +365,21 @@ def test_many_nodes_joining_and_leaving_leave_no_trace():
         bus.run(duration=200_000)
         bus.remove(n)
     assert bus.nodes == [keep] and keep.rx_frames == 500
+
+
+@pytest.mark.parametrize("fast", [True, False])
+@pytest.mark.parametrize("slack", [-0.5, 0, 0.5, 1])
+def test_a_frame_completes_in_a_run_only_when_it_ends_by_the_time_bound(fast, slack, monkeypatch):
+    # run(until=T) carries a frame that ends at or before T (T may be fractional ns), on the
+    # fast loop as on the general path: the second of two frames back to back ends after both
+    # frames and the 3-bit intermission between them (1 us a bit at 1 Mbit/s)
+    monkeypatch.setattr(SimBus, "fast", fast)
+    bus = SimBus(1_000_000, record=False)
+    a, b = bus.node("a"), bus.node("b")
+    frame = Frame(0x7FF, bytes(8))
+    a.send(frame)
+    a.send(frame)
+    end = (2 * frame.wire_bits + 3) * 1000
+    bus.run(until=end + slack)
+    assert a.tx_frames == (2 if slack >= 0 else 1)
+    assert b.recv() is not None
