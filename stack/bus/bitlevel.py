@@ -21,6 +21,8 @@ class BitLevelAttempts:
     """Bit-level attempts of `stack.bus.sim.SimBus` (a mixin: the bus's scheduling calls
     ``_bitlevel`` to start one and ``_complete_bitlevel`` when it ends)."""
 
+    __slots__ = ()  # SimBus declares the fields
+
     nodes: "list[Node]"
     trace: list[TraceRecord]
     now_ns: int

@@ -33,6 +33,8 @@ class LazyDelivery:
     """The simulated bus's delivery log (a mixin of `stack.bus.sim.SimBus`, which appends to
     ``_log`` as frames complete and counts them in ``delivered``)."""
 
+    __slots__ = ()  # SimBus declares the fields
+
     nodes: "list[Node]"
     delivered: int
     _log: "list[tuple[int, Frame, Node]]"

@@ -62,6 +62,14 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     capabilities = frozenset({"bus-time", "sof", "arbitration-lost", "error-confinement", "one-shot",
                               "latest-start"})
 
+    # the fields as slots: the engine reads them once a frame (a dict of over 30 keys is slower)
+    __slots__ = ('bitrate', 'name', 'seed', 'rng', 'record', 'trace', 'nodes', '_dur', '_ifs_ns', '_suspend_ns',
+                 'bit_ns', 'now_ns', '_timers', 'seqs', '_contenders', '_suspended', 'rounds', '_idle_at', '_tx',
+                 '_tx_end', '_log', '_log_base', 'delivered', '_lazy', '_eager', '_arb_watch', '_rtr',
+                 '_key_receivers', '_ack_count', 'frames_ok', 'error_frames', 'collisions', 'busy_ns', 'id_stats',
+                 '_bus_listeners', '_rec_nonzero', '_faults', '_recessive_events', '_busoff', '_busoff_marks',
+                 '_idle_bits', "__dict__", "__weakref__")
+
     def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0",
                  record: bool = True) -> None:
         if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:

@@ -49,6 +49,8 @@ class IdStats:
 class BusStatistics:
     """The results of `stack.bus.sim.SimBus` (a mixin over the counters the bus keeps)."""
 
+    __slots__ = ()  # SimBus declares the fields
+
     bitrate: int
     name: str
     nodes: "list[Node]"

@@ -41,6 +41,8 @@ class Subscription:
 class Receiver:
     """Receive side of `Node` (see the module docstring)."""
 
+    __slots__ = ()  # Node declares the fields
+
     bus: "Driver | Any | None"
     clock: LocalClock | None
     acceptance: AcceptanceFilter
