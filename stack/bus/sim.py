@@ -451,9 +451,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 else:
                     # Node.confirm's plain case, inlined (a plain request: not one-shot — a one-shot
                     # node is watched, which keeps this loop off — no latest start, no local clock).
-                    # Calling it costs 1 -> 1 frames 16 % and 10 nodes 18 % of the figures of
-                    # `python -m stack.bench` (callgrind: 10 nodes 25.9 k -> 42.5 k instructions a
-                    # frame); test_fast_loop_matches_the_general_path_* guard this copy
+                    # Calling it costs 1 -> 1 frames 14 % and 10 nodes 35 % of the figures of
+                    # `python -m stack.bench` (callgrind, instructions a frame: 1 -> 1 24.5 k ->
+                    # 27.4 k, 10 nodes 27.7 k -> 39.7 k); test_fast_loop_matches_the_general_path_*
+                    # guard this copy
                     req.state = SENT
                     req.t_done = end
                     req.sof = t0
