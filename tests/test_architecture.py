@@ -152,3 +152,18 @@ def test_every_public_name_of_the_flat_layout_still_imports_from_its_old_module(
             mod = importlib.import_module(module)
             missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
     assert missing == []
+
+
+def test_the_engine_objects_keep_every_field_of_theirs_in_a_slot():
+    """`Node` and `SimBus` declare their fields as slots (the engine reads them once a frame; an
+    instance dict of over 30 keys is read more slowly): a field added in ``__init__`` without its
+    slot lands in ``__dict__``, which this catches. Attributes of users' own still work."""
+    from stack.bus.sim import SimBus
+    from stack.controller.clock import LocalClock
+
+    bus = SimBus(250_000)
+    node = bus.node("a", clock=LocalClock(drift_ppm=10))
+    bus.node("b").listen(object, print)
+    assert vars(bus) == {} and vars(node) == {}
+    node.note = "mine"
+    assert vars(node) == {"note": "mine"}
