@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import random
 from pathlib import Path
 
@@ -186,7 +187,11 @@ def test_the_same_scenario_runs_on_python_cans_virtual_bus():
     rows = _rows(res)
     assert res.driver.startswith("virtual")
     for r in rows.values():
-        assert r["sent"] >= r["released"] - 1 and r["sent"] > 0
+        # on the wall clock a frame counts as sent when the monitor's receive thread saw it: the
+        # ones released in the last moments before the stop may still be on their way (threads on
+        # a shared machine lag by tens of ms), none may be lost
+        assert r["failed"] == r["dropped"] == 0 and r["sent"] > 0
+        assert r["released"] - 1 - math.ceil(50 / r["period_ms"]) <= r["sent"] <= r["released"]
         assert 0 <= r["response_ms"]["min"] <= r["response_ms"]["max"] < 50
 
 
@@ -200,7 +205,9 @@ def test_the_same_scenario_runs_through_canstack_serve():
     rows = _rows(res)
     # through the served bus the monitor's timestamps are the wire's end of EOF: a frame alone on
     # the bus takes its exact length (8 bytes at 500 kbit/s: at least 111 bits = 222 us)
-    assert rows["ma"]["sent"] >= rows["ma"]["released"] - 1 > 0
+    ma = rows["ma"]  # (what may still be on its way at the stop: as on the virtual bus above)
+    assert ma["failed"] == ma["dropped"] == 0
+    assert ma["released"] - 1 - math.ceil(50 / ma["period_ms"]) <= ma["sent"] <= ma["released"] and ma["sent"] > 0
     assert rows["ma"]["response_ms"]["min"] >= 0.222 - 1e-6
     assert 0 < res.bus_load < 0.2
 
