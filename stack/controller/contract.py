@@ -17,12 +17,14 @@ fault-confinement state change (`state_changed`) and a bus-off recovery to start
 
 **What a driver may do with a node** — its public driver-side surface, all documented on `Node`:
 read ``offered`` (the request it offers to arbitration now), ``queue``, ``acceptance``,
-``connected``, ``listen_only``, ``receive_own_messages``, ``rounds_lost``; keep its own
+``connected``, ``listen_only``, ``receive_own_messages``, ``rounds_lost``, ``listeners`` and
+``tx_done_listeners`` (its `TxDone` callbacks, None when there are none); keep its own
 per-node bookkeeping in ``on_bus``, ``suspended``, ``ready_at`` and ``rx_cursor`` (these four
 are written only by the driver); and report through the methods `confirm` (a transmission
-succeeded; it returns the next request for the driver to offer), `fail` (it will not be sent), `retry` (an attempt failed and will be repeated),
-`deliver` (a valid frame was received), `absorb` (a batch of lazily logged receptions),
-`count_overruns`, `remote_reply`, `settle_losses`, `set_counters` and `recovered`.
+succeeded; it returns the next request for the driver to offer), `fail` (it will not be sent),
+`retry` (an attempt failed and will be repeated), `deliver` (a valid frame was received),
+`absorb` (a batch of lazily logged receptions), `count_overruns`, `remote_reply`,
+`settle_losses`, `set_counters` and `recovered`.
 """
 
 from __future__ import annotations
