@@ -25,7 +25,22 @@ DATABASES = Path(__file__).resolve().parent / "databases"
 """Folder of the sample databases (``powertrain_body.dbc``)."""
 
 __all__ = [
-    "Ecu", "RestBus", "BusRecord", "MessageReceived", "SignalChanged", "CheckFailed",
-    "AliveCounter", "Checksum", "E2E", "MessageTiming", "SendType", "load_database",
-    "DbcError", "DbcLoadError", "UnknownNameError", "SignalRangeError", "ChoiceError", "DATABASES",
+    "Ecu",
+    "RestBus",
+    "BusRecord",
+    "MessageReceived",
+    "SignalChanged",
+    "CheckFailed",
+    "AliveCounter",
+    "Checksum",
+    "E2E",
+    "MessageTiming",
+    "SendType",
+    "load_database",
+    "DbcError",
+    "DbcLoadError",
+    "UnknownNameError",
+    "SignalRangeError",
+    "ChoiceError",
+    "DATABASES",
 ]

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import heapq
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from .ecu import Ecu, node_names
 from .errors import load_database
@@ -49,7 +50,7 @@ class _StubDriver:
         self.seq = 0
         self.sent = 0
 
-    def node(self, name: str) -> "_StubNode":
+    def node(self, name: str) -> _StubNode:
         return _StubNode(self)
 
     def run(self, until: int) -> None:

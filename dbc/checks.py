@@ -20,7 +20,8 @@ Hooks can also come from the DBC: a signal attribute ``CanstackCheck`` (STRING) 
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import cantools
 
@@ -133,7 +134,7 @@ def _raw_range(sig: Any) -> tuple[int, int]:
             raw = conv.scaled_to_raw(bound)
         except Exception:  # pragma: no cover - exotic conversions
             continue
-        raw = int(round(raw))
+        raw = round(raw)
         if pick is max:
             lo = max(lo, raw) if conv.scale > 0 else lo
         else:
@@ -152,7 +153,7 @@ class AliveCounter:
         self.signal = signal
         self.name = f"counter {signal}"
 
-    def bind(self, message: Any) -> "_BoundCounter":
+    def bind(self, message: Any) -> _BoundCounter:
         """Counter state for one message of one ECU."""
         return _BoundCounter(self, message)
 
@@ -160,6 +161,7 @@ class AliveCounter:
 class _BoundCounter:
     modifies_values = True
     modifies_data = False
+
     def __init__(self, spec: AliveCounter, message: Any) -> None:
         sig = _signal(message, spec.signal)
         self.name = spec.name
@@ -186,14 +188,13 @@ class _BoundCounter:
         v = decoded.get(self.signal)
         if v is None:
             return None  # not in this multiplexed variant
-        raw = int(round(self.conv.scaled_to_raw(float(getattr(v, "value", v)))))
+        raw = round(self.conv.scaled_to_raw(float(getattr(v, "value", v))))
         last, self.last = self.last, raw
         if last is None:
             return None
         expected = self._wrap(last + 1)
         if raw != expected:
-            return f"alive counter {self.signal} = {raw}, expected {expected}" + (
-                " (repeated)" if raw == last else "")
+            return f"alive counter {self.signal} = {raw}, expected {expected}" + (" (repeated)" if raw == last else "")
         return None
 
 
@@ -206,8 +207,13 @@ class _Placement:
         s.multiplexer_signal = None
         s.is_multiplexer = False
         self.msg = cantools.database.can.Message(
-            frame_id=message.frame_id, name="_placement", length=message.length, signals=[s],
-            is_extended_frame=message.is_extended_frame, strict=False)
+            frame_id=message.frame_id,
+            name="_placement",
+            length=message.length,
+            signals=[s],
+            is_extended_frame=message.is_extended_frame,
+            strict=False,
+        )
         self.sig_name = s.name
         all_ones = -1 if s.is_signed else (1 << s.length) - 1
         mask = self.msg.encode({s.name: all_ones}, scaling=False, strict=False)
@@ -224,7 +230,7 @@ class _Placement:
         """Payload with the signal's bits cleared, without the bytes it covers completely."""
         if self.byte is not None:
             b = self.byte
-            return data[:b] + data[b + 1:]
+            return data[:b] + data[b + 1 :]
         cleared = (int.from_bytes(data, "big") & ~self.mask).to_bytes(self.length, "big")
         return bytes(c for i, c in enumerate(cleared) if i not in self.skip)
 
@@ -233,7 +239,7 @@ class _Placement:
         raw &= self.value_mask
         if self.byte is not None:
             b = self.byte
-            return data[:b] + bytes((raw,)) + data[b + 1:]
+            return data[:b] + bytes((raw,)) + data[b + 1 :]
         if self.signed and raw >> (self.value_mask.bit_length() - 1):
             raw -= self.value_mask + 1
         bits = int.from_bytes(self.msg.encode({self.sig_name: raw}, scaling=False, strict=False), "big")
@@ -268,7 +274,7 @@ class Checksum:
         self.signal = signal
         self.name = f"checksum {signal} ({self.algorithm})"
 
-    def bind(self, message: Any) -> "_BoundChecksum":
+    def bind(self, message: Any) -> _BoundChecksum:
         """The checksum placed in one message."""
         return _BoundChecksum(self, message)
 
@@ -314,7 +320,7 @@ class E2E:
         self.data_id = data_id
         self.name = f"E2E profile {profile}"
 
-    def bind(self, message: Any) -> "_BoundE2E":
+    def bind(self, message: Any) -> _BoundE2E:
         """E2E protection of one message."""
         return _BoundE2E(self, message)
 
@@ -336,7 +342,8 @@ class _BoundE2E:
         if self._apply(bytes(message.length), ref) is None:
             raise DbcError(
                 f"message {message.name}: no AUTOSAR E2E profile {spec.profile} properties "
-                f"(and {message.length} bytes); give data_id")
+                f"(and {message.length} bytes); give data_id"
+            )
 
     def tx_values(self, values: dict[str, Any]) -> None:
         pass

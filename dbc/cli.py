@@ -21,29 +21,48 @@ __all__ = ["register", "restbus_command"]
 def register(subparsers: Any) -> None:
     """Add the ``restbus`` subcommand."""
     p = subparsers.add_parser(
-        "restbus", help="simulate every node of a DBC except the device under test",
+        "restbus",
+        help="simulate every node of a DBC except the device under test",
         description="Simulate every node of a DBC except --dut with initial values and the DBC's "
-                    "interaction layer; print what the DUT sends, decoded (--json: every frame).")
+        "interaction layer; print what the DUT sends, decoded (--json: every frame).",
+    )
     p.add_argument("dbc", metavar="DBC", help="database file (DBC, or anything cantools loads)")
     p.add_argument("--dut", metavar="NODE", help="device under test: not simulated (default: none, simulate all)")
-    p.add_argument("--duration", type=float, default=10.0, metavar="S",
-                   help=f"seconds to run (default 10; the simulated bus at most {MAX_SIM_SECONDS:g}; Ctrl-C stops "
-                        "early and prints the summary so far)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help=f"seconds to run (default 10; the simulated bus at most {MAX_SIM_SECONDS:g}; Ctrl-C stops "
+        "early and prints the summary so far)",
+    )
     p.add_argument("--bus", choices=["sim"], default=None, help="the built-in simulated bus (default)")
     p.add_argument("--interface", metavar="NAME", help="python-can interface (socketcan, canstack, ...)")
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, bus0, ...)")
-    p.add_argument("--bitrate", type=parse_bitrate, default=None,
-                   help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
-                        "connection (default: the interface's own)")
+    p.add_argument(
+        "--bitrate",
+        type=parse_bitrate,
+        default=None,
+        help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
+        "connection (default: the interface's own)",
+    )
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
-    p.add_argument("--trace", metavar="FILE", help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; "
-                   ".mf4 needs the mf4 extra, .trc holds no remote or error frames)")
-    p.add_argument("--json", action="store_true",
-                   help="one JSON object per frame on the bus, per line (id as an integer)")
-    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)")
+    p.add_argument(
+        "--trace",
+        metavar="FILE",
+        help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; "
+        ".mf4 needs the mf4 extra, .trc holds no remote or error frames)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="one JSON object per frame on the bus, per line (id as an integer)"
+    )
+    p.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)",
+    )
     p.set_defaults(func=restbus_command)
-
 
 
 def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
@@ -115,8 +134,10 @@ def restbus_command(args: argparse.Namespace) -> int:
     if not (0 < args.duration < math.inf):
         raise CliError(f"--duration {args.duration:g}: must be a number of seconds > 0")
     if args.interface is None and args.duration > MAX_SIM_SECONDS:
-        raise CliError(f"--duration {args.duration:g}: the simulated bus runs at most {MAX_SIM_SECONDS:g} s "
-                       "(on a python-can bus any duration runs, until Ctrl-C)")
+        raise CliError(
+            f"--duration {args.duration:g}: the simulated bus runs at most {MAX_SIM_SECONDS:g} s "
+            "(on a python-can bus any duration runs, until Ctrl-C)"
+        )
     if args.interface is not None and args.bus is not None:
         raise CliError("give either --bus sim or --interface/--channel, not both")
     if args.channel is not None and args.interface is None:
@@ -174,7 +195,10 @@ def restbus_command(args: argparse.Namespace) -> int:
         ran = bus.now() / 1e9
         if args.trace:
             n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
-            print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}", file=info)
+            print(
+                f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}",
+                file=info,
+            )
     else:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
         failure: str | None = None
@@ -199,8 +223,11 @@ def restbus_command(args: argparse.Namespace) -> int:
         if args.trace:
             from stack.bus.trace import save_messages
 
-            n = writing(args.trace, "--trace", lambda: save_messages(
-                (r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace))
+            n = writing(
+                args.trace,
+                "--trace",
+                lambda: save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace),
+            )
             dropped = sum(1 for r in rb.records if r.frame.remote)
             print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, dropped)}", file=info)
         if failure is not None:
@@ -213,8 +240,10 @@ def restbus_command(args: argparse.Namespace) -> int:
         total = sum(st[0] for st in stats.values())
         dut = f", {shown} from DUT {args.dut}" if args.dut else ""
         skipped = rb.skipped_summary()
-        print(f"simulated: {sims}; {plural(total, 'frame')} on the bus{dut} in {ran:g} s"
-              + (f"; {skipped.split(' (')[0]}" if skipped else ""))
+        print(
+            f"simulated: {sims}; {plural(total, 'frame')} on the bus{dut} in {ran:g} s"
+            + (f"; {skipped.split(' (')[0]}" if skipped else "")
+        )
     if not complete:
         print(f"canstack: interrupted at {ran:.3f} s of {args.duration:g} s", file=sys.stderr)
         return 130

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import cantools
 
@@ -121,8 +122,11 @@ def _fix_mux(message: Any, tree: dict[str, Any], values: dict[str, Any]) -> None
         sig = message.get_signal_by_name(mux_name)
         raw = values.get(mux_name)
         try:
-            rawnum = sig.conversion.choice_to_number(raw) if isinstance(raw, str) else \
-                int(round(sig.conversion.scaled_to_raw(raw)))
+            rawnum = (
+                sig.conversion.choice_to_number(raw)
+                if isinstance(raw, str)
+                else round(sig.conversion.scaled_to_raw(raw))
+            )
         except Exception:
             rawnum = None
         if rawnum not in branches:
@@ -179,7 +183,7 @@ class _Limits:
 class _TxMessage:
     """State of one transmitted message: values, interaction layer, hooks, timers."""
 
-    def __init__(self, ecu: "Ecu", message: Any, timing: MessageTiming, hooks: list[Any]) -> None:
+    def __init__(self, ecu: Ecu, message: Any, timing: MessageTiming, hooks: list[Any]) -> None:
         db = ecu.db
         self.ecu = ecu
         self.message = message
@@ -423,16 +427,25 @@ class Ecu:
     not applied unless ``accept_failed``.
     """
 
-    def __init__(self, db: cantools.database.can.Database | str | Path, name: str, node: NodeAPI, *,
-                 clamp: bool = False, checks: Iterable[Any] | None = None, start: bool = True,
-                 accept_failed: bool = False) -> None:
+    def __init__(
+        self,
+        db: cantools.database.can.Database | str | Path,
+        name: str,
+        node: NodeAPI,
+        *,
+        clamp: bool = False,
+        checks: Iterable[Any] | None = None,
+        start: bool = True,
+        accept_failed: bool = False,
+    ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
         self.db = db
         names = node_names(db)
         if name not in names:
-            raise UnknownNameError("node", name, names, "in the database" + (
-                f" (nodes: {', '.join(names)})" if len(names) <= 12 else ""))
+            raise UnknownNameError(
+                "node", name, names, "in the database" + (f" (nodes: {', '.join(names)})" if len(names) <= 12 else "")
+            )
         self.name = name
         self.node = node
         self.clamp = clamp
@@ -507,8 +520,7 @@ class Ecu:
         m = self._message(name)
         if m.name in self.unsupported:
             raise DbcError(f"message {name} cannot be sent: {self.unsupported[m.name]}")
-        raise DbcError(f"ECU {self.name} does not send message {name} "
-                       f"(sent by {', '.join(m.senders) or 'no node'})")
+        raise DbcError(f"ECU {self.name} does not send message {name} (sent by {', '.join(m.senders) or 'no node'})")
 
     def _resolve(self, signal: str, message: str | None, pool: Mapping[str, Any]) -> tuple[str, str]:
         """(message, signal) for 'Signal', 'Message.Signal' or signal + message."""
@@ -526,8 +538,7 @@ class Ecu:
         mine = [o for o in owners if o in pool]
         cands = mine or owners
         if len(cands) > 1:
-            raise DbcError(f"signal {signal!r} is in messages {', '.join(cands)}: "
-                           f"name one, e.g. '{cands[0]}.{signal}'")
+            raise DbcError(f"signal {signal!r} is in messages {', '.join(cands)}: name one, e.g. '{cands[0]}.{signal}'")
         return cands[0], signal
 
     # ------------------------------------------------------------------ values
@@ -544,8 +555,12 @@ class Ecu:
                 return value
             if not choices:
                 raise DbcError(f"signal {message}.{signal} has no value table: {value!r} is not a number")
-            raise ChoiceError("choice", value, names, f"for signal {message}.{signal} "
-                              f"(choices: {', '.join(names[:8])}{' ...' if len(names) > 8 else ''})")
+            raise ChoiceError(
+                "choice",
+                value,
+                names,
+                f"for signal {message}.{signal} (choices: {', '.join(names[:8])}{' ...' if len(names) > 8 else ''})",
+            )
         if isinstance(value, bool):
             value = int(value)
         if not isinstance(value, (int, float)):
@@ -562,8 +577,9 @@ class Ecu:
             return lim.lo if value < lim.lo else lim.hi
         unit = f" {sig.unit}" if sig.unit else ""
         src = "DBC range" if (lim.lo, lim.hi) != (lim.raw_lo, lim.raw_hi) else f"{sig.length}-bit raw range"
-        raise SignalRangeError(f"signal {message}.{signal}: {value}{unit} is outside its {src} "
-                               f"[{_fmt(lim.lo)} .. {_fmt(lim.hi)}]{unit}")
+        raise SignalRangeError(
+            f"signal {message}.{signal}: {value}{unit} is outside its {src} [{_fmt(lim.lo)} .. {_fmt(lim.hi)}]{unit}"
+        )
 
     def _limits(self, message: str, sig: Any) -> _Limits:
         tx = self._tx.get(message)
@@ -628,8 +644,10 @@ class Ecu:
         self._message(message)
         rx = self._rx.get(message)
         if rx is None:
-            raise DbcError(f"message {message} is neither sent nor received by ECU {self.name}: "
-                           f"{self.unsupported.get(message, '')}")
+            raise DbcError(
+                f"message {message} is neither sent nor received by ECU {self.name}: "
+                f"{self.unsupported.get(message, '')}"
+            )
         return dict(rx.values or {})
 
     def get(self, signal: str, *, message: str | None = None, default: Any = None) -> Any:
@@ -729,8 +747,7 @@ class Ecu:
         self._message(message)
         self._msg_cbs.setdefault(message, []).append(callback)
 
-    def on_signal(self, signal: str, callback: Callable[[SignalChanged], Any], *,
-                  message: str | None = None) -> None:
+    def on_signal(self, signal: str, callback: Callable[[SignalChanged], Any], *, message: str | None = None) -> None:
         """Call ``callback(SignalChanged)`` when a received signal ('Signal' or
         'Message.Signal') changes value (and at its first reception)."""
         msg, sig = self._resolve(signal, message, self._rx)

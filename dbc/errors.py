@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import difflib
 import re
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import cantools
 
@@ -137,8 +137,11 @@ def _refuse_binary(path: str) -> None:
         return  # cantools' own open reports it (no such file, a directory, ...)
     nul = head.find(b"\0")
     if nul >= 0:
-        raise DbcLoadError(path, None, f"not a database file: binary content (a NUL byte at offset {nul}); "
-                                       "DBC, KCD, ARXML and SYM files are text")
+        raise DbcLoadError(
+            path,
+            None,
+            f"not a database file: binary content (a NUL byte at offset {nul}); DBC, KCD, ARXML and SYM files are text",
+        )
 
 
 def _printable(text: str, limit: int = 300) -> str:

@@ -105,8 +105,7 @@ _BASE_TYPES: dict[str, SendType] = {
 
 _CYCLIC = {SendType.CYCLIC, SendType.CYCLIC_AND_SPONTANEOUS}
 _IF_ACTIVE = {SendType.CYCLIC_IF_ACTIVE, SendType.CYCLIC_IF_ACTIVE_AND_SPONTANEOUS}
-_ON_WRITE = {SendType.SPONTANEOUS, SendType.CYCLIC_AND_SPONTANEOUS,
-             SendType.CYCLIC_IF_ACTIVE_AND_SPONTANEOUS}
+_ON_WRITE = {SendType.SPONTANEOUS, SendType.CYCLIC_AND_SPONTANEOUS, SendType.CYCLIC_IF_ACTIVE_AND_SPONTANEOUS}
 
 
 def _parse_send_type(name: str | None) -> tuple[SendType, bool, bool]:
@@ -221,8 +220,14 @@ class SignalTiming:
     start_raw: float | int | None
 
 
-_SIG_TYPES = {"cyclic": "Cyclic", "onwrite": "OnWrite", "onchange": "OnChange", "ifactive": "IfActive",
-              "spontaneous": "OnWrite", "event": "OnWrite"}
+_SIG_TYPES = {
+    "cyclic": "Cyclic",
+    "onwrite": "OnWrite",
+    "onchange": "OnChange",
+    "ifactive": "IfActive",
+    "spontaneous": "OnWrite",
+    "event": "OnWrite",
+}
 
 
 def message_timing(db: Any, message: Any) -> MessageTiming:

@@ -14,8 +14,9 @@ know).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import cantools
 
@@ -74,9 +75,18 @@ class RestBus:
     either way).
     """
 
-    def __init__(self, db: cantools.database.can.Database | str, bus: Any, *, dut: str | None = None,
-                 nodes: Iterable[str] | None = None, checks: Iterable[Any] | None = None,
-                 monitor: bool = True, records: bool = True, start: bool = True) -> None:
+    def __init__(
+        self,
+        db: cantools.database.can.Database | str,
+        bus: Any,
+        *,
+        dut: str | None = None,
+        nodes: Iterable[str] | None = None,
+        checks: Iterable[Any] | None = None,
+        monitor: bool = True,
+        records: bool = True,
+        start: bool = True,
+    ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
         self.db = db

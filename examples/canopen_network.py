@@ -26,9 +26,8 @@ import math
 import sys
 from typing import Any
 
-from stack import SimBus
-
 from profiles.canopen import CanopenDevice, CanopenMaster
+from stack import SimBus
 
 MS = 1_000_000
 US = 1_000
@@ -95,30 +94,38 @@ def run(duration_s: float = 2.0, seed: int = 1) -> dict[str, Any]:
     if t_dies < duration_s * 1e9:
         devices[nid - 1].stop()
         bus.run(until=int(duration_s * 1e9))
-    return {"master": master.metrics(), "devices": [d.metrics() for d in devices],
-            "bus": {"load": round(bus.busy_ns / bus.now(), 4), "frames": bus.frames_ok},
-            "latencies_ns": {p.cob_id: list(p.latencies) for p in master.pdos.values() if p.latencies}}
+    return {
+        "master": master.metrics(),
+        "devices": [d.metrics() for d in devices],
+        "bus": {"load": round(bus.busy_ns / bus.now(), 4), "frames": bus.frames_ok},
+        "latencies_ns": {p.cob_id: list(p.latencies) for p in master.pdos.values() if p.latencies},
+    }
 
 
 def report(result: dict[str, Any]) -> str:
     """The text summary: nodes, then one line per synchronous PDO."""
     m = result["master"]
-    lines = [f"bus load {result['bus']['load']:.1%}, {result['bus']['frames']:,} frames, "
-             f"{m['sync']['sent']:,} SYNCs"]
+    lines = [f"bus load {result['bus']['load']:.1%}, {result['bus']['frames']:,} frames, {m['sync']['sent']:,} SYNCs"]
     late = {(d["node_id"], t["cob_id"]): t["not_in_window"] for d in result["devices"] for t in d["tpdos"]}
     for n in m["nodes"]:
-        lines.append(f"node {n['node_id']}: {n['nmt_state']:<16} heartbeats {n['heartbeats_received']:>3} received, "
-                     f"{n['heartbeats_missed']:>2} missed  EMCY {n['emcy_received']}")
-    lines.append(f"{'PDO':>5} {'node':>4} {'type':>4} {'received':>8} {'late':>4}  "
-                 f"{'min':>6} {'mean':>6} {'p99':>6} {'max':>6}  SYNC -> reception, ms")
+        lines.append(
+            f"node {n['node_id']}: {n['nmt_state']:<16} heartbeats {n['heartbeats_received']:>3} received, "
+            f"{n['heartbeats_missed']:>2} missed  EMCY {n['emcy_received']}"
+        )
+    lines.append(
+        f"{'PDO':>5} {'node':>4} {'type':>4} {'received':>8} {'late':>4}  "
+        f"{'min':>6} {'mean':>6} {'p99':>6} {'max':>6}  SYNC -> reception, ms"
+    )
     for p in m["pdos"]:
         s = p["sync_latency_ms"]
         head = f"0x{p['cob_id']:03X} {p['node_id']:>4} {p['transmission_type']:>4} {p['received']:>8}"
         if not s["count"]:
             lines.append(f"{head} {'':>4}  event-driven")
             continue
-        lines.append(f"{head} {late.get((p['node_id'], p['cob_id']), 0):>4}  "
-                     f"{s['min']:>6.3f} {s['mean']:>6.3f} {s['p99']:>6.3f} {s['max']:>6.3f}")
+        lines.append(
+            f"{head} {late.get((p['node_id'], p['cob_id']), 0):>4}  "
+            f"{s['min']:>6.3f} {s['mean']:>6.3f} {s['p99']:>6.3f} {s['max']:>6.3f}"
+        )
     return "\n".join(lines)
 
 

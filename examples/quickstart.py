@@ -11,10 +11,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from stack.controller.events import ErrorStateChanged
 from stack.bus.faults import FaultInjector
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
+from stack.controller.events import ErrorStateChanged
+from stack.wire.frame import Frame
 
 MS = 1_000_000
 
@@ -40,7 +40,7 @@ print(f"\nbus load {summary['bus_load']:.1%}, {summary['frames']} frames, {summa
 for ident, st in summary["ids"].items():
     print(f"{ident}: {st['count']} frames, latency {st['latency_min_us']:.0f}..{st['latency_max_us']:.0f} us")
 print("dash:", dash.counters(), dash.state)
-print("frames waiting in dash's FIFO:", len([f for f in iter(dash.recv, None)]))
+print("frames waiting in dash's FIFO:", len(list(iter(dash.recv, None))))
 trace = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="canstack-")) / "quickstart.asc"
 n = bus.save_trace(str(trace))
 print(f"trace: {n} records written to {trace}")

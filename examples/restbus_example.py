@@ -26,12 +26,16 @@ cluster.on_check_failed(lambda f: print("check failed:", f.message, f.reason))
 bus.run(until=100 * MS)
 rest.set("TCM", "GearSelected", "D")
 rest.set("ECM", "EngineSpeed", 2100)
-rest.set("BCM", "DoorFL", "Open")     # OnChangeWithRepetition: 3 frames, 50 ms apart
+rest.set("BCM", "DoorFL", "Open")  # OnChangeWithRepetition: 3 frames, 50 ms apart
 bus.run(until=300 * MS)
 
-print(f"engine speed seen by the cluster: {cluster.get('EngineSpeed')} rpm, "
-      f"coolant {cluster.get('EngineTemp')} degC, alive counter {cluster.get('EngineCounter')}")
+print(
+    f"engine speed seen by the cluster: {cluster.get('EngineSpeed')} rpm, "
+    f"coolant {cluster.get('EngineTemp')} degC, alive counter {cluster.get('EngineCounter')}"
+)
 for rec in rest.from_dut()[:3]:
     print("DUT sent:", rec.as_json())
-print(f"{len(rest.records)} frames on the bus, bus load {100 * bus.bus_load():.1f} %, "
-      f"failed checks at the cluster: {cluster.failed_checks}")
+print(
+    f"{len(rest.records)} frames on the bus, bus load {100 * bus.bus_load():.1f} %, "
+    f"failed checks at the cluster: {cluster.failed_checks}"
+)

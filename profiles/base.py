@@ -15,8 +15,9 @@ import hashlib
 import math
 import random
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from stack import Frame, NodeError, QueueFull
 
@@ -24,8 +25,18 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.scenario import MessageDecl, NodeDecl, Scenario
     from stack import NodeAPI, TxRequest
 
-__all__ = ["Profile", "Context", "Recorder", "Track", "PeriodicSource", "SporadicSource", "frame_of", "stats_ms",
-           "stable_rng", "source_for"]
+__all__ = [
+    "Profile",
+    "Context",
+    "Recorder",
+    "Track",
+    "PeriodicSource",
+    "SporadicSource",
+    "frame_of",
+    "stats_ms",
+    "stable_rng",
+    "source_for",
+]
 
 
 def stable_rng(seed: int, *parts: object) -> random.Random:
@@ -35,14 +46,14 @@ def stable_rng(seed: int, *parts: object) -> random.Random:
     return random.Random(int.from_bytes(digest[:8], "big"))
 
 
-def frame_of(m: "MessageDecl") -> Frame:
+def frame_of(m: MessageDecl) -> Frame:
     """The frame a declared message sends (its data, or zeros)."""
     if m.remote:
         return Frame(m.can_id, extended=m.extended, remote=True, dlc=m.dlc)
     return Frame(m.can_id, m.data if m.data is not None else bytes(m.dlc), extended=m.extended)
 
 
-def stats_ms(values_ns: "array[int] | list[int]") -> dict[str, float] | None:
+def stats_ms(values_ns: array[int] | list[int]) -> dict[str, float] | None:
     """min, mean, p99 and max of ns values, in ms (None when there are none). The p99 is the
     nearest-rank 99th percentile (the value at rank ceil(0.99 n))."""
     n = len(values_ns)
@@ -66,10 +77,22 @@ class Track:
     figure in `python -m stack.bench`).
     """
 
-    __slots__ = ("decl", "released", "sent", "failed", "dropped", "misses", "responses", "starts", "pending",
-                 "received", "monitor", "awaiting")
+    __slots__ = (
+        "decl",
+        "released",
+        "sent",
+        "failed",
+        "dropped",
+        "misses",
+        "responses",
+        "starts",
+        "pending",
+        "received",
+        "monitor",
+        "awaiting",
+    )
 
-    def __init__(self, decl: "MessageDecl") -> None:
+    def __init__(self, decl: MessageDecl) -> None:
         self.decl = decl
         self.released = 0
         self.sent = 0
@@ -79,13 +102,13 @@ class Track:
         self.received: int | None = None  # set by the runner: instances that reached another node
         self.responses: array[int] = array("q")
         self.starts: array[int] = array("q")
-        self.pending: dict["TxRequest", None] = {}  # queued instances, in release order
+        self.pending: dict[TxRequest, None] = {}  # queued instances, in release order
         # on a python-can bus the end of a frame is the monitor's receive timestamp (`observed`),
         # not the moment the driver handed it over: sent instances wait for it here
         self.monitor = False
-        self.awaiting: dict["TxRequest", None] = {}
+        self.awaiting: dict[TxRequest, None] = {}
 
-    def release(self, req: "TxRequest") -> None:
+    def release(self, req: TxRequest) -> None:
         """An instance was queued (``req.t_queued`` is its release time)."""
         self.released += 1
         if self.pending:
@@ -134,7 +157,7 @@ class Track:
             return
         self._complete(req, t_end, sof)
 
-    def _complete(self, req: "TxRequest", t_end: int, sof: int) -> None:
+    def _complete(self, req: TxRequest, t_end: int, sof: int) -> None:
         self.sent += 1
         resp = t_end - req.t_queued
         self.responses.append(resp)
@@ -170,7 +193,7 @@ class Recorder:
     def __init__(self) -> None:
         self.tracks: dict[str, Track] = {}
 
-    def track(self, decl: "MessageDecl") -> Track:
+    def track(self, decl: MessageDecl) -> Track:
         """The track of a declared message (made on first use)."""
         t = self.tracks.get(decl.name)
         if t is None:
@@ -184,10 +207,10 @@ class Context:
     profiles that talk to each other), the profiles built so far, and the simulated bus (None on
     a python-can bus)."""
 
-    scenario: "Scenario"
+    scenario: Scenario
     recorder: Recorder
-    nodes: "dict[str, NodeAPI]" = field(default_factory=dict)
-    profiles: "dict[str, Profile]" = field(default_factory=dict)
+    nodes: dict[str, NodeAPI] = field(default_factory=dict)
+    profiles: dict[str, Profile] = field(default_factory=dict)
     bus: Any = None
 
     def rng(self, *parts: object) -> random.Random:
@@ -206,7 +229,7 @@ class Profile:
 
     kind = "profile"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         self.node = node
         self.decl = decl
         self.context = context
@@ -222,7 +245,7 @@ class Profile:
         """The profile's own figures for the results (JSON-ready)."""
         return {}
 
-    def queue(self, frame: Frame, track: Track | None = None, **send: Any) -> "TxRequest | None":
+    def queue(self, frame: Frame, track: Track | None = None, **send: Any) -> TxRequest | None:
         """Send ``frame`` (keyword arguments go to `send`: ``one_shot``, ``not_after``) and
         record the instance; a full queue or a bus-off node drops it (recorded as a miss)."""
         try:
@@ -241,8 +264,9 @@ class PeriodicSource:
     ``offset_ns``, each release late by a uniform draw in [0, ``jitter_ns``] (release jitter)
     from a seeded source; the nominal times do not drift with the jitter."""
 
-    def __init__(self, node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
-                 rng: random.Random) -> None:
+    def __init__(
+        self, node: NodeAPI, decl: MessageDecl, on_release: Callable[[MessageDecl], Any], rng: random.Random
+    ) -> None:
         if decl.period_ns is None and type(self) is PeriodicSource:
             raise ValueError(f"message {decl.name!r} has no period")
         self.node = node
@@ -271,8 +295,9 @@ class SporadicSource(PeriodicSource):
     extra gap exponentially distributed so that the mean inter-arrival is ``mean_ns`` (twice the
     minimum when not given), from a seeded source."""
 
-    def __init__(self, node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
-                 rng: random.Random) -> None:
+    def __init__(
+        self, node: NodeAPI, decl: MessageDecl, on_release: Callable[[MessageDecl], Any], rng: random.Random
+    ) -> None:
         if decl.sporadic_ns is None:
             raise ValueError(f"message {decl.name!r} is not sporadic")
         super().__init__(node, decl, on_release, rng)
@@ -292,8 +317,9 @@ class SporadicSource(PeriodicSource):
         self._arm()
 
 
-def source_for(node: "NodeAPI", decl: "MessageDecl", on_release: Callable[["MessageDecl"], Any],
-               rng: random.Random) -> PeriodicSource | None:
+def source_for(
+    node: NodeAPI, decl: MessageDecl, on_release: Callable[[MessageDecl], Any], rng: random.Random
+) -> PeriodicSource | None:
     """The source that releases ``decl`` (periodic or sporadic), or None for an untimed one."""
     if decl.period_ns is not None:
         return PeriodicSource(node, decl, on_release, rng)

@@ -94,8 +94,13 @@ def _one_sweep(runs: int, seconds: float, kw: dict[str, Any]) -> dict[str, Any]:
 
     root = str(EXAMPLE.parents[1])
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", _ONE_SWEEP, json.dumps([runs, seconds, kw])], capture_output=True,
-                         text=True, env=env, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _ONE_SWEEP, json.dumps([runs, seconds, kw])],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -106,8 +111,10 @@ def sweep_parallel(runs: int = 24, seconds: float = 4.0, repeat: int = 3) -> dic
     machine hits all three; and the speed-ups. Raises AssertionError if a table differs."""
     from profiles.execute import dask_available
 
-    engines: dict[str, dict[str, Any]] = {"sequential": {"workers": 1},
-                                          "processes": {"workers": 2, "engine": "processes"}}
+    engines: dict[str, dict[str, Any]] = {
+        "sequential": {"workers": 1},
+        "processes": {"workers": 2, "engine": "processes"},
+    }
     if dask_available():
         engines["dask"] = {"workers": 2, "engine": "dask"}
     best: dict[str, dict[str, Any]] = {}
@@ -120,13 +127,21 @@ def sweep_parallel(runs: int = 24, seconds: float = 4.0, repeat: int = 3) -> dic
             if name not in best or r["wall_s"] - r["startup_s"] < best[name]["wall_s"] - best[name]["startup_s"]:
                 best[name] = r
     seq_s = best["sequential"]["wall_s"]
-    out: dict[str, Any] = {"runs": runs, "simulated_s": seconds, "sequential_s": seq_s,
-                           "processes_s": best["processes"]["wall_s"],
-                           "processes_speedup": seq_s / best["processes"]["wall_s"]}
+    out: dict[str, Any] = {
+        "runs": runs,
+        "simulated_s": seconds,
+        "sequential_s": seq_s,
+        "processes_s": best["processes"]["wall_s"],
+        "processes_speedup": seq_s / best["processes"]["wall_s"],
+    }
     if "dask" in best:
         dask_s, startup = best["dask"]["wall_s"], best["dask"]["startup_s"]
-        out.update(dask_s=dask_s, dask_startup_s=startup, dask_speedup=seq_s / dask_s,
-                   dask_speedup_after_startup=seq_s / (dask_s - startup))
+        out.update(
+            dask_s=dask_s,
+            dask_startup_s=startup,
+            dask_speedup=seq_s / dask_s,
+            dask_speedup_after_startup=seq_s / (dask_s - startup),
+        )
     return out
 
 
@@ -157,8 +172,13 @@ def sweep_overhead(runs: int = 20, seconds: float = 0.25, repeat: int = 3) -> di
     for _ in range(repeat):  # interleaved, so that a busy moment of the machine hits both
         b = min(b, bare())
         s = min(s, sweep())
-    return {"runs": runs, "simulated_s": seconds, "bare_per_run_s": b / runs, "sweep_per_run_s": s / runs,
-            "overhead": (s - b) / b}
+    return {
+        "runs": runs,
+        "simulated_s": seconds,
+        "bare_per_run_s": b / runs,
+        "sweep_per_run_s": s / runs,
+        "overhead": (s - b) / b,
+    }
 
 
 def benchmark(seconds: float = 3.0) -> dict[str, Any]:
@@ -166,19 +186,26 @@ def benchmark(seconds: float = 3.0) -> dict[str, Any]:
     r = runner_overhead(seconds=max(0.5, seconds))
     lines = [
         f"experiment runner on {r['simulated_s']:g} s of the 90 % powertrain network: {r['runner_s']:.2f} s vs the bare "
-        f"engine {r['bare_s']:.2f} s on the same traffic: {r['ratio']:.2f}x (target <= 1.5)"]
+        f"engine {r['bare_s']:.2f} s on the same traffic: {r['ratio']:.2f}x (target <= 1.5)"
+    ]
     scale = max(0.25, seconds / 3.0)
     p = sweep_parallel(runs=24, seconds=round(4 * scale, 3))
-    text = (f"sweep of {p['runs']} runs x {p['simulated_s']:g} s of that network: 1 process {p['sequential_s']:.2f} s; "
-            f"--workers 2 on a process pool {p['processes_s']:.2f} s: {p['processes_speedup']:.2f}x")
+    text = (
+        f"sweep of {p['runs']} runs x {p['simulated_s']:g} s of that network: 1 process {p['sequential_s']:.2f} s; "
+        f"--workers 2 on a process pool {p['processes_s']:.2f} s: {p['processes_speedup']:.2f}x"
+    )
     if "dask_s" in p:
-        text += (f"; on a Dask LocalCluster {p['dask_s']:.2f} s ({p['dask_startup_s']:.2f} s of it starting the "
-                 f"cluster): {p['dask_speedup']:.2f}x, {p['dask_speedup_after_startup']:.2f}x after start-up")
+        text += (
+            f"; on a Dask LocalCluster {p['dask_s']:.2f} s ({p['dask_startup_s']:.2f} s of it starting the "
+            f"cluster): {p['dask_speedup']:.2f}x, {p['dask_speedup_after_startup']:.2f}x after start-up"
+        )
     lines.append(text + " (target >= 1.7)")
     # runs of 0.25 s simulated (about 14 ms): the machinery costs ~0.5 ms a run (the scenario's own
     # check, parse_scenario, most of it), so shorter runs would measure the check, not a sweep
     o = sweep_overhead(runs=max(10, round(20 * min(1.0, scale))), seconds=0.25)
-    lines.append(f"sweep machinery per run ({o['runs']} runs x {o['simulated_s']:g} s): {o['sweep_per_run_s'] * 1e3:.1f} "
-                 f"ms vs a bare run_scenario {o['bare_per_run_s'] * 1e3:.1f} ms: {100 * o['overhead']:+.1f} % "
-                 "(target <= 10 %)")
+    lines.append(
+        f"sweep machinery per run ({o['runs']} runs x {o['simulated_s']:g} s): {o['sweep_per_run_s'] * 1e3:.1f} "
+        f"ms vs a bare run_scenario {o['bare_per_run_s'] * 1e3:.1f} ms: {100 * o['overhead']:+.1f} % "
+        "(target <= 10 %)"
+    )
     return {"runner_vs_engine": r, "sweep_parallel": p, "sweep_overhead": o, "lines": lines}

@@ -61,22 +61,30 @@ def _profile_plots(scenario: Any) -> dict[str, Any]:
     return out
 
 
-
 def register(sub: Any) -> None:
     """Add the `experiment` subcommand."""
     p = sub.add_parser(
-        "experiment", help="run a scheduling scenario (TOML) and compare it with the response-time analysis",
+        "experiment",
+        help="run a scheduling scenario (TOML) and compare it with the response-time analysis",
         description="Run a scenario file's nodes and profiles on the simulated bus (or on a python-can bus with "
         "--interface/--channel) and print, per message, the measured response times, jitter and deadline misses "
-        "beside the worst case of the CAN schedulability analysis (Davis et al. 2007).")
+        "beside the worst case of the CAN schedulability analysis (Davis et al. 2007).",
+    )
     p.add_argument("scenario", help="the scenario file (TOML; see examples/*.toml)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", help="also write the JSON result to this file")
-    p.add_argument("--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here "
-                   "(needs the plot extra)")
-    p.add_argument("--duration", type=seconds_type(1e6), help="run this many seconds instead of the scenario's [bus] duration")
-    p.add_argument("--progress", action="store_true", default=None,
-                   help="draw a progress bar (default: on a terminal, for runs over 2 s)")
+    p.add_argument(
+        "--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here (needs the plot extra)"
+    )
+    p.add_argument(
+        "--duration", type=seconds_type(1e6), help="run this many seconds instead of the scenario's [bus] duration"
+    )
+    p.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="draw a progress bar (default: on a terminal, for runs over 2 s)",
+    )
     p.add_argument("--interface", help="run on this python-can interface (socketcan, virtual, canstack, ...)")
     p.add_argument("--channel", help="the python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
     p.set_defaults(func=_experiment)

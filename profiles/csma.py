@@ -13,7 +13,8 @@ schedule says.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of, source_for
 from profiles.registry import ProfileKind, register
@@ -36,20 +37,23 @@ class CsmaProfile(Profile):
 
     kind = "csma"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         super().__init__(node, decl, context)
         self.gate: Gate | None = None
         self.frames = {m.name: frame_of(m) for m in decl.messages}
         self._track_of = {m.name: context.recorder.track(m) for m in decl.messages}
-        self.sources = [s for m in decl.messages
-                        if (s := source_for(node, m, self.release, context.rng("release", decl.name, m.name)))]
+        self.sources = [
+            s
+            for m in decl.messages
+            if (s := source_for(node, m, self.release, context.rng("release", decl.name, m.name)))
+        ]
 
     def start(self) -> None:
         """Arm every message's first release."""
         for s in self.sources:
             s.start()
 
-    def release(self, m: "MessageDecl") -> None:
+    def release(self, m: MessageDecl) -> None:
         """An instance of ``m`` is released: queue it now (or, gated, when the schedule lets it)."""
         frame = self.frames[m.name]
         if self.gate is not None:
@@ -60,7 +64,7 @@ class CsmaProfile(Profile):
                 return
         self.queue(frame, self._track_of[m.name])
 
-    def _queue_gated(self, m: "MessageDecl", not_after: int | None) -> None:
+    def _queue_gated(self, m: MessageDecl, not_after: int | None) -> None:
         self.queue(self.frames[m.name], self._track_of[m.name], not_after=not_after)
 
     def set_data(self, name: str, data: bytes) -> None:
@@ -73,28 +77,49 @@ class CsmaProfile(Profile):
         return {"queue": self.decl.queue, "gated": self.gate is not None}
 
 
-def _build(node: "NodeAPI", decl: "NodeDecl", context: Context) -> CsmaProfile:
+def _build(node: NodeAPI, decl: NodeDecl, context: Context) -> CsmaProfile:
     return CsmaProfile(node, decl, context)
 
 
-def message_specs(decl: "NodeDecl", exact: bool = False) -> "list[MessageSpec]":
+def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
     """The node's messages as the response-time analysis models them: period (or minimum
     inter-arrival), deadline and release jitter; with ``exact``, each frame's own length (its
     payload is fixed) instead of worst-case stuffing."""
     from profiles.analysis.rta import MessageSpec
-
     from stack.wire.coding import INTERMISSION_BITS
 
-    return [MessageSpec(m.name, m.can_id, m.extended, m.dlc, m.interval_ns, m.deadline_ns or m.interval_ns,
-                        m.jitter_ns, frame_of(m).bits.length + INTERMISSION_BITS if exact else None)
-            for m in decl.messages if m.interval_ns is not None]
+    return [
+        MessageSpec(
+            m.name,
+            m.can_id,
+            m.extended,
+            m.dlc,
+            m.interval_ns,
+            m.deadline_ns or m.interval_ns,
+            m.jitter_ns,
+            frame_of(m).bits.length + INTERMISSION_BITS if exact else None,
+        )
+        for m in decl.messages
+        if m.interval_ns is not None
+    ]
 
 
-def _traffic(decl: "NodeDecl", scenario: "Scenario") -> "list[MessageSpec]":
+def _traffic(decl: NodeDecl, scenario: Scenario) -> list[MessageSpec]:
     return message_specs(decl, exact=scenario.analysis.get("stuffing") == "exact")
 
 
-KIND = register(ProfileKind(name="csma", build=_build, traffic=_traffic,
-                            node_keys={"tdma_gated": Key(bool, True, doc="on a bus with a TDMA schedule: send only "
-                                                         "inside its arbitrating windows (false: ungated)")},
-                            description="native CSMA/CR (plain CAN arbitration)"))
+KIND = register(
+    ProfileKind(
+        name="csma",
+        build=_build,
+        traffic=_traffic,
+        node_keys={
+            "tdma_gated": Key(
+                bool,
+                True,
+                doc="on a bus with a TDMA schedule: send only inside its arbitrating windows (false: ungated)",
+            )
+        },
+        description="native CSMA/CR (plain CAN arbitration)",
+    )
+)

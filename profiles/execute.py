@@ -39,15 +39,25 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import as_completed as futures_completed
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Protocol
 
 from profiles.schema import ScenarioError
 
-__all__ = ["Execution", "ExecuteError", "execute", "choose_engine", "dask_available", "error_text", "ENGINES",
-           "Task", "chunks"]
+__all__ = [
+    "Execution",
+    "ExecuteError",
+    "execute",
+    "choose_engine",
+    "dask_available",
+    "error_text",
+    "ENGINES",
+    "Task",
+    "chunks",
+]
 
 ENGINES = ("auto", "sequential", "processes", "dask")
 DASK_EXTRA = "pip install 'canstack[dask]'"
@@ -151,6 +161,7 @@ def _pool_call(fn: Callable[[Any], dict[str, Any]], task: Task) -> dict[str, Any
 
 # --- the three engines ---------------------------------------------------------------------------
 
+
 class _Rows:
     """Rows by index, and the progress bar they advance."""
 
@@ -235,11 +246,18 @@ def _dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     # The worker processes are started with Ctrl-C ignored (a disposition a child inherits, and
     # Python and asyncio leave in place): the terminal sends SIGINT to the whole foreground group,
     # and a LocalCluster worker that gets it dies with a traceback; the sweep stops them instead.
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() else None
+    old = (
+        signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() else None
+    )
     try:
         with dask.config.set({"distributed.worker.profile.enabled": False}):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   silence_logs=logging.ERROR)
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )
     finally:
         if old is not None:
             signal.signal(signal.SIGINT, old)
@@ -265,7 +283,7 @@ def chunks(tasks: Sequence[Task], slots: int) -> list[list[Task]]:
     n = len(tasks)
     count = min(n, max(4 * max(1, slots), -(-n // 50)))
     size = -(-n // count) if count else 1
-    return [list(tasks[i:i + size]) for i in range(0, n, size)]
+    return [list(tasks[i : i + size]) for i in range(0, n, size)]
 
 
 def _dask(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], client: Any, out: _Rows) -> bool:
@@ -296,9 +314,16 @@ def _dask(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], client: An
     return False
 
 
-def execute(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], *, workers: int = 1,
-            scheduler: str | None = None, engine: str = "auto", progress: bool | None = None,
-            desc: str = "runs") -> Execution:
+def execute(
+    fn: Callable[[Any], dict[str, Any]],
+    tasks: Sequence[Task],
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    engine: str = "auto",
+    progress: bool | None = None,
+    desc: str = "runs",
+) -> Execution:
     """Run ``fn`` on every task (see the module docstring) and return the rows in canonical order.
 
     ``progress`` draws a tqdm bar of runs done / total with the ETA on stderr (None: when stderr
@@ -314,8 +339,10 @@ def execute(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], *, worke
             try:
                 client.run(_warm, fn.__module__)
             except Exception as exc:
-                raise ExecuteError(f"the Dask workers cannot import {fn.__module__} ({error_text(exc)}): install "
-                                   "canstack (the same version) on every worker") from None
+                raise ExecuteError(
+                    f"the Dask workers cannot import {fn.__module__} ({error_text(exc)}): install "
+                    "canstack (the same version) on every worker"
+                ) from None
             startup = time.perf_counter() - wall0
             out = _Rows(len(tasks), progress, desc)
             if scheduler is not None and out.bar is not None:
@@ -332,5 +359,6 @@ def execute(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], *, worke
         else:
             interrupted = _sequential(fn, tasks, out)
     rows = out.close()
-    return Execution(rows=rows, interrupted=interrupted, engine=name, wall_s=time.perf_counter() - wall0,
-                     startup_s=startup)
+    return Execution(
+        rows=rows, interrupted=interrupted, engine=name, wall_s=time.perf_counter() - wall0, startup_s=startup
+    )

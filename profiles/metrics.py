@@ -39,7 +39,7 @@ def _key(m: Any) -> int:
     return arbitration_key(m.can_id, m.extended, False)
 
 
-def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
+def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
     """The response-time analysis of the scenario's bus: ``results`` by message name (only
     where it applies) and ``assumptions`` (what was analysed, what was left out and why)."""
     specs: list[MessageSpec] = []
@@ -61,8 +61,11 @@ def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
     notes: list[str] = []
     excluded: dict[str, str] = {}
     if unmodelled:
-        notes.append("no worst-case model of the traffic of " + ", ".join(unmodelled)
-                     + ": the analysis does not apply to this bus")
+        notes.append(
+            "no worst-case model of the traffic of "
+            + ", ".join(unmodelled)
+            + ": the analysis does not apply to this bus"
+        )
         if own:
             notes.append("messages with a bound of their own profile (a schedule's window) show it as rta_ms")
         return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
@@ -79,18 +82,28 @@ def analyse_scenario(scenario: "Scenario") -> dict[str, Any]:
         for m in scenario.messages:
             if m.name not in excluded and _key(m) > lowest_inverting:
                 excluded[m.name] = "lower priority than a message of a node with priority inversion"
-        notes.append("FIFO queues and mailboxes break the analysis' assumption that each node sends its "
-                     "highest-priority pending frame: no bound for their messages nor for any of lower priority")
+        notes.append(
+            "FIFO queues and mailboxes break the analysis' assumption that each node sends its "
+            "highest-priority pending frame: no bound for their messages nor for any of lower priority"
+        )
     results = analyse(specs, scenario.bitrate, errors=errors) if specs else {}
     for name in excluded:
         results.pop(name, None)
-    return {"results": results, "excluded": excluded, "own": own,
-            "assumptions": {"applies": True, "notes": notes, "excluded": excluded,
-                            "error_model": None if errors is None else {"t_error_ms": scenario.analysis["t_error_ms"]},
-                            "method": "Davis, Burns, Bril, Lukkien 2007 (busy period, every instance)"}}
+    return {
+        "results": results,
+        "excluded": excluded,
+        "own": own,
+        "assumptions": {
+            "applies": True,
+            "notes": notes,
+            "excluded": excluded,
+            "error_model": None if errors is None else {"t_error_ms": scenario.analysis["t_error_ms"]},
+            "method": "Davis, Burns, Bril, Lukkien 2007 (busy period, every instance)",
+        },
+    }
 
 
-def message_rows(scenario: "Scenario", recorder: Recorder, analysis: dict[str, Any]) -> list[dict[str, Any]]:
+def message_rows(scenario: Scenario, recorder: Recorder, analysis: dict[str, Any]) -> list[dict[str, Any]]:
     """One JSON object per declared message (see the module docstring)."""
     rows = []
     results = analysis.get("results", {})
@@ -113,21 +126,33 @@ def message_rows(scenario: "Scenario", recorder: Recorder, analysis: dict[str, A
                 rta = bound / 1e6
                 schedulable = None if m.deadline_ns is None else bound <= m.deadline_ns
         jitter = tr.jitter_ns() if tr is not None else None
-        rows.append({
-            "name": m.name, "node": m.node, "id": m.can_id, "extended": m.extended, "dlc": m.dlc,
-            "period_ms": None if m.period_ns is None else m.period_ns / 1e6,
-            "sporadic_ms": None if m.sporadic_ns is None else m.sporadic_ns / 1e6,
-            "deadline_ms": None if m.deadline_ns is None else m.deadline_ns / 1e6,
-            "released": tr.released if tr else 0, "sent": tr.sent if tr else 0,
-            "received": (tr.received if tr and tr.received is not None else (tr.sent if tr else 0)),
-            "failed": tr.failed if tr else 0, "dropped": tr.dropped if tr else 0,
-            "response_ms": resp, "jitter_ms": None if jitter is None else jitter / 1e6,
-            "deadline_misses": tr.misses if tr else 0,
-            "rta_ms": rta, "rta_release_ms": rta_release, "schedulable": schedulable,
-            "tightness": None if rta is None or resp is None or rta <= 0 else resp["max"] / rta,
-            "rta_note": analysis.get("excluded", {}).get(m.name) or own_note or (
-                None if r is None or r.response_ns is not None else r.unbounded_reason),
-        })
+        rows.append(
+            {
+                "name": m.name,
+                "node": m.node,
+                "id": m.can_id,
+                "extended": m.extended,
+                "dlc": m.dlc,
+                "period_ms": None if m.period_ns is None else m.period_ns / 1e6,
+                "sporadic_ms": None if m.sporadic_ns is None else m.sporadic_ns / 1e6,
+                "deadline_ms": None if m.deadline_ns is None else m.deadline_ns / 1e6,
+                "released": tr.released if tr else 0,
+                "sent": tr.sent if tr else 0,
+                "received": (tr.received if tr and tr.received is not None else (tr.sent if tr else 0)),
+                "failed": tr.failed if tr else 0,
+                "dropped": tr.dropped if tr else 0,
+                "response_ms": resp,
+                "jitter_ms": None if jitter is None else jitter / 1e6,
+                "deadline_misses": tr.misses if tr else 0,
+                "rta_ms": rta,
+                "rta_release_ms": rta_release,
+                "schedulable": schedulable,
+                "tightness": None if rta is None or resp is None or rta <= 0 else resp["max"] / rta,
+                "rta_note": analysis.get("excluded", {}).get(m.name)
+                or own_note
+                or (None if r is None or r.response_ns is not None else r.unbounded_reason),
+            }
+        )
     return rows
 
 
@@ -146,24 +171,31 @@ def format_table(result_json: dict[str, Any]) -> str:
     """The readable summary of a run: bus figures, then one line per message, worst offenders
     first (deadline misses, then the largest response relative to the deadline)."""
     r = result_json
-    lines = [f"{r['scenario']}: {r['driver']} bus, {r['bitrate'] // 1000} kbit/s, {r['duration']:.3f} s, "
-             f"{r['frames']} frames, {r['error_frames']} error frames, bus load {100 * r['bus_load']:.1f} %"
-             + (" (interrupted)" if r.get("interrupted") else ""), ""]
+    lines = [
+        f"{r['scenario']}: {r['driver']} bus, {r['bitrate'] // 1000} kbit/s, {r['duration']:.3f} s, "
+        f"{r['frames']} frames, {r['error_frames']} error frames, bus load {100 * r['bus_load']:.1f} %"
+        + (" (interrupted)" if r.get("interrupted") else ""),
+        "",
+    ]
 
     def badness(m: dict[str, Any]) -> tuple[float, float]:
         worst = m["response_ms"]["max"] if m["response_ms"] else 0.0
         d = m["deadline_ms"] or 0.0
         return (-m["deadline_misses"], -(worst / d if d else 0.0))
 
-    lines.append(f"{'message':<16} {'node':<10} {'ID':>10} {'sent':>6} {'miss':>5} "
-                 f"{'resp min':>8} {'mean':>8} {'p99':>8} {'max':>8} {'RTA':>8} {'max/RTA':>7} {'jitter':>8}  (ms)")
+    lines.append(
+        f"{'message':<16} {'node':<10} {'ID':>10} {'sent':>6} {'miss':>5} "
+        f"{'resp min':>8} {'mean':>8} {'p99':>8} {'max':>8} {'RTA':>8} {'max/RTA':>7} {'jitter':>8}  (ms)"
+    )
     for m in sorted(r["messages"], key=badness):
         resp = m["response_ms"] or {}
-        ident = (f"0x{m['id']:08X}" if m["extended"] else f"0x{m['id']:03X}")
+        ident = f"0x{m['id']:08X}" if m["extended"] else f"0x{m['id']:03X}"
         tight = f"{m['tightness']:7.2f}" if m["tightness"] is not None else f"{'-':>7}"
-        lines.append(f"{m['name'][:16]:<16} {m['node'][:10]:<10} {ident:>10} {m['sent']:>6} {m['deadline_misses']:>5} "
-                     f"{_ms(resp.get('min'))} {_ms(resp.get('mean'))} {_ms(resp.get('p99'))} {_ms(resp.get('max'))} "
-                     f"{_ms(m['rta_ms'])} {tight} {_ms(m['jitter_ms'])}")
+        lines.append(
+            f"{m['name'][:16]:<16} {m['node'][:10]:<10} {ident:>10} {m['sent']:>6} {m['deadline_misses']:>5} "
+            f"{_ms(resp.get('min'))} {_ms(resp.get('mean'))} {_ms(resp.get('p99'))} {_ms(resp.get('max'))} "
+            f"{_ms(m['rta_ms'])} {tight} {_ms(m['jitter_ms'])}"
+        )
     from profiles.registry import profile_kinds
 
     for kind in profile_kinds().values():

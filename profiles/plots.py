@@ -8,8 +8,9 @@ their own (a TDMA schedule behind the frames, a poll cycle) through ``extra``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.runner import Result
@@ -36,7 +37,7 @@ def node_colours(names: list[str]) -> dict[str, Any]:
     return {n: cmap(i % 10) for i, n in enumerate(names)}
 
 
-def _window(result: "Result") -> tuple[int, int]:
+def _window(result: Result) -> tuple[int, int]:
     w = result.scenario.plot.get("window_ms")
     if w:
         return round(w[0] * 1e6), round(w[1] * 1e6)
@@ -44,8 +45,13 @@ def _window(result: "Result") -> tuple[int, int]:
     return 0, min(end, 50_000_000)  # the first 50 ms: a timeline of seconds is a grey band
 
 
-def timeline(result: "Result", path: str | Path, *, behind: Callable[[Any, int, int], None] | None = None,
-             window: tuple[int, int] | None = None) -> Path:
+def timeline(
+    result: Result,
+    path: str | Path,
+    *,
+    behind: Callable[[Any, int, int], None] | None = None,
+    window: tuple[int, int] | None = None,
+) -> Path:
     """A Gantt chart of frames per node over the plot window (``[plot] window_ms``, default the
     first 50 ms): one bar per frame from SOF to the end of EOF, error frames in red with a cross.
     ``behind(ax, t0, t1)`` may draw something behind the frames (a schedule's windows)."""
@@ -81,7 +87,7 @@ def timeline(result: "Result", path: str | Path, *, behind: Callable[[Any, int, 
     return _save(fig, path)
 
 
-def response_times(result: "Result", path: str | Path) -> Path:
+def response_times(result: Result, path: str | Path) -> Path:
     """Each message's response times (release to end of EOF) as a box over its instances, with the
     analysis' bound (`rta_ms`) as a red bar and the deadline as a dashed line."""
     plt = pyplot()
@@ -93,21 +99,48 @@ def response_times(result: "Result", path: str | Path) -> Path:
         top = 1.25 * max(max(max(d) for d in data), max((m["rta_ms"] or 0) for m in rows))
         for i, m in enumerate(rows, 1):
             if m["rta_ms"] is not None:
-                ax.hlines(m["rta_ms"], i - 0.35, i + 0.35, colors="red", linewidth=2,
-                          label="analysis bound" if i == 1 else None)
+                ax.hlines(
+                    m["rta_ms"],
+                    i - 0.35,
+                    i + 0.35,
+                    colors="red",
+                    linewidth=2,
+                    label="analysis bound" if i == 1 else None,
+                )
             d = m["deadline_ms"]
             if d is not None and d <= top:
-                ax.hlines(d, i - 0.4, i + 0.4, colors="grey", linestyles="dashed", linewidth=1,
-                          label="deadline" if i == 1 else None)
+                ax.hlines(
+                    d,
+                    i - 0.4,
+                    i + 0.4,
+                    colors="grey",
+                    linestyles="dashed",
+                    linewidth=1,
+                    label="deadline" if i == 1 else None,
+                )
             elif d is not None:  # far above: say where it is instead of squashing the boxes
-                ax.annotate(f"D {d:g} ms ↑", (i, top), xytext=(0, -10), textcoords="offset points",
-                            ha="center", fontsize=7, color="grey")
+                ax.annotate(
+                    f"D {d:g} ms ↑",
+                    (i, top),
+                    xytext=(0, -10),
+                    textcoords="offset points",
+                    ha="center",
+                    fontsize=7,
+                    color="grey",
+                )
             if m["deadline_misses"]:
-                ax.annotate(f"{m['deadline_misses']} missed", (i, 0), xytext=(0, 4), textcoords="offset points",
-                            ha="center", fontsize=7, color="red")
+                ax.annotate(
+                    f"{m['deadline_misses']} missed",
+                    (i, 0),
+                    xytext=(0, 4),
+                    textcoords="offset points",
+                    ha="center",
+                    fontsize=7,
+                    color="red",
+                )
         ax.set_ylim(0, top)
         ax.set_xticks(range(1, len(rows) + 1), [m["name"] for m in rows], rotation=45, ha="right", fontsize=8)
-        handles, labels = ax.get_legend_handles_labels()
+        handles, _labels = ax.get_legend_handles_labels()
         if handles:
             ax.legend(loc="best", fontsize=8)
     ax.set_ylabel("response time (ms)")
@@ -116,7 +149,7 @@ def response_times(result: "Result", path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def bus_load(result: "Result", path: str | Path) -> Path:
+def bus_load(result: Result, path: str | Path) -> Path:
     """The bus load over time in bins of ``[plot] bin_ms`` (frames and error frames with their
     intermission, as `SimBus.bus_load` counts them)."""
     plt = pyplot()
@@ -146,14 +179,18 @@ def bus_load(result: "Result", path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def write_plots(result: "Result", directory: str | Path,
-                extra: dict[str, Callable[["Result", Path], Path]] | None = None) -> list[Path]:
+def write_plots(
+    result: Result, directory: str | Path, extra: dict[str, Callable[[Result, Path], Path]] | None = None
+) -> list[Path]:
     """Write timeline.png, response_times.png and bus_load.png (and ``extra`` plots, name ->
     function) into ``directory`` (created if missing); returns the files written."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    out = [timeline(result, d / "timeline.png"), response_times(result, d / "response_times.png"),
-           bus_load(result, d / "bus_load.png")]
+    out = [
+        timeline(result, d / "timeline.png"),
+        response_times(result, d / "response_times.png"),
+        bus_load(result, d / "bus_load.png"),
+    ]
     for name, fn in (extra or {}).items():
         out.append(fn(result, d / f"{name}.png"))
     return out

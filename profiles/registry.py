@@ -8,8 +8,9 @@ scenario checker and the runner know every profile without importing them by han
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
@@ -45,17 +46,17 @@ class ProfileKind:
     """
 
     name: str
-    build: "Callable[[NodeAPI, NodeDecl, Context], Profile]"
-    node_keys: "Mapping[str, Key]" = field(default_factory=dict)
-    message_keys: "Mapping[str, Key]" = field(default_factory=dict)
+    build: Callable[[NodeAPI, NodeDecl, Context], Profile]
+    node_keys: Mapping[str, Key] = field(default_factory=dict)
+    message_keys: Mapping[str, Key] = field(default_factory=dict)
     timed_messages: bool = True
     tables: tuple[str, ...] = ()
-    parse: "Callable[[Scenario, dict[str, Any]], None] | None" = None
+    parse: Callable[[Scenario, dict[str, Any]], None] | None = None
     result_key: str | None = None
-    summarize: "Callable[[list[Profile], Context], dict[str, Any]] | None" = None
-    traffic: "Callable[[NodeDecl, Scenario], list[MessageSpec]] | None" = None
-    bounds: "Callable[[Scenario], dict[str, tuple[int | None, str | None]]] | None" = None
-    text: "Callable[[dict[str, Any]], list[str]] | None" = None
+    summarize: Callable[[list[Profile], Context], dict[str, Any]] | None = None
+    traffic: Callable[[NodeDecl, Scenario], list[MessageSpec]] | None = None
+    bounds: Callable[[Scenario], dict[str, tuple[int | None, str | None]]] | None = None
+    text: Callable[[dict[str, Any]], list[str]] | None = None
     description: str = ""
 
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import importlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from profiles.base import Context, Profile, Recorder, frame_of
 from profiles.metrics import analyse_scenario, message_rows, summary_of
@@ -65,9 +66,15 @@ class Result:
         object per declared message), each profile's own figures under its key, the nodes'
         counters, the analysis' assumptions."""
         out: dict[str, Any] = {
-            "scenario": self.scenario.source, "driver": self.driver, "seed": self.scenario.seed,
-            "bitrate": self.scenario.bitrate, "duration": self.duration_s, "bus_load": self.bus_load,
-            "frames": self.frames, "error_frames": self.error_frames, "messages": self.messages,
+            "scenario": self.scenario.source,
+            "driver": self.driver,
+            "seed": self.scenario.seed,
+            "bitrate": self.scenario.bitrate,
+            "duration": self.duration_s,
+            "bus_load": self.bus_load,
+            "frames": self.frames,
+            "error_frames": self.error_frames,
+            "messages": self.messages,
         }
         out.update(self.profiles)
         out["nodes"] = self.nodes
@@ -78,8 +85,12 @@ class Result:
 
 
 def _node_config(d: NodeDecl) -> dict[str, Any]:
-    cfg: dict[str, Any] = {"queue": d.policy, "tx_queue_size": d.tx_queue_size, "rx_fifo_size": d.rx_fifo_size,
-                           "listen_only": d.listen_only}
+    cfg: dict[str, Any] = {
+        "queue": d.policy,
+        "tx_queue_size": d.tx_queue_size,
+        "rx_fifo_size": d.rx_fifo_size,
+        "listen_only": d.listen_only,
+    }
     if d.policy == "mailbox":
         cfg.update(mailboxes=d.mailboxes, abort=d.abort)
     if d.drift_ppm or d.clock_offset_ns:
@@ -137,17 +148,36 @@ def inject_faults(bus: SimBus, faults: list[FaultDecl]) -> None:
             if end is not None:
                 bus.call_at(ms_to_ns(end), lambda nodes=nodes: fi.bit_errors(0.0, nodes=nodes))
         elif f.kind == "flip":
-            fi.flip(can_id=p["id"], extended=p["extended"], occurrence=p["occurrence"], field=p["field"], bit=p["bit"],
-                    nodes=p["nodes"], every=p["every"])
+            fi.flip(
+                can_id=p["id"],
+                extended=p["extended"],
+                occurrence=p["occurrence"],
+                field=p["field"],
+                bit=p["bit"],
+                nodes=p["nodes"],
+                every=p["every"],
+            )
         elif f.kind == "stuck":
-            fi.stuck(p["node"], p["level"], start=ms_to_ns(p["start_ms"]),
-                     end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]))
+            fi.stuck(
+                p["node"],
+                p["level"],
+                start=ms_to_ns(p["start_ms"]),
+                end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]),
+            )
         elif f.kind == "disconnect":
-            fi.disconnect(p["node"], at=ms_to_ns(p["at_ms"]),
-                          reconnect_at=None if p["reconnect_ms"] is None else ms_to_ns(p["reconnect_ms"]))
+            fi.disconnect(
+                p["node"],
+                at=ms_to_ns(p["at_ms"]),
+                reconnect_at=None if p["reconnect_ms"] is None else ms_to_ns(p["reconnect_ms"]),
+            )
         elif f.kind == "babbling_idiot":
-            fi.babbling_idiot(p["node"], can_id=p["id"], data=bytes.fromhex(p["data"]), start=ms_to_ns(p["start_ms"]),
-                              end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]))
+            fi.babbling_idiot(
+                p["node"],
+                can_id=p["id"],
+                data=bytes.fromhex(p["data"]),
+                start=ms_to_ns(p["start_ms"]),
+                end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]),
+            )
         elif f.kind == "never_ack":
             fi.never_ack(p["node"])
 
@@ -156,8 +186,13 @@ def _desc(scenario: Scenario) -> str:
     return f"simulating {scenario.source}"
 
 
-def run_scenario(scenario: Scenario, *, record: bool | None = None, progress: bool | None = None,
-                 setup: Callable[[Built], Any] | None = None) -> Result:
+def run_scenario(
+    scenario: Scenario,
+    *,
+    record: bool | None = None,
+    progress: bool | None = None,
+    setup: Callable[[Built], Any] | None = None,
+) -> Result:
     """Run ``scenario`` on the simulated bus for its duration and return the `Result`.
 
     ``record`` keeps the trace (needed for plots; on by default when the scenario injects
@@ -178,12 +213,23 @@ def run_scenario(scenario: Scenario, *, record: bool | None = None, progress: bo
     wall0 = time.perf_counter()
     # the run covers [0, duration): a release at the end would have no time to go out
     interrupted = not run_sliced(bus, scenario.duration_ns - 1, progress=progress, desc=_desc(scenario))
-    return collect(built, time.perf_counter() - wall0, interrupted=interrupted,
-                   t_end=bus.now() if interrupted else scenario.duration_ns)
+    return collect(
+        built,
+        time.perf_counter() - wall0,
+        interrupted=interrupted,
+        t_end=bus.now() if interrupted else scenario.duration_ns,
+    )
 
 
-def collect(built: Built, wall_s: float, *, interrupted: bool = False, driver: str = "simulated",
-            t_end: int | None = None, bus_load: float | None = None) -> Result:
+def collect(
+    built: Built,
+    wall_s: float,
+    *,
+    interrupted: bool = False,
+    driver: str = "simulated",
+    t_end: int | None = None,
+    bus_load: float | None = None,
+) -> Result:
     """Read the recorder, the bus and the profiles into a `Result` (analysis included)."""
     sc = built.scenario
     bus = built.context.bus
@@ -205,11 +251,22 @@ def collect(built: Built, wall_s: float, *, interrupted: bool = False, driver: s
             profiles_json.setdefault(kind.result_key, {}).update(kind.summarize(profs, built.context))
     nodes = {name: n.counters() for name, n in built.nodes.items()}
     s = summary_of(bus, t_end)
-    return Result(scenario=sc, duration_s=t_end / 1e9, bus_load=s["bus_load"] if bus_load is None else bus_load,
-                  frames=s["frames"], error_frames=s["error_frames"], messages=rows, profiles=profiles_json,
-                  nodes=nodes, analysis=analysis["assumptions"], interrupted=interrupted, driver=driver,
-                  wall_s=wall_s, trace=list(bus.trace) if bus is not None and bus.record else [],
-                  tracks=dict(built.context.recorder.tracks))
+    return Result(
+        scenario=sc,
+        duration_s=t_end / 1e9,
+        bus_load=s["bus_load"] if bus_load is None else bus_load,
+        frames=s["frames"],
+        error_frames=s["error_frames"],
+        messages=rows,
+        profiles=profiles_json,
+        nodes=nodes,
+        analysis=analysis["assumptions"],
+        interrupted=interrupted,
+        driver=driver,
+        wall_s=wall_s,
+        trace=list(bus.trace) if bus is not None and bus.record else [],
+        tracks=dict(built.context.recorder.tracks),
+    )
 
 
 def _count_receptions(built: Built) -> None:
@@ -238,8 +295,15 @@ def _count_receptions(built: Built) -> None:
             tr.received += 1
 
 
-def run_on_pycan(scenario: Scenario, interface: str, channel: Any, *, duration_s: float | None = None,
-                 progress: bool = False, **bus_kwargs: Any) -> Result:
+def run_on_pycan(
+    scenario: Scenario,
+    interface: str,
+    channel: Any,
+    *,
+    duration_s: float | None = None,
+    progress: bool = False,
+    **bus_kwargs: Any,
+) -> Result:
     """Run ``scenario`` on a python-can bus (``interface``/``channel``, any python-can options in
     ``bus_kwargs``) on the wall clock, for its duration (or ``duration_s``).
 
@@ -251,8 +315,10 @@ def run_on_pycan(scenario: Scenario, interface: str, channel: Any, *, duration_s
     from stack import PyCanDriver
 
     if scenario.faults:
-        raise ScenarioError(f"{scenario.source}: [[faults]] need the simulated bus (fault injection is a simulation "
-                            "feature); remove them to run on a python-can bus")
+        raise ScenarioError(
+            f"{scenario.source}: [[faults]] need the simulated bus (fault injection is a simulation "
+            "feature); remove them to run on a python-can bus"
+        )
     if interface == "canstack":
         import stack.io.pycan  # noqa: F401  (registers the interface when canstack is not installed)
     bus_kwargs.setdefault("bitrate", scenario.bitrate)
@@ -296,8 +362,14 @@ def run_on_pycan(scenario: Scenario, interface: str, channel: Any, *, duration_s
         drv.close()
     elapsed = max(1, t_end - t0)
     with drv.lock:
-        res = collect(built, time.perf_counter() - wall0, interrupted=interrupted, driver=f"{interface} {channel}",
-                      t_end=t_end, bus_load=min(1.0, busy[0] / elapsed))
+        res = collect(
+            built,
+            time.perf_counter() - wall0,
+            interrupted=interrupted,
+            driver=f"{interface} {channel}",
+            t_end=t_end,
+            bus_load=min(1.0, busy[0] / elapsed),
+        )
     if drv.errors:
         res.analysis["driver_errors"] = drv.errors[:5]
     return res

@@ -33,21 +33,41 @@ ValueError: the CLI prints it on one line and exits with status 2).
 from __future__ import annotations
 
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from profiles.registry import profile_kind, profile_kinds
-from profiles.schema import (REQUIRED, Key, ScenarioError, identifier_rule, in_range, non_negative, one_of,
-                             positive, read_table, where)
+from profiles.schema import (
+    REQUIRED,
+    Key,
+    ScenarioError,
+    identifier_rule,
+    in_range,
+    non_negative,
+    one_of,
+    positive,
+    read_table,
+    where,
+)
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Scenario", "NodeDecl", "MessageDecl", "FaultDecl", "load_scenario", "parse_scenario", "ScenarioError",
-           "ms_to_ns", "parse_queue"]
+__all__ = [
+    "Scenario",
+    "NodeDecl",
+    "MessageDecl",
+    "FaultDecl",
+    "load_scenario",
+    "parse_scenario",
+    "ScenarioError",
+    "ms_to_ns",
+    "parse_queue",
+]
 
 MAX_DURATION_S = 1e6  # 11.6 simulated days: longer is a units mistake
 FAULT_KINDS = ("bit_errors", "flip", "stuck", "disconnect", "babbling_idiot", "never_ack")
@@ -162,16 +182,28 @@ class Scenario:
 
 
 BUS_KEYS = {
-    "bitrate": Key(int, REQUIRED, in_range(1_000, 1_000_000, "a CAN 2.0 bus runs at 1 kbit/s .. 1 Mbit/s"),
-                   "bit/s"),
-    "duration": Key(float, REQUIRED, lambda v: None if 0 < v <= MAX_DURATION_S else
-                    f"{v!r} must be > 0 and at most {MAX_DURATION_S:g} simulated seconds", "simulated seconds"),
+    "bitrate": Key(int, REQUIRED, in_range(1_000, 1_000_000, "a CAN 2.0 bus runs at 1 kbit/s .. 1 Mbit/s"), "bit/s"),
+    "duration": Key(
+        float,
+        REQUIRED,
+        lambda v: (
+            None if 0 < v <= MAX_DURATION_S else f"{v!r} must be > 0 and at most {MAX_DURATION_S:g} simulated seconds"
+        ),
+        "simulated seconds",
+    ),
     "seed": Key(int, 0, doc="seed of every random choice (jitter, sporadic arrivals, bit errors)"),
 }
 
 NODE_KEYS = {
-    "name": Key(str, REQUIRED, lambda v: None if v and v.isprintable() and not any(c.isspace() for c in v) else
-                f"{v!r}: a node name is non-empty, without spaces or control characters"),
+    "name": Key(
+        str,
+        REQUIRED,
+        lambda v: (
+            None
+            if v and v.isprintable() and not any(c.isspace() for c in v)
+            else f"{v!r}: a node name is non-empty, without spaces or control characters"
+        ),
+    ),
     "profile": Key(str, "csma"),
     "queue": Key(str, "priority", doc="priority | fifo | mailboxes:N | mailboxes-abort:N"),
     "tx_queue_size": Key(int, 1024, positive("frames")),
@@ -179,8 +211,12 @@ NODE_KEYS = {
     "drift_ppm": Key(float, 0.0, in_range(-100_000, 100_000, "ppm of the node's oscillator")),
     "clock_offset_ms": Key(float, 0.0),
     "listen_only": Key(bool, False),
-    "app": Key(str, None, lambda v: None if ":" in v else f"{v!r}: give 'module:function'",
-               "application code called with (node, profile, context)"),
+    "app": Key(
+        str,
+        None,
+        lambda v: None if ":" in v else f"{v!r}: give 'module:function'",
+        "application code called with (node, profile, context)",
+    ),
     "messages": Key(list, []),
 }
 
@@ -201,8 +237,12 @@ MESSAGE_KEYS = {
 
 ANALYSIS_KEYS = {
     "t_error_ms": Key(float, None, positive("the minimum time between errors of the simple error model")),
-    "stuffing": Key(str, "worst", one_of("worst", "exact"),
-                    "frame lengths: worst-case stuffing (eq. 1), or the exact length of each message's payload"),
+    "stuffing": Key(
+        str,
+        "worst",
+        one_of("worst", "exact"),
+        "frame lengths: worst-case stuffing (eq. 1), or the exact length of each message's payload",
+    ),
 }
 
 PLOT_KEYS = {
@@ -211,18 +251,39 @@ PLOT_KEYS = {
 }
 
 FAULT_KEYS: dict[str, dict[str, Key]] = {
-    "bit_errors": {"rate": Key(float, REQUIRED, in_range(0, 0.5, "a bit-error rate")), "nodes": Key(list, None),
-                   "start_ms": Key(float, 0.0, non_negative()), "end_ms": Key(float, None, non_negative())},
-    "flip": {"id": Key(int, None, non_negative()), "extended": Key(bool, None), "occurrence": Key(int, 1, positive()),
-             "field": Key(str, "data"), "bit": Key(int, 0, non_negative()), "nodes": Key(list, None),
-             "every": Key(bool, False)},
-    "stuck": {"node": Key(str, REQUIRED), "level": Key(str, REQUIRED, one_of("dominant", "recessive")),
-              "start_ms": Key(float, 0.0, non_negative()), "end_ms": Key(float, None, non_negative())},
-    "disconnect": {"node": Key(str, REQUIRED), "at_ms": Key(float, REQUIRED, non_negative()),
-                   "reconnect_ms": Key(float, None, non_negative())},
-    "babbling_idiot": {"node": Key(str, REQUIRED), "id": Key(int, 0, non_negative()),
-                       "data": Key(str, "ffffffffffffffff"), "start_ms": Key(float, 0.0, non_negative()),
-                       "end_ms": Key(float, None, non_negative())},
+    "bit_errors": {
+        "rate": Key(float, REQUIRED, in_range(0, 0.5, "a bit-error rate")),
+        "nodes": Key(list, None),
+        "start_ms": Key(float, 0.0, non_negative()),
+        "end_ms": Key(float, None, non_negative()),
+    },
+    "flip": {
+        "id": Key(int, None, non_negative()),
+        "extended": Key(bool, None),
+        "occurrence": Key(int, 1, positive()),
+        "field": Key(str, "data"),
+        "bit": Key(int, 0, non_negative()),
+        "nodes": Key(list, None),
+        "every": Key(bool, False),
+    },
+    "stuck": {
+        "node": Key(str, REQUIRED),
+        "level": Key(str, REQUIRED, one_of("dominant", "recessive")),
+        "start_ms": Key(float, 0.0, non_negative()),
+        "end_ms": Key(float, None, non_negative()),
+    },
+    "disconnect": {
+        "node": Key(str, REQUIRED),
+        "at_ms": Key(float, REQUIRED, non_negative()),
+        "reconnect_ms": Key(float, None, non_negative()),
+    },
+    "babbling_idiot": {
+        "node": Key(str, REQUIRED),
+        "id": Key(int, 0, non_negative()),
+        "data": Key(str, "ffffffffffffffff"),
+        "start_ms": Key(float, 0.0, non_negative()),
+        "end_ms": Key(float, None, non_negative()),
+    },
     "never_ack": {"node": Key(str, REQUIRED)},
 }
 
@@ -234,8 +295,10 @@ def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
     kind, _, count = text.partition(":")
     if kind in ("mailboxes", "mailboxes-abort") and count.isdigit() and int(count) >= 1:
         return "mailbox", int(count), kind == "mailboxes-abort"
-    raise ScenarioError(f"{loc}: queue: {text!r} is not one of 'priority', 'fifo', 'mailboxes:N', "
-                        "'mailboxes-abort:N' (N >= 1 transmit mailboxes)")
+    raise ScenarioError(
+        f"{loc}: queue: {text!r} is not one of 'priority', 'fifo', 'mailboxes:N', "
+        "'mailboxes-abort:N' (N >= 1 transmit mailboxes)"
+    )
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -261,8 +324,13 @@ def load_scenario(path: str | Path) -> Scenario:
 def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario:
     """Check a scenario given as the dictionary TOML gives (see the module docstring)."""
     kinds = profile_kinds()
-    top = {"bus": Key(dict, REQUIRED), "nodes": Key(list, REQUIRED), "faults": Key(list, []),
-           "analysis": Key(dict, {}), "plot": Key(dict, {})}
+    top = {
+        "bus": Key(dict, REQUIRED),
+        "nodes": Key(list, REQUIRED),
+        "faults": Key(list, []),
+        "analysis": Key(dict, {}),
+        "plot": Key(dict, {}),
+    }
     for kind in kinds.values():
         for name in kind.tables:
             top[name] = Key((dict, list), None)
@@ -278,11 +346,21 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
     analysis = read_table(t["analysis"], ANALYSIS_KEYS, where(source, "[analysis]"))
     plot = read_table(t["plot"], PLOT_KEYS, where(source, "[plot]"))
     w = plot["window_ms"]
-    if w is not None and not (len(w) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in w)
-                              and 0 <= w[0] < w[1]):
+    if w is not None and not (
+        len(w) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in w) and 0 <= w[0] < w[1]
+    ):
         raise ScenarioError(f"{where(source, '[plot]')}: window_ms: {w!r} must be [start, end] in ms with start < end")
-    sc = Scenario(source=source, bitrate=bus["bitrate"], duration_ns=round(bus["duration"] * 1e9), seed=bus["seed"],
-                  nodes=nodes, faults=faults, analysis=analysis, plot=plot, raw=dict(raw))
+    sc = Scenario(
+        source=source,
+        bitrate=bus["bitrate"],
+        duration_ns=round(bus["duration"] * 1e9),
+        seed=bus["seed"],
+        nodes=nodes,
+        faults=faults,
+        analysis=analysis,
+        plot=plot,
+        raw=dict(raw),
+    )
     for kind in kinds.values():
         if kind.parse is not None:
             kind.parse(sc, {name: raw[name] for name in kind.tables if name in raw})
@@ -300,20 +378,31 @@ def _node(rn: Any, i: int, source: str) -> NodeDecl:
         raise ScenarioError(f"{loc}: profile: {profile!r} is not one of {', '.join(map(repr, sorted(kinds)))}")
     kind = profile_kind(profile)
     d = read_table(rn, NODE_KEYS, loc, extra=kind.node_keys)
-    policy, mailboxes, abort = parse_queue(d["queue"], loc)
+    _policy, mailboxes, abort = parse_queue(d["queue"], loc)
     messages = []
     for j, rm in enumerate(d["messages"], 1):
         messages.append(_message(rm, j, source, label, d["name"], kind.timed_messages, kind.message_keys))
     options = {k: d[k] for k in kind.node_keys}
-    return NodeDecl(name=d["name"], profile=profile, queue=d["queue"],
-                    mailboxes=mailboxes, abort=abort, tx_queue_size=d["tx_queue_size"],
-                    rx_fifo_size=d["rx_fifo_size"], drift_ppm=float(d["drift_ppm"]),
-                    clock_offset_ns=ms_to_ns(d["clock_offset_ms"]), listen_only=d["listen_only"], app=d["app"],
-                    messages=messages, options=options)
+    return NodeDecl(
+        name=d["name"],
+        profile=profile,
+        queue=d["queue"],
+        mailboxes=mailboxes,
+        abort=abort,
+        tx_queue_size=d["tx_queue_size"],
+        rx_fifo_size=d["rx_fifo_size"],
+        drift_ppm=float(d["drift_ppm"]),
+        clock_offset_ns=ms_to_ns(d["clock_offset_ms"]),
+        listen_only=d["listen_only"],
+        app=d["app"],
+        messages=messages,
+        options=options,
+    )
 
 
-def _message(rm: Any, j: int, source: str, node_label: str, node: str, timed: bool,
-             extra: Mapping[str, Key]) -> MessageDecl:
+def _message(
+    rm: Any, j: int, source: str, node_label: str, node: str, timed: bool, extra: Mapping[str, Key]
+) -> MessageDecl:
     label = f"[[nodes.messages]] #{j}" + (f" {rm.get('name')!r}" if isinstance(rm, Mapping) and "name" in rm else "")
     loc = where(source, node_label, label)
     d = read_table(rm, MESSAGE_KEYS, loc, extra=extra)
@@ -328,8 +417,9 @@ def _message(rm: Any, j: int, source: str, node_label: str, node: str, timed: bo
         if d["sporadic_ms"] is None:
             raise ScenarioError(f"{loc}: mean_ms: only a sporadic message (sporadic_ms) has a mean inter-arrival time")
         if d["mean_ms"] < d["sporadic_ms"]:
-            raise ScenarioError(f"{loc}: mean_ms: {d['mean_ms']!r} is below the minimum inter-arrival "
-                                f"sporadic_ms {d['sporadic_ms']!r}")
+            raise ScenarioError(
+                f"{loc}: mean_ms: {d['mean_ms']!r} is below the minimum inter-arrival sporadic_ms {d['sporadic_ms']!r}"
+            )
     interval = d["period_ms"] if d["period_ms"] is not None else d["sporadic_ms"]
     if interval is not None and d["jitter_ms"] >= interval:
         raise ScenarioError(f"{loc}: jitter_ms: {d['jitter_ms']!r} must be below the period {interval!r} ms")
@@ -340,25 +430,38 @@ def _message(rm: Any, j: int, source: str, node_label: str, node: str, timed: bo
         except ValueError:
             raise ScenarioError(f"{loc}: data: {d['data']!r} is not hex bytes") from None
         if len(data) != d["dlc"]:
-            raise ScenarioError(f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {d['dlc']}")
+            raise ScenarioError(
+                f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {d['dlc']}"
+            )
     if d["remote"] and data is not None:
         raise ScenarioError(f"{loc}: data: a remote frame carries no data (its dlc is the length it requests)")
     deadline = d["deadline_ms"] if d["deadline_ms"] is not None else interval
     return MessageDecl(
-        name=d["name"], node=node, can_id=d["id"], extended=d["extended"], dlc=d["dlc"], data=data,
-        remote=d["remote"], period_ns=None if d["period_ms"] is None else ms_to_ns(d["period_ms"]),
+        name=d["name"],
+        node=node,
+        can_id=d["id"],
+        extended=d["extended"],
+        dlc=d["dlc"],
+        data=data,
+        remote=d["remote"],
+        period_ns=None if d["period_ms"] is None else ms_to_ns(d["period_ms"]),
         sporadic_ns=None if d["sporadic_ms"] is None else ms_to_ns(d["sporadic_ms"]),
-        mean_ns=None if d["mean_ms"] is None else ms_to_ns(d["mean_ms"]), offset_ns=ms_to_ns(d["offset_ms"]),
-        jitter_ns=ms_to_ns(d["jitter_ms"]), deadline_ns=None if deadline is None else ms_to_ns(deadline),
-        options={k: d[k] for k in extra})
+        mean_ns=None if d["mean_ms"] is None else ms_to_ns(d["mean_ms"]),
+        offset_ns=ms_to_ns(d["offset_ms"]),
+        jitter_ns=ms_to_ns(d["jitter_ms"]),
+        deadline_ns=None if deadline is None else ms_to_ns(deadline),
+        options={k: d[k] for k in extra},
+    )
 
 
 def _check_unique(nodes: list[NodeDecl], source: str) -> None:
     seen: dict[str, int] = {}
     for i, n in enumerate(nodes, 1):
         if n.name in seen:
-            raise ScenarioError(f"{where(source, f'[[nodes]] #{i} {n.name!r}')}: name: {n.name!r} is already the "
-                                f"name of node #{seen[n.name]} (node names are unique on a bus)")
+            raise ScenarioError(
+                f"{where(source, f'[[nodes]] #{i} {n.name!r}')}: name: {n.name!r} is already the "
+                f"name of node #{seen[n.name]} (node names are unique on a bus)"
+            )
         seen[n.name] = i
     names: dict[str, str] = {}
     ids: dict[tuple[int, bool, bool], str] = {}
@@ -366,13 +469,17 @@ def _check_unique(nodes: list[NodeDecl], source: str) -> None:
         for m in n.messages:
             loc = where(source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
             if m.name in names:
-                raise ScenarioError(f"{loc}: name: {m.name!r} is already a message of node {names[m.name]!r} "
-                                    "(message names are unique in a scenario)")
+                raise ScenarioError(
+                    f"{loc}: name: {m.name!r} is already a message of node {names[m.name]!r} "
+                    "(message names are unique in a scenario)"
+                )
             names[m.name] = n.name
             key = (m.can_id, m.extended, m.remote)
             if key in ids:
-                raise ScenarioError(f"{loc}: id: {m.id_text} is already used by message {ids[key]!r}: two senders "
-                                    "of one identifier collide on the bus (each identifier has one sender)")
+                raise ScenarioError(
+                    f"{loc}: id: {m.id_text} is already used by message {ids[key]!r}: two senders "
+                    "of one identifier collide on the bus (each identifier has one sender)"
+                )
             ids[key] = m.name
 
 

@@ -11,11 +11,22 @@ its own keys the same way and every error says where it is and which rule it bre
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
-__all__ = ["ScenarioError", "Key", "REQUIRED", "read_table", "where", "one_of", "in_range", "positive",
-           "non_negative", "identifier_rule"]
+__all__ = [
+    "ScenarioError",
+    "Key",
+    "REQUIRED",
+    "read_table",
+    "where",
+    "one_of",
+    "in_range",
+    "positive",
+    "non_negative",
+    "identifier_rule",
+]
 
 
 class ScenarioError(ValueError):
@@ -29,8 +40,14 @@ class _Required:
 
 REQUIRED: Any = _Required()
 
-_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false", list: "a list",
-               dict: "a table"}
+_TYPE_NAMES = {
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    bool: "true or false",
+    list: "a list",
+    dict: "a table",
+}
 
 
 @dataclass(frozen=True)
@@ -79,8 +96,14 @@ def where(source: str, *parts: str) -> str:
     return f"{source}: " + " > ".join(p for p in parts if p) if parts else f"{source}:"
 
 
-def read_table(raw: Any, schema: Mapping[str, Key], loc: str, *, extra: Mapping[str, Key] | None = None,
-               allow_unknown: bool = False) -> dict[str, Any]:
+def read_table(
+    raw: Any,
+    schema: Mapping[str, Key],
+    loc: str,
+    *,
+    extra: Mapping[str, Key] | None = None,
+    allow_unknown: bool = False,
+) -> dict[str, Any]:
     """Check ``raw`` (a TOML table) against ``schema`` (plus ``extra`` keys, e.g. a profile's)
     and return every key with its value or default. Unknown keys, missing required keys, wrong
     types and broken rules raise `ScenarioError` naming ``loc`` and the key."""
@@ -92,8 +115,10 @@ def read_table(raw: Any, schema: Mapping[str, Key], loc: str, *, extra: Mapping[
     if not allow_unknown:
         unknown = sorted(set(raw) - set(keys))
         if unknown:
-            raise ScenarioError(f"{loc}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}"
-                                f" (allowed: {', '.join(sorted(keys))})")
+            raise ScenarioError(
+                f"{loc}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}"
+                f" (allowed: {', '.join(sorted(keys))})"
+            )
     out: dict[str, Any] = {}
     for name, key in keys.items():
         if name not in raw:
@@ -113,8 +138,10 @@ def read_table(raw: Any, schema: Mapping[str, Key], loc: str, *, extra: Mapping[
 
 def one_of(*choices: str) -> Callable[[Any], str | None]:
     """Rule: the value is one of ``choices``."""
+
     def rule(v: Any) -> str | None:
         return None if v in choices else f"{v!r} is not one of {', '.join(map(repr, choices))}"
+
     return rule
 
 
@@ -124,22 +151,28 @@ def _num(v: float) -> str:
 
 def in_range(lo: float, hi: float, what: str = "") -> Callable[[Any], str | None]:
     """Rule: lo <= value <= hi."""
+
     def rule(v: Any) -> str | None:
         return None if lo <= v <= hi else f"{v!r} is outside {_num(lo)}..{_num(hi)}" + (f" ({what})" if what else "")
+
     return rule
 
 
 def positive(what: str = "") -> Callable[[Any], str | None]:
     """Rule: value > 0."""
+
     def rule(v: Any) -> str | None:
         return None if v > 0 else f"{v!r} must be > 0" + (f" ({what})" if what else "")
+
     return rule
 
 
 def non_negative(what: str = "") -> Callable[[Any], str | None]:
     """Rule: value >= 0."""
+
     def rule(v: Any) -> str | None:
         return None if v >= 0 else f"{v!r} must be >= 0" + (f" ({what})" if what else "")
+
     return rule
 
 
@@ -152,4 +185,5 @@ def identifier_rule(extended: bool) -> Callable[[Any], str | None]:
             return None
         kind = "an extended (29-bit)" if extended else "a standard (11-bit)"
         return f"0x{v:X} is not {kind} identifier 0..0x{top:X}" if v >= 0 else f"{v} is negative"
+
     return rule

@@ -58,18 +58,37 @@ from __future__ import annotations
 import importlib
 import math
 import random
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 from profiles.analysis.rta import MessageSpec, frame_bits_worst
 from profiles.execute import execute
 from profiles.registry import profile_kind, profile_kinds
 from profiles.sweep import run_seed
 
-__all__ = ["StudyMessage", "MessageSet", "uunifast", "generate_set", "GENERATORS", "PRIORITIES", "SchedTask",
-           "schedulability_run", "schedulability_study", "PERIOD_RANGES_MS", "SchedulabilityStudy", "breakdown", "Converter",
-           "register_converter", "converter_for", "csma_scenario", "profiles_study", "ProfilesStudy",
-           "message_set_from_scenario", "csma_fifo_scenario"]
+__all__ = [
+    "StudyMessage",
+    "MessageSet",
+    "uunifast",
+    "generate_set",
+    "GENERATORS",
+    "PRIORITIES",
+    "SchedTask",
+    "schedulability_run",
+    "schedulability_study",
+    "PERIOD_RANGES_MS",
+    "SchedulabilityStudy",
+    "breakdown",
+    "Converter",
+    "register_converter",
+    "converter_for",
+    "csma_scenario",
+    "profiles_study",
+    "ProfilesStudy",
+    "message_set_from_scenario",
+    "csma_fifo_scenario",
+]
 
 GENERATORS = ("uunifast", "loguniform")
 PRIORITIES = ("deadline", "random")
@@ -148,9 +167,18 @@ def _skeleton(rng: random.Random, n: int, per_node: int) -> tuple[list[int], lis
     return dlcs, ids, nodes
 
 
-def generate_set(rng: random.Random, *, messages: int, utilisation: float, bitrate: int = 500_000,
-                 per_node: int = 1, period_range_ms: tuple[float, float] | None = None,
-                 generator: str = "uunifast", priorities: str = "deadline", seed: int = 0) -> MessageSet:
+def generate_set(
+    rng: random.Random,
+    *,
+    messages: int,
+    utilisation: float,
+    bitrate: int = 500_000,
+    per_node: int = 1,
+    period_range_ms: tuple[float, float] | None = None,
+    generator: str = "uunifast",
+    priorities: str = "deadline",
+    seed: int = 0,
+) -> MessageSet:
     """A random message set of utilisation ``utilisation`` (see the module docstring for the two
     generators). ``priorities``: ``deadline`` hands the random identifiers out in deadline-monotonic
     order (the shortest deadline gets the lowest identifier, the usual CAN assignment), ``random``
@@ -185,13 +213,17 @@ def generate_set(rng: random.Random, *, messages: int, utilisation: float, bitra
             bits_per_s = sum(frame_bits_worst(d, False) * 1e9 / t for d, t in zip(dlcs, periods))
             rate = math.floor(bits_per_s / utilisation)  # rounded up, the utilisation would fall below U
             if not 1_000 <= rate <= 1_000_000:
-                raise ValueError(f"a log-uniform set at U = {utilisation:g} needs {rate:,} bit/s, outside "
-                                 "1 kbit/s .. 1 Mbit/s: change the period range or the number of messages")
+                raise ValueError(
+                    f"a log-uniform set at U = {utilisation:g} needs {rate:,} bit/s, outside "
+                    "1 kbit/s .. 1 Mbit/s: change the period range or the number of messages"
+                )
         if all(lo <= t <= hi for t in periods):
             break
     else:
-        raise ValueError(f"no UUniFast set of {messages} messages at U = {utilisation:g} has every period in "
-                         f"{lo_ms:g}..{hi_ms:g} ms at {bitrate:,} bit/s ({MAX_DRAWS:,} draws): widen the range")
+        raise ValueError(
+            f"no UUniFast set of {messages} messages at U = {utilisation:g} has every period in "
+            f"{lo_ms:g}..{hi_ms:g} ms at {bitrate:,} bit/s ({MAX_DRAWS:,} draws): widen the range"
+        )
     if priorities == "deadline":  # deadlines = periods: the shortest period gets the lowest identifier
         by_deadline = sorted(range(messages), key=lambda k: (periods[k], k))
         drawn = sorted(ids)
@@ -234,10 +266,20 @@ def converter_for(profile: str) -> Converter | None:
 def _csma(mset: MessageSet, queue: str) -> dict:
     nodes: dict[str, list[dict[str, Any]]] = {n: [] for n in mset.nodes}
     for m in mset.messages:
-        nodes[m.node].append({"name": m.name, "id": m.can_id, "extended": m.extended, "dlc": m.dlc,
-                              "period_ms": m.period_ns / 1e6, "deadline_ms": m.deadline_ns / 1e6})
-    return {"bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
-            "nodes": [{"name": n, "profile": "csma", "queue": queue, "messages": ms} for n, ms in nodes.items()]}
+        nodes[m.node].append(
+            {
+                "name": m.name,
+                "id": m.can_id,
+                "extended": m.extended,
+                "dlc": m.dlc,
+                "period_ms": m.period_ns / 1e6,
+                "deadline_ms": m.deadline_ns / 1e6,
+            }
+        )
+    return {
+        "bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
+        "nodes": [{"name": n, "profile": "csma", "queue": queue, "messages": ms} for n, ms in nodes.items()],
+    }
 
 
 def csma_scenario(mset: MessageSet) -> dict:
@@ -257,14 +299,18 @@ register_converter("csma", csma_scenario)
 def message_set_from_scenario(scenario: Any) -> MessageSet:
     """The periodic and sporadic messages of a checked scenario as a `MessageSet` (a sporadic
     message at its minimum inter-arrival time; messages without either are left out)."""
-    msgs = tuple(StudyMessage(m.name, m.node, m.can_id, m.dlc, m.interval_ns, m.deadline_ns or m.interval_ns,
-                              m.extended) for m in scenario.messages if m.interval_ns is not None and not m.remote)
+    msgs = tuple(
+        StudyMessage(m.name, m.node, m.can_id, m.dlc, m.interval_ns, m.deadline_ns or m.interval_ns, m.extended)
+        for m in scenario.messages
+        if m.interval_ns is not None and not m.remote
+    )
     if not msgs:
         raise ValueError(f"{scenario.source}: no periodic or sporadic data message to study")
     return MessageSet(scenario.bitrate, msgs, scenario.duration_ns / 1e9, scenario.seed)
 
 
 # --- schedulability -------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class SchedTask:
@@ -303,9 +349,17 @@ def schedulability_run(task: SchedTask) -> dict[str, Any]:
     from profiles.scenario import parse_scenario
 
     rng = random.Random(task.seed)
-    mset = generate_set(rng, messages=task.messages, utilisation=task.utilisation, bitrate=task.bitrate,
-                        per_node=task.per_node, period_range_ms=task.period_range_ms, generator=task.generator,
-                        priorities=task.priorities, seed=task.seed)
+    mset = generate_set(
+        rng,
+        messages=task.messages,
+        utilisation=task.utilisation,
+        bitrate=task.bitrate,
+        per_node=task.per_node,
+        period_range_ms=task.period_range_ms,
+        generator=task.generator,
+        priorities=task.priorities,
+        seed=task.seed,
+    )
     source = f"study set {task.set_number} at U = {task.utilisation:g}"
     raw = csma_scenario(mset)
     analysis = analyse_scenario(parse_scenario(raw, source))
@@ -314,10 +368,18 @@ def schedulability_run(task: SchedTask) -> dict[str, Any]:
     prio = _misses(raw, source)
     fifo = _misses(csma_fifo_scenario(mset), source)
     row = task.head()
-    row.update({"bitrate": mset.bitrate, "u_worst": mset.utilisation(),
-                "longest_period_ms": max(m.period_ns for m in mset.messages) / 1e6,
-                "rta_schedulable": rta_ok, "sim_priority_ok": prio == 0, "sim_fifo_ok": fifo == 0,
-                "priority_misses": prio, "fifo_misses": fifo})
+    row.update(
+        {
+            "bitrate": mset.bitrate,
+            "u_worst": mset.utilisation(),
+            "longest_period_ms": max(m.period_ns for m in mset.messages) / 1e6,
+            "rta_schedulable": rta_ok,
+            "sim_priority_ok": prio == 0,
+            "sim_fifo_ok": fifo == 0,
+            "priority_misses": prio,
+            "fifo_misses": fifo,
+        }
+    )
     return row
 
 
@@ -359,11 +421,22 @@ CURVES = {"analysis": "rta_schedulable", "simulation": "sim_priority_ok", "fifo"
 """The study's curves and the per-set column each is the fraction of."""
 
 
-def schedulability_study(utilisations: Sequence[float], *, sets: int = 100, messages: int = 10, per_node: int = 3,
-                         bitrate: int = 500_000, period_range_ms: tuple[float, float] | None = None,
-                         generator: str = "uunifast", priorities: str = "deadline", seed: int = 1, workers: int = 1,
-                         scheduler: str | None = None, engine: str = "auto",
-                         progress: bool | None = None) -> SchedulabilityStudy:
+def schedulability_study(
+    utilisations: Sequence[float],
+    *,
+    sets: int = 100,
+    messages: int = 10,
+    per_node: int = 3,
+    bitrate: int = 500_000,
+    period_range_ms: tuple[float, float] | None = None,
+    generator: str = "uunifast",
+    priorities: str = "deadline",
+    seed: int = 1,
+    workers: int = 1,
+    scheduler: str | None = None,
+    engine: str = "auto",
+    progress: bool | None = None,
+) -> SchedulabilityStudy:
     """The schedulability study (see the module docstring): ``sets`` random sets at each
     utilisation, each analysed and simulated; the fraction of sets the analysis accepts, and the
     fractions without a simulated miss (priority and FIFO queues), per utilisation."""
@@ -382,10 +455,29 @@ def schedulability_study(utilisations: Sequence[float], *, sets: int = 100, mess
     tasks = []
     for u in utilisations:
         for s in range(sets):
-            tasks.append(SchedTask(len(tasks), float(u), s, run_seed(seed, (("set", s),)), messages, per_node,
-                                   bitrate, (lo, hi), generator, priorities))
-    ex = execute(schedulability_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress,
-                 desc="schedulability")
+            tasks.append(
+                SchedTask(
+                    len(tasks),
+                    float(u),
+                    s,
+                    run_seed(seed, (("set", s),)),
+                    messages,
+                    per_node,
+                    bitrate,
+                    (lo, hi),
+                    generator,
+                    priorities,
+                )
+            )
+    ex = execute(
+        schedulability_run,
+        tasks,
+        workers=workers,
+        scheduler=scheduler,
+        engine=engine,
+        progress=progress,
+        desc="schedulability",
+    )
     points = []
     for u in utilisations:
         done = [r for r in ex.rows if r["utilisation"] == float(u) and not r.get("error")]
@@ -393,15 +485,23 @@ def schedulability_study(utilisations: Sequence[float], *, sets: int = 100, mess
         for curve, col in CURVES.items():
             p[curve] = sum(1 for r in done if r[col]) / len(done) if done else None
         points.append(p)
-    bd = {curve: breakdown([(p["utilisation"], p[curve]) for p in points if p[curve] is not None])
-          for curve in CURVES}
-    settings = {"sets": sets, "messages": messages, "per_node": per_node, "bitrate": bitrate,
-                "period_range_ms": [lo, hi], "generator": generator, "priorities": priorities, "seed": seed,
-                "release": "synchronous (offsets 0)"}
+    bd = {curve: breakdown([(p["utilisation"], p[curve]) for p in points if p[curve] is not None]) for curve in CURVES}
+    settings = {
+        "sets": sets,
+        "messages": messages,
+        "per_node": per_node,
+        "bitrate": bitrate,
+        "period_range_ms": [lo, hi],
+        "generator": generator,
+        "priorities": priorities,
+        "seed": seed,
+        "release": "synchronous (offsets 0)",
+    }
     return SchedulabilityStudy(ex.rows, points, bd, len(tasks), ex.interrupted, ex.engine, ex.wall_s, settings)
 
 
 # --- profiles ------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class ProfileTask:
@@ -445,8 +545,14 @@ class ProfilesStudy:
     wall_s: float
 
 
-def profiles_study(mset: MessageSet, *, workers: int = 1, scheduler: str | None = None, engine: str = "auto",
-                   progress: bool | None = None) -> ProfilesStudy:
+def profiles_study(
+    mset: MessageSet,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    engine: str = "auto",
+    progress: bool | None = None,
+) -> ProfilesStudy:
     """Run ``mset`` under every registered profile that has a converter (see the module
     docstring) and return their rows side by side. A converter that raises, or a scenario its
     profile refuses, is that profile's row with an ``error``."""
@@ -473,7 +579,8 @@ def profiles_study(mset: MessageSet, *, workers: int = 1, scheduler: str | None 
             failed.append({"run": None, "profile": label, "error": f"converter: {error_text(exc)}"})
             continue
         tasks.append(ProfileTask(len(tasks), label, raw))
-    ex = execute(profile_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress,
-                 desc="profiles")
+    ex = execute(
+        profile_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress, desc="profiles"
+    )
     rows = ex.rows + failed
     return ProfilesStudy(mset, rows, skipped, ex.interrupted, ex.engine, ex.wall_s)

@@ -31,15 +31,24 @@ import itertools
 import math
 import re
 import sys
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 from profiles.execute import Execution, execute
 from profiles.registry import profile_kind, profile_kinds
-from profiles.scenario import (ANALYSIS_KEYS, BUS_KEYS, FAULT_KEYS, MESSAGE_KEYS, NODE_KEYS, PLOT_KEYS, Scenario,
-                               parse_scenario)
+from profiles.scenario import (
+    ANALYSIS_KEYS,
+    BUS_KEYS,
+    FAULT_KEYS,
+    MESSAGE_KEYS,
+    NODE_KEYS,
+    PLOT_KEYS,
+    Scenario,
+    parse_scenario,
+)
 from profiles.schema import Key
 
 if sys.version_info >= (3, 11):
@@ -47,9 +56,25 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["SweepError", "Vary", "parse_vary", "parse_values", "resolve_vary", "run_seed", "RunTask", "plan_runs",
-           "run_one", "summary_row", "run_sweep", "SweepResult", "table_columns", "write_table", "TABLE_SUFFIXES",
-           "FIXED_METRICS", "MESSAGE_METRICS"]
+__all__ = [
+    "SweepError",
+    "Vary",
+    "parse_vary",
+    "parse_values",
+    "resolve_vary",
+    "run_seed",
+    "RunTask",
+    "plan_runs",
+    "run_one",
+    "summary_row",
+    "run_sweep",
+    "SweepResult",
+    "table_columns",
+    "write_table",
+    "TABLE_SUFFIXES",
+    "FIXED_METRICS",
+    "MESSAGE_METRICS",
+]
 
 MAX_VALUES = 100_000
 """Most values one --vary may expand to: more is a typo in a range (a step in the wrong unit)."""
@@ -163,6 +188,7 @@ def _typed(token: Any, types: tuple[type, ...] | None) -> Any:
 
 # --- keys ----------------------------------------------------------------------------------------
 
+
 def _schema_for(raw: Mapping[str, Any], path: Sequence[str | int]) -> Mapping[str, Key] | None:
     """The keys the scenario schema allows in the table at ``path`` (None: a table the spine does
     not know, such as a profile's own; then only keys the file has can be varied)."""
@@ -207,8 +233,10 @@ def resolve_vary(raw: Mapping[str, Any], vary: Vary) -> Vary:
     `SweepError` naming the key and what exists instead."""
     segs = vary.key.split(".")
     if segs == ["bus", "seed"]:
-        raise SweepError("--vary bus.seed: each run's seed is derived from the sweep seed and its parameters; "
-                         "use --seed S for the sweep seed and --seeds N for N seeds per combination")
+        raise SweepError(
+            "--vary bus.seed: each run's seed is derived from the sweep seed and its parameters; "
+            "use --seed S for the sweep seed and --seeds N for N seeds per combination"
+        )
     cur: Any = raw
     path: list[str | int] = []
     where = "the scenario"
@@ -234,20 +262,25 @@ def resolve_vary(raw: Mapping[str, Any], vary: Vary) -> Vary:
             raise SweepError(f"--vary {vary.key}: {where} is a value, not a table or list")
     leaf = segs[-1]
     if isinstance(cur, list):
-        raise SweepError(f"--vary {vary.key}: {where} is a list: name an element and a key in it "
-                         f"(e.g. {vary.key}.<key>)")
+        raise SweepError(
+            f"--vary {vary.key}: {where} is a list: name an element and a key in it (e.g. {vary.key}.<key>)"
+        )
     if not isinstance(cur, Mapping):
         raise SweepError(f"--vary {vary.key}: {where} is a value, not a table")
     schema = _schema_for(raw, path)
     if isinstance(cur.get(leaf), (Mapping, list)):
-        raise SweepError(f"--vary {vary.key}: is a {'table' if isinstance(cur[leaf], Mapping) else 'list'}; "
-                         "vary a single value (a key inside it)")
+        raise SweepError(
+            f"--vary {vary.key}: is a {'table' if isinstance(cur[leaf], Mapping) else 'list'}; "
+            "vary a single value (a key inside it)"
+        )
     if leaf not in cur and (schema is None or leaf not in schema):
         allowed = sorted(schema) if schema is not None else [str(k) for k in cur]
         raise SweepError(f"--vary {vary.key}: {where} has no key {leaf!r} (keys: {', '.join(allowed)})")
     if schema is not None and leaf in schema and schema[leaf].type in (list, dict):
-        raise SweepError(f"--vary {vary.key}: {leaf!r} holds a {'list' if schema[leaf].type is list else 'table'}; "
-                         "vary a single value")
+        raise SweepError(
+            f"--vary {vary.key}: {leaf!r} holds a {'list' if schema[leaf].type is list else 'table'}; "
+            "vary a single value"
+        )
     types: tuple[type, ...] | None = None
     if schema is not None and leaf in schema:
         t = schema[leaf].type
@@ -272,6 +305,7 @@ def apply_values(raw: Mapping[str, Any], assignments: Iterable[tuple[Sequence[st
 
 
 # --- runs --------------------------------------------------------------------------------------
+
 
 def run_seed(sweep_seed: int, params: Sequence[tuple[str, Any]], replicate: int = 0) -> int:
     """The seed of one run: SHA-256 of the sweep seed, the run's (key, value) pairs in key order and
@@ -303,8 +337,9 @@ class RunTask:
         return row
 
 
-def plan_runs(raw: Mapping[str, Any], source: str, varies: Sequence[Vary], *, seeds: int = 1,
-              sweep_seed: int | None = None) -> list[RunTask]:
+def plan_runs(
+    raw: Mapping[str, Any], source: str, varies: Sequence[Vary], *, seeds: int = 1, sweep_seed: int | None = None
+) -> list[RunTask]:
     """The runs of a sweep in canonical order: the cartesian product of the values (the last key
     varying fastest), each with ``seeds`` replicates. ``varies`` must be resolved."""
     if seeds < 1:
@@ -347,8 +382,11 @@ def summary_row(result: Any) -> dict[str, Any]:
     misses = [m["deadline_misses"] for m in msgs]
     applies = result.analysis.get("applies", False)
     row: dict[str, Any] = {
-        "bus_load": result.bus_load, "frames": result.frames, "error_frames": result.error_frames,
-        "deadline_misses": sum(misses), "worst_misses": max(misses, default=0),
+        "bus_load": result.bus_load,
+        "frames": result.frames,
+        "error_frames": result.error_frames,
+        "deadline_misses": sum(misses),
+        "worst_misses": max(misses, default=0),
         "unschedulable": sum(1 for m in msgs if m["schedulable"] is False) if applies else None,
     }
     for m in msgs:
@@ -392,6 +430,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
 
 # --- the sweep -----------------------------------------------------------------------------------
 
+
 @dataclass
 class SweepResult:
     """What a sweep produced: the rows done in canonical order (failed runs included, with their
@@ -414,22 +453,41 @@ class SweepResult:
         return [r for r in self.rows if r.get("error")]
 
 
-def run_sweep(raw: Mapping[str, Any], source: str, varies: Sequence[Vary], *, seeds: int = 1,
-              sweep_seed: int | None = None, workers: int = 1, scheduler: str | None = None,
-              engine: str = "auto", progress: bool | None = None) -> SweepResult:
+def run_sweep(
+    raw: Mapping[str, Any],
+    source: str,
+    varies: Sequence[Vary],
+    *,
+    seeds: int = 1,
+    sweep_seed: int | None = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    engine: str = "auto",
+    progress: bool | None = None,
+) -> SweepResult:
     """Run every combination of the varied values × ``seeds`` (see the module docstring) and
     return the table. ``varies`` are resolved here if they are not yet; ``workers``/``scheduler``/
     ``engine`` choose where the runs go (`profiles.execute.execute`)."""
     resolved = [v if v.path else resolve_vary(raw, v) for v in varies]
     tasks = plan_runs(raw, source, resolved, seeds=seeds, sweep_seed=sweep_seed)
-    ex: Execution = execute(run_one, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress,
-                            desc="sweep")
+    ex: Execution = execute(
+        run_one, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress, desc="sweep"
+    )
     keys = [v.key for v in resolved]
-    return SweepResult(rows=ex.rows, keys=keys, total=len(tasks), interrupted=ex.interrupted, engine=ex.engine,
-                       wall_s=ex.wall_s, columns=table_columns(ex.rows, keys), startup_s=ex.startup_s)
+    return SweepResult(
+        rows=ex.rows,
+        keys=keys,
+        total=len(tasks),
+        interrupted=ex.interrupted,
+        engine=ex.engine,
+        wall_s=ex.wall_s,
+        columns=table_columns(ex.rows, keys),
+        startup_s=ex.startup_s,
+    )
 
 
 # --- tables ----------------------------------------------------------------------------------------
+
 
 def table_columns(rows: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> list[str]:
     """The table's columns: run, the varied keys, replicate, seed, then every metric in the order

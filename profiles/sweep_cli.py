@@ -18,8 +18,9 @@ import argparse
 import importlib.util
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from stack.cli import CliError, count_type, plural, seconds_type
 from stack.cli.runs import check_output, check_plot_dir, writing
@@ -37,8 +38,10 @@ def check_table_output(path: str, option: str = "--out") -> None:
     if suffix not in (".csv", ".parquet"):
         raise CliError(f"{option} {path!r}: write .csv or .parquet")
     if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
-        raise CliError(f"{option} {path!r}: Parquet needs pyarrow, which is not installed: "
-                       "pip install 'canstack[parquet]' (or write .csv)")
+        raise CliError(
+            f"{option} {path!r}: Parquet needs pyarrow, which is not installed: "
+            "pip install 'canstack[parquet]' (or write .csv)"
+        )
 
 
 def _check_engine(args: argparse.Namespace) -> None:
@@ -47,13 +50,11 @@ def _check_engine(args: argparse.Namespace) -> None:
     choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
 
 
-
 def _int(text: str) -> int:
     try:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-
 
 
 def _period_range(text: str) -> tuple[float, float]:
@@ -68,22 +69,38 @@ def _period_range(text: str) -> tuple[float, float]:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--workers", type=count_type("the number of worker processes"), default=1,
-                   help="run on N processes: a standard library process pool, or a Dask LocalCluster with "
-                   "--engine dask (default 1: in this process)")
-    p.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on a Dask cluster (the dask extra; "
-                   "canstack installed on every worker)")
-    p.add_argument("--engine", choices=("auto", "sequential", "processes", "dask"), default="auto",
-                   help="where --workers runs go (default auto: one worker in this process, more on a process pool, "
-                        "--scheduler on Dask)")
+    p.add_argument(
+        "--workers",
+        type=count_type("the number of worker processes"),
+        default=1,
+        help="run on N processes: a standard library process pool, or a Dask LocalCluster with "
+        "--engine dask (default 1: in this process)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:8786",
+        help="run on a Dask cluster (the dask extra; canstack installed on every worker)",
+    )
+    p.add_argument(
+        "--engine",
+        choices=("auto", "sequential", "processes", "dask"),
+        default="auto",
+        help="where --workers runs go (default auto: one worker in this process, more on a process pool, "
+        "--scheduler on Dask)",
+    )
     p.add_argument("--out", help="write the table here: .csv, or .parquet (the parquet extra)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text table")
     p.add_argument("--plot", metavar="DIR", help="write the plots into DIR (the plot extra)")
-    p.add_argument("--progress", action="store_true", default=None,
-                   help="draw the progress bar (default: when stderr is a terminal)")
+    p.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="draw the progress bar (default: when stderr is a terminal)",
+    )
 
 
 # --- sweep -----------------------------------------------------------------------------------------
+
 
 def _fmt(v: Any) -> str:
     if v is None:
@@ -99,9 +116,17 @@ def _sweep_text(res: Any) -> str:
     lines = []
     for r in res.rows:
         load = r.get("bus_load")
-        lines.append([str(r["run"]), *(_fmt(r[k]) for k in keys), str(r["seed"]),
-                      "-" if load is None else f"{100 * load:.1f}", _fmt(r.get("deadline_misses")),
-                      _fmt(r.get("worst_misses")), r.get("error") or ""])
+        lines.append(
+            [
+                str(r["run"]),
+                *(_fmt(r[k]) for k in keys),
+                str(r["seed"]),
+                "-" if load is None else f"{100 * load:.1f}",
+                _fmt(r.get("deadline_misses")),
+                _fmt(r.get("worst_misses")),
+                r.get("error") or "",
+            ]
+        )
     widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h) for i, h in enumerate(head)]
     out = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip()]
     out += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines]
@@ -123,8 +148,9 @@ def _check_metrics(metrics: Sequence[str], scenario: Any) -> None:
     example = f", {scenario.messages[0].name}.max_ms" if scenario.messages else ""
     for m in metrics:
         if m not in known and not any(m.startswith(k + ".") for k in known):
-            raise CliError(f"--metric {m!r}: not a column of this sweep (e.g. bus_load, worst_misses, "
-                           f"deadline_misses{example})")
+            raise CliError(
+                f"--metric {m!r}: not a column of this sweep (e.g. bus_load, worst_misses, deadline_misses{example})"
+            )
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -149,15 +175,37 @@ def _sweep(args: argparse.Namespace) -> int:
     metrics = args.metric or list(DEFAULT_METRICS)
     if args.plot:
         _check_metrics(metrics, scenario)
-    res = run_sweep(raw, scenario.source, varies, seeds=args.seeds, sweep_seed=args.seed, workers=args.workers,
-                    scheduler=args.scheduler, engine=args.engine, progress=args.progress)
+    res = run_sweep(
+        raw,
+        scenario.source,
+        varies,
+        seeds=args.seeds,
+        sweep_seed=args.seed,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        engine=args.engine,
+        progress=args.progress,
+    )
     if args.out:
         writing(args.out, "--out", lambda: write_table(res.rows, res.columns, args.out))
     if args.json:
-        print(json.dumps({"scenario": scenario.source, "seed": scenario.seed if args.seed is None else args.seed,
-                          "vary": {v.key: list(v.values) for v in varies}, "seeds": args.seeds, "runs": res.total,
-                          "done": len(res.rows), "failed": len(res.failed), "interrupted": res.interrupted,
-                          "engine": res.engine, "columns": res.columns, "rows": res.rows}))
+        print(
+            json.dumps(
+                {
+                    "scenario": scenario.source,
+                    "seed": scenario.seed if args.seed is None else args.seed,
+                    "vary": {v.key: list(v.values) for v in varies},
+                    "seeds": args.seeds,
+                    "runs": res.total,
+                    "done": len(res.rows),
+                    "failed": len(res.failed),
+                    "interrupted": res.interrupted,
+                    "engine": res.engine,
+                    "columns": res.columns,
+                    "rows": res.rows,
+                }
+            )
+        )
     else:
         print(_sweep_text(res))
     if args.plot and res.rows:
@@ -169,36 +217,51 @@ def _sweep(args: argparse.Namespace) -> int:
     return 130 if res.interrupted else 0
 
 
-def _report(total: int, done: int, failed: int, interrupted: bool, engine: str, wall_s: float,
-            out: str | None) -> None:
-    parts = [f"{done} of {plural(total, 'run')} done" if interrupted else f"{plural(done, 'run')}",
-             f"{failed} failed (see the error column)" if failed else "", f"{engine}, {wall_s:.1f} s",
-             f"written to {out}" if out else ""]
+def _report(total: int, done: int, failed: int, interrupted: bool, engine: str, wall_s: float, out: str | None) -> None:
+    parts = [
+        f"{done} of {plural(total, 'run')} done" if interrupted else f"{plural(done, 'run')}",
+        f"{failed} failed (see the error column)" if failed else "",
+        f"{engine}, {wall_s:.1f} s",
+        f"written to {out}" if out else "",
+    ]
     print(("interrupted: " if interrupted else "") + "; ".join(p for p in parts if p), file=sys.stderr)
 
 
 def register_sweep(sub: Any) -> None:
     """Add the `sweep` subcommand."""
     p = sub.add_parser(
-        "sweep", help="run a scenario over every combination of varied keys (× seeds), in parallel",
+        "sweep",
+        help="run a scenario over every combination of varied keys (× seeds), in parallel",
         description="Vary keys of a scenario file, run every combination (× seeds) on the simulated bus, and print "
         "or write one row of summary metrics per run. KEY is a dotted path into the scenario: bus.bitrate, "
         "nodes.engine.queue, nodes.engine.messages.EngineData.period_ms (nodes and messages by name), faults.0.rate "
         "(lists by index). Values: V1,V2,… as in TOML (bare words are strings), or START:END:STEP ranges (END "
-        "included when it falls on a step).")
+        "included when it falls on a step).",
+    )
     p.add_argument("scenario", help="the scenario file (TOML)")
     p.add_argument("--vary", action="append", metavar="KEY=V1,V2,…", help="a key and its values (repeatable)")
-    p.add_argument("--seeds", type=count_type("the number of seeds"), default=1,
-                   help="runs per combination, each with its own derived seed (default 1)")
+    p.add_argument(
+        "--seeds",
+        type=count_type("the number of seeds"),
+        default=1,
+        help="runs per combination, each with its own derived seed (default 1)",
+    )
     p.add_argument("--seed", type=_int, help="the sweep seed every run's seed derives from (default: [bus] seed)")
-    p.add_argument("--duration", type=seconds_type(1e6), help="simulated seconds of every run instead of [bus] duration")
-    p.add_argument("--metric", action="append", metavar="COLUMN",
-                   help="what --plot draws (repeatable; default worst_misses and bus_load)")
+    p.add_argument(
+        "--duration", type=seconds_type(1e6), help="simulated seconds of every run instead of [bus] duration"
+    )
+    p.add_argument(
+        "--metric",
+        action="append",
+        metavar="COLUMN",
+        help="what --plot draws (repeatable; default worst_misses and bus_load)",
+    )
     _common(p)
     p.set_defaults(func=_sweep)
 
 
 # --- studies ---------------------------------------------------------------------------------------
+
 
 def _utilisations(text: str) -> list[float]:
     from profiles.sweep import SweepError, parse_values
@@ -222,10 +285,14 @@ def _utilisations(text: str) -> list[float]:
 def _study_table(study: Any) -> str:
     lines = [f"{'U %':>5} {'sets':>5} {'analysis %':>11} {'simulated %':>12} {'FIFO sim %':>11}"]
     for p in study.points:
+
         def pct(v: float | None) -> str:
             return "-" if v is None else f"{100 * v:.1f}"
-        lines.append(f"{100 * p['utilisation']:>5.0f} {p['sets']:>5} {pct(p['analysis']):>11} "
-                     f"{pct(p['simulation']):>12} {pct(p['fifo']):>11}")
+
+        lines.append(
+            f"{100 * p['utilisation']:>5.0f} {p['sets']:>5} {pct(p['analysis']):>11} "
+            f"{pct(p['simulation']):>12} {pct(p['fifo']):>11}"
+        )
     for curve, u in study.breakdown.items():
         lines.append(f"breakdown utilisation ({curve}, 50 % of sets): " + ("-" if u is None else f"{100 * u:.1f} %"))
     return "\n".join(lines)
@@ -240,17 +307,40 @@ def _schedulability(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_dir(args.plot)
     _check_engine(args)
-    study = schedulability_study(args.utilisation, sets=args.sets, messages=args.messages, per_node=args.per_node,
-                                 bitrate=args.bitrate, period_range_ms=args.period_range, generator=args.generator,
-                                 priorities=args.priorities, seed=args.seed, workers=args.workers, scheduler=args.scheduler, engine=args.engine,
-                                 progress=args.progress)
+    study = schedulability_study(
+        args.utilisation,
+        sets=args.sets,
+        messages=args.messages,
+        per_node=args.per_node,
+        bitrate=args.bitrate,
+        period_range_ms=args.period_range,
+        generator=args.generator,
+        priorities=args.priorities,
+        seed=args.seed,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        engine=args.engine,
+        progress=args.progress,
+    )
     if args.out:
         cols = table_columns(study.rows, ["utilisation", "set"])
         writing(args.out, "--out", lambda: write_table(study.rows, cols, args.out))
     if args.json:
-        print(json.dumps({"study": "schedulability", "settings": study.settings, "points": study.points,
-                          "breakdown": study.breakdown, "runs": study.total, "done": len(study.rows),
-                          "failed": len(study.failed), "interrupted": study.interrupted, "engine": study.engine}))
+        print(
+            json.dumps(
+                {
+                    "study": "schedulability",
+                    "settings": study.settings,
+                    "points": study.points,
+                    "breakdown": study.breakdown,
+                    "runs": study.total,
+                    "done": len(study.rows),
+                    "failed": len(study.failed),
+                    "interrupted": study.interrupted,
+                    "engine": study.engine,
+                }
+            )
+        )
     else:
         print(_study_table(study))
         for r in study.failed[:5]:
@@ -260,10 +350,16 @@ def _schedulability(args: argparse.Namespace) -> int:
 
         d = Path(args.plot)
         d.mkdir(parents=True, exist_ok=True)
-        files = [schedulability_plot(study, d / "schedulability.png"),
-                 schedulability_plot(study, d / "fifo_vs_priority.png", curves=("simulation", "fifo"),
-                                     title="priority inversion: FIFO against priority transmit queues "
-                                     f"({study.settings['per_node']} messages per node)")]
+        files = [
+            schedulability_plot(study, d / "schedulability.png"),
+            schedulability_plot(
+                study,
+                d / "fifo_vs_priority.png",
+                curves=("simulation", "fifo"),
+                title="priority inversion: FIFO against priority transmit queues "
+                f"({study.settings['per_node']} messages per node)",
+            ),
+        ]
         print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
     _report(study.total, len(study.rows), len(study.failed), study.interrupted, study.engine, study.wall_s, args.out)
     return 130 if study.interrupted else 0
@@ -310,27 +406,54 @@ def _profiles(args: argparse.Namespace) -> int:
         mset = message_set_from_scenario(load_scenario(args.scenario))
     else:
         seed = run_seed(args.seed, (("set", 0),))
-        mset = generate_set(random.Random(seed), messages=args.messages, utilisation=args.utilisation,
-                            bitrate=args.bitrate, per_node=args.per_node, period_range_ms=args.period_range,
-                            generator=args.generator, priorities=args.priorities, seed=seed)
+        mset = generate_set(
+            random.Random(seed),
+            messages=args.messages,
+            utilisation=args.utilisation,
+            bitrate=args.bitrate,
+            per_node=args.per_node,
+            period_range_ms=args.period_range,
+            generator=args.generator,
+            priorities=args.priorities,
+            seed=seed,
+        )
         if args.duration is None:  # enough instances for a jitter: ten of the longest period, at least 1 s
             longest = max(m.period_ns for m in mset.messages) / 1e9
             mset = type(mset)(mset.bitrate, mset.messages, min(60.0, max(1.0, 10 * longest)), mset.seed)
     if args.duration is not None:
         mset = type(mset)(mset.bitrate, mset.messages, args.duration, mset.seed)
-    study = profiles_study(mset, workers=args.workers, scheduler=args.scheduler, engine=args.engine,
-                           progress=args.progress)
+    study = profiles_study(
+        mset, workers=args.workers, scheduler=args.scheduler, engine=args.engine, progress=args.progress
+    )
     if args.out:
         cols = table_columns(study.rows, ["profile"])
         cols.remove("replicate")
         cols.remove("seed")
         writing(args.out, "--out", lambda: write_table(study.rows, cols, args.out))
     if args.json:
-        print(json.dumps({"study": "profiles", "bitrate": mset.bitrate, "duration": mset.duration_s,
-                          "messages": [{"name": m.name, "node": m.node, "id": m.can_id, "dlc": m.dlc,
-                                        "period_ms": m.period_ns / 1e6, "deadline_ms": m.deadline_ns / 1e6}
-                                       for m in mset.messages],
-                          "rows": study.rows, "skipped": study.skipped, "interrupted": study.interrupted}))
+        print(
+            json.dumps(
+                {
+                    "study": "profiles",
+                    "bitrate": mset.bitrate,
+                    "duration": mset.duration_s,
+                    "messages": [
+                        {
+                            "name": m.name,
+                            "node": m.node,
+                            "id": m.can_id,
+                            "dlc": m.dlc,
+                            "period_ms": m.period_ns / 1e6,
+                            "deadline_ms": m.deadline_ns / 1e6,
+                        }
+                        for m in mset.messages
+                    ],
+                    "rows": study.rows,
+                    "skipped": study.skipped,
+                    "interrupted": study.interrupted,
+                }
+            )
+        )
     else:
         print(_profiles_table(study))
     if args.plot and study.rows:
@@ -343,50 +466,86 @@ def _profiles(args: argparse.Namespace) -> int:
 
 
 def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) -> None:
-    p.add_argument("--messages", type=count_type("messages per set"), default=messages,
-                   help=f"messages per set (default {messages})")
-    p.add_argument("--per-node", type=count_type("messages per node"), default=per_node,
-                   help=f"messages per node (default {per_node})")
-    p.add_argument("--bitrate", type=_int, default=500_000, help="bit/s (default 500000; the loguniform generator "
-                   "chooses its own)")
-    p.add_argument("--period-range", type=_period_range, metavar="MIN,MAX",
-                   help="periods in ms: the bound of UUniFast-Discard (default 0.1,1000), or the log-uniform range "
-                   "(default 10,1000)")
-    p.add_argument("--generator", choices=("uunifast", "loguniform"), default="uunifast",
-                   help="uunifast: UUniFast shares, periods from the frames; loguniform: log-uniform periods, "
-                   "the bit rate from the utilisation")
-    p.add_argument("--priorities", choices=("deadline", "random"), default="deadline",
-                   help="deadline: identifiers in deadline-monotonic order (default); random: as drawn")
+    p.add_argument(
+        "--messages",
+        type=count_type("messages per set"),
+        default=messages,
+        help=f"messages per set (default {messages})",
+    )
+    p.add_argument(
+        "--per-node",
+        type=count_type("messages per node"),
+        default=per_node,
+        help=f"messages per node (default {per_node})",
+    )
+    p.add_argument(
+        "--bitrate", type=_int, default=500_000, help="bit/s (default 500000; the loguniform generator chooses its own)"
+    )
+    p.add_argument(
+        "--period-range",
+        type=_period_range,
+        metavar="MIN,MAX",
+        help="periods in ms: the bound of UUniFast-Discard (default 0.1,1000), or the log-uniform range "
+        "(default 10,1000)",
+    )
+    p.add_argument(
+        "--generator",
+        choices=("uunifast", "loguniform"),
+        default="uunifast",
+        help="uunifast: UUniFast shares, periods from the frames; loguniform: log-uniform periods, "
+        "the bit rate from the utilisation",
+    )
+    p.add_argument(
+        "--priorities",
+        choices=("deadline", "random"),
+        default="deadline",
+        help="deadline: identifiers in deadline-monotonic order (default); random: as drawn",
+    )
     p.add_argument("--seed", type=_int, default=1, help="the study seed (default 1)")
 
 
 def register_study(sub: Any) -> None:
     """Add the `study` subcommand (`study schedulability`, `study profiles`)."""
-    p = sub.add_parser("study", help="the classic studies: schedulability against utilisation; profiles side by side",
-                       description="Built-in studies over many runs.")
+    p = sub.add_parser(
+        "study",
+        help="the classic studies: schedulability against utilisation; profiles side by side",
+        description="Built-in studies over many runs.",
+    )
     studies = p.add_subparsers(dest="study", metavar="STUDY", parser_class=type(p))
     studies.required = True
     s = studies.add_parser(
-        "schedulability", help="fraction of random message sets the analysis guarantees / the simulation "
+        "schedulability",
+        help="fraction of random message sets the analysis guarantees / the simulation "
         "meets, against utilisation; FIFO against priority queues",
         description="Random message sets (UUniFast shares or log-uniform periods, deadlines = periods, random "
         "DLCs and identifiers, priority by identifier) at each utilisation: the fraction the response-time "
         "analysis (Davis et al. 2007) deems schedulable, and the fractions with no deadline miss in simulation "
-        "(synchronous release) with priority and with FIFO transmit queues.")
-    s.add_argument("--utilisation", type=_utilisations, default=_utilisations("0.1:1.0:0.1"), metavar="U1,U2|A:B:S",
-                   help="utilisation points, fractions (default 0.1:1.0:0.1, i.e. 10 %% .. 100 %%)")
+        "(synchronous release) with priority and with FIFO transmit queues.",
+    )
+    s.add_argument(
+        "--utilisation",
+        type=_utilisations,
+        default=_utilisations("0.1:1.0:0.1"),
+        metavar="U1,U2|A:B:S",
+        help="utilisation points, fractions (default 0.1:1.0:0.1, i.e. 10 %% .. 100 %%)",
+    )
     s.add_argument("--sets", type=count_type("sets per point"), default=100, help="sets per point (default 100)")
     _set_options(s, messages=10, per_node=3)
     _common(s)
     s.set_defaults(func=_schedulability)
     q = studies.add_parser(
-        "profiles", help="one message set under every profile that can express it: worst latency, jitter, load",
+        "profiles",
+        help="one message set under every profile that can express it: worst latency, jitter, load",
         description="Run one message set under CSMA/CR and every other registered profile that provides a "
-        "converter (express_message_set), and compare worst-case latency, jitter and bus load.")
+        "converter (express_message_set), and compare worst-case latency, jitter and bus load.",
+    )
     q.add_argument("--scenario", help="take the message set from this scenario file (default: a random set)")
     q.add_argument("--utilisation", type=float, default=0.5, help="utilisation of the random set (default 0.5)")
-    q.add_argument("--duration", type=seconds_type(1e6), help="simulated seconds (default: ten of the longest periods, at least "
-                   "1 s; or the scenario's)")
+    q.add_argument(
+        "--duration",
+        type=seconds_type(1e6),
+        help="simulated seconds (default: ten of the longest periods, at least 1 s; or the scenario's)",
+    )
     _set_options(q, messages=8, per_node=2)
     _common(q)
     q.set_defaults(func=_profiles)

@@ -12,8 +12,9 @@ gives the non-interactive backend).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 from profiles.plots import pyplot
 
@@ -22,8 +23,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label"]
 
-_LABELS = {"bus_load": "bus load (%)", "worst_misses": "deadline misses of the worst message",
-           "deadline_misses": "deadline misses (all messages)", "unschedulable": "messages the analysis rejects"}
+_LABELS = {
+    "bus_load": "bus load (%)",
+    "worst_misses": "deadline misses of the worst message",
+    "deadline_misses": "deadline misses (all messages)",
+    "unschedulable": "messages the analysis rejects",
+}
 
 
 def metric_label(metric: str) -> str:
@@ -31,8 +36,13 @@ def metric_label(metric: str) -> str:
     if metric in _LABELS:
         return _LABELS[metric]
     name, _, what = metric.rpartition(".")
-    units = {"max_ms": "worst response (ms)", "mean_ms": "mean response (ms)", "jitter_ms": "jitter (ms)",
-             "misses": "deadline misses", "rta_ms": "analysis bound (ms)"}
+    units = {
+        "max_ms": "worst response (ms)",
+        "mean_ms": "mean response (ms)",
+        "jitter_ms": "jitter (ms)",
+        "misses": "deadline misses",
+        "rta_ms": "analysis bound (ms)",
+    }
     return f"{name}: {units[what]}" if name and what in units else metric
 
 
@@ -70,37 +80,50 @@ def sweep_plot(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metric: s
         label = None if s is None else f"{keys[1]} = {s}"
         line = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=label)[0]
         if any(p[2] != p[3] for p in pts):
-            ax.fill_between([p[0] for p in pts], [p[2] for p in pts], [p[3] for p in pts], alpha=0.2,
-                            color=line.get_color(), linewidth=0)
+            ax.fill_between(
+                [p[0] for p in pts],
+                [p[2] for p in pts],
+                [p[3] for p in pts],
+                alpha=0.2,
+                color=line.get_color(),
+                linewidth=0,
+            )
     if not numeric:
         ax.set_xticks(range(len(xs)), [str(x) for x in xs])
     ax.set_xlabel(xkey)
     ax.set_ylabel(metric_label(metric))
     failed = sum(1 for r in rows if r.get("error"))
-    ax.set_title(f"{metric_label(metric)} against {xkey}" + (f" ({failed} failed runs left out)" if failed else ""),
-                 fontsize=10)
+    ax.set_title(
+        f"{metric_label(metric)} against {xkey}" + (f" ({failed} failed runs left out)" if failed else ""), fontsize=10
+    )
     if len(series) > 1:
         ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     return _save(fig, path)
 
 
-def write_sweep_plots(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str],
-                      directory: str | Path) -> list[Path]:
+def write_sweep_plots(
+    rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str], directory: str | Path
+) -> list[Path]:
     """One `sweep_plot` per metric, ``<metric>.png`` in ``directory`` (created if missing)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     return [sweep_plot(rows, keys, m, d / f"{m.replace('/', '_')}.png") for m in metrics]
 
 
-_CURVE_STYLE = {"analysis": ("analysis: every message guaranteed (Davis et al. 2007)", "tab:blue", "-"),
-                "simulation": ("simulation, priority queues: no deadline miss", "tab:green", "--"),
-                "fifo": ("simulation, FIFO queues: no deadline miss", "tab:red", "-.")}
+_CURVE_STYLE = {
+    "analysis": ("analysis: every message guaranteed (Davis et al. 2007)", "tab:blue", "-"),
+    "simulation": ("simulation, priority queues: no deadline miss", "tab:green", "--"),
+    "fifo": ("simulation, FIFO queues: no deadline miss", "tab:red", "-."),
+}
 
 
-def schedulability_plot(study: "SchedulabilityStudy", path: str | Path, curves: Sequence[str] = ("analysis",
-                                                                                                   "simulation"),
-                        title: str | None = None) -> Path:
+def schedulability_plot(
+    study: SchedulabilityStudy,
+    path: str | Path,
+    curves: Sequence[str] = ("analysis", "simulation"),
+    title: str | None = None,
+) -> Path:
     """The fraction of sets per utilisation for ``curves`` (analysis, simulation, fifo), each
     curve's breakdown utilisation (where it falls through 50 %) as a dotted vertical line."""
     plt = pyplot()
@@ -113,21 +136,33 @@ def schedulability_plot(study: "SchedulabilityStudy", path: str | Path, curves: 
         ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colour, label=label)
         if b is not None:
             ax.axvline(100 * b, color=colour, linestyle=":", linewidth=1)
-            ax.annotate(f"{100 * b:.0f} %", (100 * b, 50), xytext=(3, 4 + 12 * list(curves).index(c)),
-                        textcoords="offset points", fontsize=8, color=colour)
+            ax.annotate(
+                f"{100 * b:.0f} %",
+                (100 * b, 50),
+                xytext=(3, 4 + 12 * list(curves).index(c)),
+                textcoords="offset points",
+                fontsize=8,
+                color=colour,
+            )
     ax.axhline(50, color="grey", linewidth=0.5)
     s = study.settings
     ax.set_xlabel("bus utilisation, worst-case frames (%)")
     ax.set_ylabel("message sets (%)")
     ax.set_ylim(-3, 103)
-    ax.set_title(title or (f"{s.get('sets')} sets per point, {s.get('messages')} messages, "
-                           f"{s.get('per_node')} per node, {s.get('generator')}; breakdown dotted"), fontsize=9)
+    ax.set_title(
+        title
+        or (
+            f"{s.get('sets')} sets per point, {s.get('messages')} messages, "
+            f"{s.get('per_node')} per node, {s.get('generator')}; breakdown dotted"
+        ),
+        fontsize=9,
+    )
     ax.legend(fontsize=8, loc="lower left")
     ax.grid(alpha=0.3)
     return _save(fig, path)
 
 
-def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
+def profiles_plot(study: ProfilesStudy, path: str | Path) -> Path:
     """Worst response and jitter of each message (grouped bars, one colour per profile, the
     deadline as a tick) and the bus load of each profile."""
     plt = pyplot()
@@ -140,8 +175,7 @@ def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
     for k, r in enumerate(rows):
         xs = [i - 0.4 + width * (k + 0.5) for i in range(len(names))]
         for ax, col in ((axes[0], "max_ms"), (axes[1], "jitter_ms")):
-            ax.bar(xs, [r.get(f"{n}.{col}") or 0.0 for n in names], width=width, color=cmap(k % 10),
-                   label=r["profile"])
+            ax.bar(xs, [r.get(f"{n}.{col}") or 0.0 for n in names], width=width, color=cmap(k % 10), label=r["profile"])
         axes[2].bar([k], [100 * r["bus_load"]], color=cmap(k % 10))
     deadlines = [m.deadline_ns / 1e6 for m in msgs]
     axes[0].scatter(range(len(names)), deadlines, marker="_", s=200, color="black", label="deadline", zorder=3)
@@ -154,8 +188,9 @@ def profiles_plot(study: "ProfilesStudy", path: str | Path) -> Path:
     axes[2].set_xticks(range(len(rows)), [r["profile"] for r in rows], rotation=45, ha="right", fontsize=8)
     axes[2].set_ylabel("bus load (%)")
     axes[2].set_ylim(0, 100)
-    fig.suptitle(f"one message set under each profile ({len(names)} messages, {study.mset.bitrate // 1000} kbit/s)",
-                 fontsize=10)
+    fig.suptitle(
+        f"one message set under each profile ({len(names)} messages, {study.mset.bitrate // 1000} kbit/s)", fontsize=10
+    )
     return _save(fig, path)
 
 

@@ -23,48 +23,94 @@ import warnings
 from typing import Any
 
 __all__ = [
-    "Frame", "arbitration_key", "data_length",
-    "Node", "NodeAPI", "NodeError", "QueueFull", "TxRequest", "RequestState", "Timer", "Subscription",
-    "PeriodicTask", "LocalClock",
-    "ErrorState", "Received", "TxDone", "TxFailed", "ArbitrationLost", "ErrorStateChanged",
-    "SimBus", "TraceRecord", "FaultInjector", "PyCanDriver",
+    "Frame",
+    "arbitration_key",
+    "data_length",
+    "Node",
+    "NodeAPI",
+    "NodeError",
+    "QueueFull",
+    "TxRequest",
+    "RequestState",
+    "Timer",
+    "Subscription",
+    "PeriodicTask",
+    "LocalClock",
+    "ErrorState",
+    "Received",
+    "TxDone",
+    "TxFailed",
+    "ArbitrationLost",
+    "ErrorStateChanged",
+    "SimBus",
+    "TraceRecord",
+    "FaultInjector",
+    "PyCanDriver",
 ]
 
 # public name -> module that defines it
 _EXPORTS = {
-    "Frame": "stack.wire.frame", "arbitration_key": "stack.wire.frame", "data_length": "stack.wire.frame",
-    "Node": "stack.controller.node", "NodeError": "stack.controller.exceptions", "Timer": "stack.controller.contract",
-    "Subscription": "stack.controller.node", "PeriodicTask": "stack.controller.periodic",
-    "ErrorState": "stack.controller.confinement", "LocalClock": "stack.controller.clock",
+    "Frame": "stack.wire.frame",
+    "arbitration_key": "stack.wire.frame",
+    "data_length": "stack.wire.frame",
+    "Node": "stack.controller.node",
+    "NodeError": "stack.controller.exceptions",
+    "Timer": "stack.controller.contract",
+    "Subscription": "stack.controller.node",
+    "PeriodicTask": "stack.controller.periodic",
+    "ErrorState": "stack.controller.confinement",
+    "LocalClock": "stack.controller.clock",
     "NodeAPI": "stack.controller.api",
-    "QueueFull": "stack.controller.exceptions", "TxRequest": "stack.controller.queues",
+    "QueueFull": "stack.controller.exceptions",
+    "TxRequest": "stack.controller.queues",
     "RequestState": "stack.controller.queues",
-    "Received": "stack.controller.events", "TxDone": "stack.controller.events", "TxFailed": "stack.controller.events",
-    "ArbitrationLost": "stack.controller.events", "ErrorStateChanged": "stack.controller.events",
-    "SimBus": "stack.bus.sim", "TraceRecord": "stack.bus.trace", "FaultInjector": "stack.bus.faults",
+    "Received": "stack.controller.events",
+    "TxDone": "stack.controller.events",
+    "TxFailed": "stack.controller.events",
+    "ArbitrationLost": "stack.controller.events",
+    "ErrorStateChanged": "stack.controller.events",
+    "SimBus": "stack.bus.sim",
+    "TraceRecord": "stack.bus.trace",
+    "FaultInjector": "stack.bus.faults",
     "PyCanDriver": "stack.io.driver",
 }
 
 # modules of the flat layout (before the layers) -> where they live now
 MOVED = {
-    "stack.frame": "stack.wire.frame", "stack.bits": "stack.wire.coding", "stack.events": "stack.controller.events",
-    "stack.filters": "stack.controller.filters", "stack.queues": "stack.controller.queues",
-    "stack.node": "stack.controller.node", "stack.sim": "stack.bus.sim", "stack.errors": "stack.bus.attempt",
-    "stack.faults": "stack.bus.faults", "stack.trace": "stack.bus.trace", "stack.bittiming": "stack.phy.bittiming",
-    "stack.sync": "stack.phy.sync", "stack.waveform": "stack.phy.waveform", "stack.driver": "stack.io.driver",
-    "stack.pycan": "stack.io.pycan", "stack.serve": "stack.io.serve", "stack.commands": "stack.cli.demo",
+    "stack.frame": "stack.wire.frame",
+    "stack.bits": "stack.wire.coding",
+    "stack.events": "stack.controller.events",
+    "stack.filters": "stack.controller.filters",
+    "stack.queues": "stack.controller.queues",
+    "stack.node": "stack.controller.node",
+    "stack.sim": "stack.bus.sim",
+    "stack.errors": "stack.bus.attempt",
+    "stack.faults": "stack.bus.faults",
+    "stack.trace": "stack.bus.trace",
+    "stack.bittiming": "stack.phy.bittiming",
+    "stack.sync": "stack.phy.sync",
+    "stack.waveform": "stack.phy.waveform",
+    "stack.driver": "stack.io.driver",
+    "stack.pycan": "stack.io.pycan",
+    "stack.serve": "stack.io.serve",
+    "stack.commands": "stack.cli.demo",
 }
 
 # what else a flat module held: the modules its other names live in now (command registration and
 # benchmarks moved to `stack.cli`) ...
 ALSO = {
-    "stack.bits": ("stack.wire.decoder",), "stack.bittiming": ("stack.cli.bittiming",),
-    "stack.sync": ("stack.cli.sync",), "stack.waveform": ("stack.cli.waveform",), "stack.serve": ("stack.cli.serve",),
+    "stack.bits": ("stack.wire.decoder",),
+    "stack.bittiming": ("stack.cli.bittiming",),
+    "stack.sync": ("stack.cli.sync",),
+    "stack.waveform": ("stack.cli.waveform",),
+    "stack.serve": ("stack.cli.serve",),
 }
 # ... and the names that changed on the way ("module:name")
 RENAMED = {
-    "stack.errors": {"ACTIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
-                     "PASSIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED"},
+    "stack.errors": {
+        "ACTIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
+        "PASSIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
+    },
     "stack.pycan": {"benchmark": "stack.cli.bench_io:benchmark", "wire_limit_fps": "stack.cli.bench_io:wire_limit_fps"},
     "stack.serve": {"benchmark": "stack.cli.bench_io:serve_benchmark"},
     "stack.waveform": {"benchmark": "stack.cli.bench_io:decode_benchmark"},
@@ -116,6 +162,7 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
         module.__getattr__ = __getattr__
         module.__all__ = [n for src in sources for n in getattr(src, "__all__", ())] + list(renamed)
+
 
 if not any(isinstance(f, _MovedModules) for f in sys.meta_path):
     sys.meta_path.insert(0, _MovedModules())  # before path finders: an old checkout's files never shadow it

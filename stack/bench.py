@@ -6,8 +6,7 @@ The functions this module held before the package was split into layers stay imp
 
 import sys
 
-from stack.cli.bench import (bench_campaign, bench_canstack_pair, bench_python_can_virtual,
-                             bench_saturated, main)
+from stack.cli.bench import bench_campaign, bench_canstack_pair, bench_python_can_virtual, bench_saturated, main
 
 __all__ = ["bench_python_can_virtual", "bench_canstack_pair", "bench_saturated", "bench_campaign", "main"]
 

@@ -66,8 +66,10 @@ def test_no_import_cycles_between_modules():
     count too: a cycle through a lazy import is still a knot). A package's __init__ re-exporting
     its children is not a cycle of the children."""
     mods = _modules()
-    graph = {m: {i for i in _runtime_imports(p, m) if i in mods and i != m and not m.startswith(i + ".")}
-             for m, p in mods.items()}
+    graph = {
+        m: {i for i in _runtime_imports(p, m) if i in mods and i != m and not m.startswith(i + ".")}
+        for m, p in mods.items()
+    }
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []

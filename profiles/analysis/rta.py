@@ -63,9 +63,9 @@ Pure functions, no I/O; imports only ``stack``'s top-level ``arbitration_key``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Sequence
 
 from stack import arbitration_key
 
@@ -194,8 +194,7 @@ def _check_int(name: str, field: str, value: object) -> int:
     return value
 
 
-def _prepare(messages: Sequence[MessageSpec], bitrate: int,
-             errors: ErrorModel | None = None) -> list[_Msg]:
+def _prepare(messages: Sequence[MessageSpec], bitrate: int, errors: ErrorModel | None = None) -> list[_Msg]:
     """Validate the inputs and return the messages in priority order, times in ticks."""
     if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not _MIN_BITRATE <= bitrate <= _MAX_BITRATE:
         raise ValueError(f"bitrate {bitrate!r}: must be an integer {_MIN_BITRATE}..{_MAX_BITRATE} bit/s")
@@ -229,18 +228,29 @@ def _prepare(messages: Sequence[MessageSpec], bitrate: int,
         bits = frame_bits_worst(m.dlc, m.extended)
         if m.frame_bits is not None:
             if isinstance(m.frame_bits, bool) or not isinstance(m.frame_bits, int) or not 0 < m.frame_bits <= bits:
-                raise ValueError(f"message {name!r}: frame_bits {m.frame_bits!r} must be 1..{bits} "
-                                 "(at most the worst-case length of its DLC)")
+                raise ValueError(
+                    f"message {name!r}: frame_bits {m.frame_bits!r} must be 1..{bits} "
+                    "(at most the worst-case length of its DLC)"
+                )
             bits = m.frame_bits
-        out.append(_Msg(spec=m, key=arbitration_key(can_id, m.extended, m.remote),
-                        c=bits * _NS_PER_S,
-                        t=period * bitrate, d=deadline * bitrate, j=jitter * bitrate))
+        out.append(
+            _Msg(
+                spec=m,
+                key=arbitration_key(can_id, m.extended, m.remote),
+                c=bits * _NS_PER_S,
+                t=period * bitrate,
+                d=deadline * bitrate,
+                j=jitter * bitrate,
+            )
+        )
     out.sort(key=lambda x: x.key)
     for a, b in zip(out, out[1:]):
         if a.key == b.key:
-            raise ValueError(f"messages {a.spec.name!r} and {b.spec.name!r}: the same arbitration key "
-                             f"(identifier 0x{a.spec.can_id:X}, {'extended' if a.spec.extended else 'standard'}); "
-                             "two streams may not share an identifier")
+            raise ValueError(
+                f"messages {a.spec.name!r} and {b.spec.name!r}: the same arbitration key "
+                f"(identifier 0x{a.spec.can_id:X}, {'extended' if a.spec.extended else 'standard'}); "
+                "two streams may not share an identifier"
+            )
     return out
 
 
@@ -258,7 +268,7 @@ class _Level:
         self.hp = msgs[:i]
         self.hep = msgs[: i + 1]
         self.tau = tau
-        self.b = max((k.c for k in msgs[i + 1:]), default=0)
+        self.b = max((k.c for k in msgs[i + 1 :]), default=0)
         if errors is None:
             self.t_err = 0
             self.per_error = 0
@@ -304,22 +314,43 @@ class _Level:
             w = nxt
 
 
-def _result(msgs: list[_Msg], i: int, lv: _Level, bitrate: int, *, busy: int | None, q_count: int,
-            ws: list[int], rs: list[int], r: int | None, worst: int | None, r1994: int | None,
-            reason: str | None) -> RtaResult:
+def _result(
+    msgs: list[_Msg],
+    i: int,
+    lv: _Level,
+    bitrate: int,
+    *,
+    busy: int | None,
+    q_count: int,
+    ws: list[int],
+    rs: list[int],
+    r: int | None,
+    worst: int | None,
+    r1994: int | None,
+    reason: str | None,
+) -> RtaResult:
     m = lv.m
 
     def ns(x: int) -> float:
         return x / bitrate
 
     return RtaResult(
-        name=m.spec.name, c_ns=ns(m.c), blocking_ns=ns(lv.b),
-        busy_period_ns=None if busy is None else ns(busy), instances=q_count,
-        response_ns=None if r is None else ns(r), worst_instance=worst,
-        schedulable=r is not None and r <= m.d, deadline_ns=m.spec.deadline_ns, priority=i,
-        queuing_delays_ns=tuple(ns(w) for w in ws), responses_ns=tuple(ns(x) for x in rs),
-        response_1994_ns=None if r1994 is None else ns(r1994), utilisation_hep=float(lv.u_hep),
-        unbounded_reason=reason)
+        name=m.spec.name,
+        c_ns=ns(m.c),
+        blocking_ns=ns(lv.b),
+        busy_period_ns=None if busy is None else ns(busy),
+        instances=q_count,
+        response_ns=None if r is None else ns(r),
+        worst_instance=worst,
+        schedulable=r is not None and r <= m.d,
+        deadline_ns=m.spec.deadline_ns,
+        priority=i,
+        queuing_delays_ns=tuple(ns(w) for w in ws),
+        responses_ns=tuple(ns(x) for x in rs),
+        response_1994_ns=None if r1994 is None else ns(r1994),
+        utilisation_hep=float(lv.u_hep),
+        unbounded_reason=reason,
+    )
 
 
 _OVERLOAD = "utilisation of the messages of higher or equal priority >= 1"
@@ -339,8 +370,7 @@ def _first_instance(lv: _Level) -> int | None:
     return None if w is None else lv.m.j + w + lv.m.c
 
 
-def analyse(messages: Sequence[MessageSpec], bitrate: int, *,
-            errors: ErrorModel | None = None) -> dict[str, RtaResult]:
+def analyse(messages: Sequence[MessageSpec], bitrate: int, *, errors: ErrorModel | None = None) -> dict[str, RtaResult]:
     """Worst-case response times by the revised analysis (Section 5), keyed by message name.
 
     Priority is arbitration order (lower ``arbitration_key(can_id, extended, False)`` wins); the
@@ -356,14 +386,37 @@ def analyse(messages: Sequence[MessageSpec], bitrate: int, *,
         lv = _Level(msgs, i, tau, errors, bitrate)
         r1994 = _first_instance(lv)
         if lv.u_hep >= 1:
-            out[m.spec.name] = _result(msgs, i, lv, bitrate, busy=None, q_count=0, ws=[], rs=[], r=None,
-                                       worst=None, r1994=r1994, reason=_OVERLOAD)
+            out[m.spec.name] = _result(
+                msgs,
+                i,
+                lv,
+                bitrate,
+                busy=None,
+                q_count=0,
+                ws=[],
+                rs=[],
+                r=None,
+                worst=None,
+                r1994=r1994,
+                reason=_OVERLOAD,
+            )
             continue
         busy = lv.busy_period()
         if busy is None:
-            out[m.spec.name] = _result(msgs, i, lv, bitrate, busy=None, q_count=0, ws=[], rs=[], r=None,
-                                       worst=None, r1994=r1994,
-                                       reason=f"busy period beyond the horizon ({HORIZON_FACTOR} x max(D, T + J))")
+            out[m.spec.name] = _result(
+                msgs,
+                i,
+                lv,
+                bitrate,
+                busy=None,
+                q_count=0,
+                ws=[],
+                rs=[],
+                r=None,
+                worst=None,
+                r1994=r1994,
+                reason=f"busy period beyond the horizon ({HORIZON_FACTOR} x max(D, T + J))",
+            )
             continue
         q_count = _ceil_div(busy + m.j, m.t)
         ws: list[int] = []
@@ -383,13 +436,15 @@ def analyse(messages: Sequence[MessageSpec], bitrate: int, *,
         else:
             r = max(rs)
             worst = rs.index(r)
-        out[m.spec.name] = _result(msgs, i, lv, bitrate, busy=busy, q_count=q_count, ws=ws, rs=rs, r=r,
-                                   worst=worst, r1994=r1994, reason=reason)
+        out[m.spec.name] = _result(
+            msgs, i, lv, bitrate, busy=busy, q_count=q_count, ws=ws, rs=rs, r=r, worst=worst, r1994=r1994, reason=reason
+        )
     return out
 
 
-def analyse_1994(messages: Sequence[MessageSpec], bitrate: int, *,
-                 errors: ErrorModel | None = None) -> dict[str, RtaResult]:
+def analyse_1994(
+    messages: Sequence[MessageSpec], bitrate: int, *, errors: ErrorModel | None = None
+) -> dict[str, RtaResult]:
     """The original, optimistic analysis (Section 3): the first instance only.
 
     For comparison and for the refutation example; do not use it to decide schedulability.
@@ -403,11 +458,23 @@ def analyse_1994(messages: Sequence[MessageSpec], bitrate: int, *,
         lv = _Level(msgs, i, tau, errors, bitrate)
         r = _first_instance(lv)
         if r is None:
-            out[m.spec.name] = _result(msgs, i, lv, bitrate, busy=None, q_count=1, ws=[], rs=[], r=None,
-                                       worst=None, r1994=None,
-                                       reason="higher-priority utilisation >= 1 or queuing delay beyond the horizon")
+            out[m.spec.name] = _result(
+                msgs,
+                i,
+                lv,
+                bitrate,
+                busy=None,
+                q_count=1,
+                ws=[],
+                rs=[],
+                r=None,
+                worst=None,
+                r1994=None,
+                reason="higher-priority utilisation >= 1 or queuing delay beyond the horizon",
+            )
             continue
         w = r - m.j - m.c
-        out[m.spec.name] = _result(msgs, i, lv, bitrate, busy=None, q_count=1, ws=[w], rs=[r], r=r, worst=0,
-                                   r1994=r, reason=None)
+        out[m.spec.name] = _result(
+            msgs, i, lv, bitrate, busy=None, q_count=1, ws=[w], rs=[r], r=r, worst=0, r1994=r, reason=None
+        )
     return out

@@ -38,8 +38,7 @@ from __future__ import annotations
 
 from enum import Enum, IntEnum
 
-__all__ = ["NmtState", "NmtCommand", "ResetKind", "TRANSITIONS", "SERVICES", "next_state", "allows",
-           "state_name"]
+__all__ = ["NmtState", "NmtCommand", "ResetKind", "TRANSITIONS", "SERVICES", "next_state", "allows", "state_name"]
 
 
 class NmtState(IntEnum):
@@ -77,11 +76,11 @@ _C = NmtCommand
 #: INITIALISING; `RESETS` says which reset.
 TRANSITIONS: dict[tuple[NmtState, NmtCommand], NmtState] = {}
 for _state in (_S.PRE_OPERATIONAL, _S.OPERATIONAL, _S.STOPPED):
-    TRANSITIONS[(_state, _C.START)] = _S.OPERATIONAL                      # (3), (6)
-    TRANSITIONS[(_state, _C.STOP)] = _S.STOPPED                           # (5), (8)
+    TRANSITIONS[(_state, _C.START)] = _S.OPERATIONAL  # (3), (6)
+    TRANSITIONS[(_state, _C.STOP)] = _S.STOPPED  # (5), (8)
     TRANSITIONS[(_state, _C.ENTER_PRE_OPERATIONAL)] = _S.PRE_OPERATIONAL  # (4), (7)
-    TRANSITIONS[(_state, _C.RESET_NODE)] = _S.INITIALISING                # (9)..(11)
-    TRANSITIONS[(_state, _C.RESET_COMMUNICATION)] = _S.INITIALISING       # (12)..(14)
+    TRANSITIONS[(_state, _C.RESET_NODE)] = _S.INITIALISING  # (9)..(11)
+    TRANSITIONS[(_state, _C.RESET_COMMUNICATION)] = _S.INITIALISING  # (12)..(14)
 del _state
 
 #: the reset a command asks for

@@ -28,29 +28,53 @@ __all__ = ["register", "canopen_command"]
 def register(subparsers: Any) -> None:
     """Add the ``canopen`` subcommand."""
     p = subparsers.add_parser(
-        "canopen", help="run a CANopen device (CiA 301 slave) on a python-can bus",
+        "canopen",
+        help="run a CANopen device (CiA 301 slave) on a python-can bus",
         description="Run a CANopen device with the object dictionary of an EDS/DCF (default: canstack's small "
-                    "default device) on a python-can bus until interrupted: NMT, heartbeat, node guarding, SYNC, "
-                    "TPDOs/RPDOs, SDO (expedited, segmented, block), EMCY, TIME.")
-    p.add_argument("eds", metavar="EDS", nargs="?", default=None,
-                   help="EDS or DCF file (default: the default device shipped with canstack)")
+        "default device) on a python-can bus until interrupted: NMT, heartbeat, node guarding, SYNC, "
+        "TPDOs/RPDOs, SDO (expedited, segmented, block), EMCY, TIME.",
+    )
+    p.add_argument(
+        "eds",
+        metavar="EDS",
+        nargs="?",
+        default=None,
+        help="EDS or DCF file (default: the default device shipped with canstack)",
+    )
     p.add_argument("--node-id", required=True, type=_NODE_ID, metavar="N", help="CANopen node-ID, 1..127")
-    p.add_argument("--interface", required=True, metavar="NAME",
-                   help="python-can interface (socketcan, canstack, virtual, pcan, ...)")
+    p.add_argument(
+        "--interface",
+        required=True,
+        metavar="NAME",
+        help="python-can interface (socketcan, canstack, virtual, pcan, ...)",
+    )
     p.add_argument("--channel", metavar="CH", help="python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")
-    p.add_argument("--bitrate", type=parse_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus")
-    p.add_argument("--heartbeat", type=_HEARTBEAT_MS, default=None, metavar="MS",
-                   help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)")
+    p.add_argument(
+        "--bitrate", type=parse_bitrate, default=None, metavar="B", help="bit/s, passed to the python-can bus"
+    )
+    p.add_argument(
+        "--heartbeat",
+        type=_HEARTBEAT_MS,
+        default=None,
+        metavar="MS",
+        help="producer heartbeat time 0x1017 in ms (default: the EDS's; 0: none)",
+    )
     p.add_argument("--start", action="store_true", help="start operational without waiting for NMT start")
-    p.add_argument("--duration", type=seconds_type(1e7), default=None, metavar="S",
-                   help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument(
+        "--duration",
+        type=seconds_type(1e7),
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until Ctrl-C)",
+    )
     p.add_argument("--json", action="store_true", help="print the device's metrics as one JSON object at the end")
     p.set_defaults(func=canopen_command)
 
 
 _NODE_ID = int_type(1, 127, "an integer", "a CANopen node-ID is 1..127 (CiA 301; 0 addresses all nodes)")
-_HEARTBEAT_MS = int_type(0, 0xFFFF, "a whole number of ms",
-                         "the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)")
+_HEARTBEAT_MS = int_type(
+    0, 0xFFFF, "a whole number of ms", "the producer heartbeat time 0x1017 is 0..65535 ms (UNSIGNED16)"
+)
 
 
 def canopen_command(args: argparse.Namespace) -> int:
@@ -88,8 +112,10 @@ def canopen_command(args: argparse.Namespace) -> int:
 
     if not args.json:
         device.on_state(lambda old, new: say(f"{node.now() / 1e9:10.3f} s  NMT {old.name} -> {new.name}"))
-        say(f"CANopen device {args.node_id} ({args.eds or DEFAULT_EDS.name}) on {args.interface} "
-            f"{args.channel or ''}: Ctrl-C stops it".replace("  :", ":"))
+        say(
+            f"CANopen device {args.node_id} ({args.eds or DEFAULT_EDS.name}) on {args.interface} "
+            f"{args.channel or ''}: Ctrl-C stops it".replace("  :", ":")
+        )
     status = 0
     driver.start()
     try:
@@ -107,6 +133,7 @@ def canopen_command(args: argparse.Namespace) -> int:
             final.update(device.metrics())  # the state it ran in, before it powers off
             device.stop()
             done.set()
+
         driver.submit(finish)
         done.wait(1.0)
         driver.stop()
@@ -115,11 +142,13 @@ def canopen_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(m), file=out)
     else:
-        say(f"node {m['node_id']}: {m['nmt_state']}, {plural(m['boot_ups'], 'boot-up')}, "
+        say(
+            f"node {m['node_id']}: {m['nmt_state']}, {plural(m['boot_ups'], 'boot-up')}, "
             f"{plural(m['heartbeats_sent'], 'heartbeat')}, {plural(m['sync_received'], 'SYNC')}, "
             f"{plural(sum(t['sent'] for t in m['tpdos']), 'TPDO')} sent, "
             f"{plural(sum(r['received'] for r in m['rpdos']), 'RPDO')} received, "
-            f"{plural(m['sdo']['requests'], 'SDO request')}, {plural(m['emcy_sent'], 'EMCY')}")
+            f"{plural(m['sdo']['requests'], 'SDO request')}, {plural(m['emcy_sent'], 'EMCY')}"
+        )
     for err in driver.errors:
         print(f"canstack canopen: {err}", file=sys.stderr)
     return status

@@ -26,8 +26,21 @@ CAN-IDs"): 0x000, 0x001-0x07F, 0x101-0x180, 0x581-0x5FF, 0x601-0x67F, 0x6E0-0x6F
 
 from __future__ import annotations
 
-__all__ = ["NMT", "SYNC", "TIME", "EMCY", "TPDO", "RPDO", "SDO_TX", "SDO_RX", "HEARTBEAT",
-           "tpdo_cob_id", "rpdo_cob_id", "is_restricted", "check_node_id"]
+__all__ = [
+    "NMT",
+    "SYNC",
+    "TIME",
+    "EMCY",
+    "TPDO",
+    "RPDO",
+    "SDO_TX",
+    "SDO_RX",
+    "HEARTBEAT",
+    "tpdo_cob_id",
+    "rpdo_cob_id",
+    "is_restricted",
+    "check_node_id",
+]
 
 NMT = 0x000
 SYNC = 0x080

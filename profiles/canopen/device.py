@@ -15,18 +15,22 @@ the dictionary and its access rules are `dictionary`'s; the options are `options
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable, NamedTuple
-
-from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxFailed, TxRequest
+from typing import Any, NamedTuple
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtState, ResetKind, allows
 from profiles.canopen.dictionary import COMMUNICATION_AREA, EdsError, ObjectStore, load_od
 from profiles.canopen.emcy import EmcyProducer
 from profiles.canopen.guarding import NodeGuardingSlave
-from profiles.canopen.heartbeat import (HeartbeatConsumer, HeartbeatProducer, MonitoredNode, check_consumer_entry,
-                                        parse_consumer_entry)
+from profiles.canopen.heartbeat import (
+    HeartbeatConsumer,
+    HeartbeatProducer,
+    MonitoredNode,
+    check_consumer_entry,
+    parse_consumer_entry,
+)
 from profiles.canopen.nmt import NmtSlave
 from profiles.canopen.options import DeviceOptions, apply_device_options
 from profiles.canopen.pdo.common import Pdo
@@ -36,6 +40,7 @@ from profiles.canopen.sdo.server import SdoServer
 from profiles.canopen.stats import summary
 from profiles.canopen.sync import SyncConsumer, SyncProducer, check_cob_id_sync, check_counter_overflow
 from profiles.canopen.timestamp import EPOCH_1984, TimeProducer, check_cob_id_time, decode_time_of_day
+from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxFailed, TxRequest
 
 __all__ = ["CanopenDevice", "RpdoUpdate"]
 
@@ -88,24 +93,42 @@ class CanopenDevice:
 
         self.nmt = NmtSlave(self.node_id, self._state_changed, self._reset)
         send = self._send
-        self.emcy = EmcyProducer(send, node.call_at, node.now, self._emcy_allowed,
-                                 history_size=max(0, len(self.od.indices[0x1003].subindices) - 1)
-                                 if 0x1003 in self.od.indices else 0)
+        self.emcy = EmcyProducer(
+            send,
+            node.call_at,
+            node.now,
+            self._emcy_allowed,
+            history_size=max(0, len(self.od.indices[0x1003].subindices) - 1) if 0x1003 in self.od.indices else 0,
+        )
         self.heartbeat = HeartbeatProducer(self.node_id, send, node.call_at, node.now, lambda: self.nmt.state)
-        self.consumer = HeartbeatConsumer(node.call_at, node.now, on_timeout=self._heartbeat_lost,
-                                          on_resume=self._heartbeat_back, on_bootup=self._heartbeat_bootup)
-        self.guarding = NodeGuardingSlave(self.node_id, send, node.call_at, lambda: self.nmt.state,
-                                          self._life_guarding)
-        self.sync = SyncConsumer(node.call_at, self._on_sync, on_length_error=self._sync_length_error,
-                                 on_timeout=self._sync_timeout)
+        self.consumer = HeartbeatConsumer(
+            node.call_at,
+            node.now,
+            on_timeout=self._heartbeat_lost,
+            on_resume=self._heartbeat_back,
+            on_bootup=self._heartbeat_bootup,
+        )
+        self.guarding = NodeGuardingSlave(self.node_id, send, node.call_at, lambda: self.nmt.state, self._life_guarding)
+        self.sync = SyncConsumer(
+            node.call_at, self._on_sync, on_length_error=self._sync_length_error, on_timeout=self._sync_timeout
+        )
         self.sync_producer = SyncProducer(send, node.call_at, node.now)
         self.time_producer = TimeProducer(send, node.call_at, node.now)
-        self.sdo = SdoServer(self.store, self._sdo_send, node.call_later,
-                             timeout_ns=self.options.sdo_timeout_ms * MS, block_size=self.options.sdo_block_size)
-        self.tpdos = [Tpdo(self, n, self._transmit, self._sync_info) for n in range(1, 513)
-                      if 0x1800 + n - 1 in self.od.indices]
-        self.rpdos = [Rpdo(self, n, self.emcy.report, self.emcy.clear, self._rpdo_applied) for n in range(1, 513)
-                      if 0x1400 + n - 1 in self.od.indices]
+        self.sdo = SdoServer(
+            self.store,
+            self._sdo_send,
+            node.call_later,
+            timeout_ns=self.options.sdo_timeout_ms * MS,
+            block_size=self.options.sdo_block_size,
+        )
+        self.tpdos = [
+            Tpdo(self, n, self._transmit, self._sync_info) for n in range(1, 513) if 0x1800 + n - 1 in self.od.indices
+        ]
+        self.rpdos = [
+            Rpdo(self, n, self.emcy.report, self.emcy.clear, self._rpdo_applied)
+            for n in range(1, 513)
+            if 0x1400 + n - 1 in self.od.indices
+        ]
         self._check_pdos()
         self._register_objects()
         self._configure()
@@ -137,8 +160,10 @@ class CanopenDevice:
                 opts = self.options.tpdo if p.kind == "TPDO" else self.options.rpdo
                 if p.n in opts:
                     raise ValueError(f"{p.kind.lower()}.{p.n}: {p.mapping_error}")
-                raise EdsError(f"{self.eds or 'default EDS'}: {p.name} is valid but its mapping "
-                               f"0x{p.map_index:04X} cannot be used: {p.mapping_error}")
+                raise EdsError(
+                    f"{self.eds or 'default EDS'}: {p.name} is valid but its mapping "
+                    f"0x{p.map_index:04X} cannot be used: {p.mapping_error}"
+                )
 
     # ------------------------------------------------------------------ dictionary owners
     def _register_objects(self) -> None:
@@ -153,7 +178,8 @@ class CanopenDevice:
         s.validators[0x1012] = lambda sub, value, data: check_cob_id_time(value)
         if 0x1016 in self.od.indices:
             s.validators[0x1016] = lambda sub, value, data: check_consumer_entry(
-                sub, value, {k: s.u(0x1016, k) for k in self.od.indices[0x1016].subindices if k})
+                sub, value, {k: s.u(0x1016, k) for k in self.od.indices[0x1016].subindices if k}
+            )
         for index in (0x1005, 0x1006, 0x1007, 0x1019):
             s.watch(index, None, self._sync_written)
         s.watch(0x1017, None, lambda i, k: self.heartbeat.configure(s.u(0x1017)))
@@ -221,7 +247,7 @@ class CanopenDevice:
         return self.nmt.state
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> "CanopenDevice":
+    def start(self) -> CanopenDevice:
         """Power on (CiA 301 transition 1): subscribe, then after ``boot_delay_ms`` initialise,
         send the boot-up message and enter pre-operational (operational with
         ``start_operational``)."""
@@ -446,8 +472,13 @@ class CanopenDevice:
         late now and then does not raise and clear its EMCY over and over (CANopenNode
         re-evaluates the error at every SYNC; the EMCYs of a flapping error would load the
         very bus that made the PDOs late)."""
-        return max(10, 2 * max([tp.transmission_type for tp in self.tpdos
-                                if tp.valid and 1 <= tp.transmission_type <= 240], default=1))
+        return max(
+            10,
+            2
+            * max(
+                [tp.transmission_type for tp in self.tpdos if tp.valid and 1 <= tp.transmission_type <= 240], default=1
+            ),
+        )
 
     def _sync_length_error(self, dlc: int) -> None:
         self.emcy.report(SYNC_LENGTH_ERROR, bytes([dlc]), key="sync-length")
@@ -601,15 +632,46 @@ class CanopenDevice:
             "error_register": self.emcy.register,
             "errors_active": sorted(self.emcy.active.values()),
             "tx_refused": self.tx_refused,
-            "sdo": {"requests": self.sdo.requests, "aborts_sent": self.sdo.aborts_sent,
-                    "aborts_received": self.sdo.aborts_received, "completed": dict(self.sdo.completed)},
-            "tpdos": [dict(tp.info(), queued=tp.queued, sent=tp.sent, not_in_window=tp.late, refused=tp.refused,
-                           sync_to_tx_ms=summary(tp.sync_latencies)) for tp in self.tpdos if tp.valid or tp.queued],
-            "rpdos": [dict(rp.info(), received=rp.received, applied=rp.applied_count, length_errors=rp.length_errors,
-                           timeouts=rp.timeouts) for rp in self.rpdos if rp.valid or rp.received],
-            "heartbeat_consumer": [{"node_id": m.node_id, "status": m.status, "nmt_state": m.state_name,
-                                    "received": m.received, "missed": m.missed, "timeouts": m.timeouts}
-                                   for m in self.consumer.nodes.values()],
+            "sdo": {
+                "requests": self.sdo.requests,
+                "aborts_sent": self.sdo.aborts_sent,
+                "aborts_received": self.sdo.aborts_received,
+                "completed": dict(self.sdo.completed),
+            },
+            "tpdos": [
+                dict(
+                    tp.info(),
+                    queued=tp.queued,
+                    sent=tp.sent,
+                    not_in_window=tp.late,
+                    refused=tp.refused,
+                    sync_to_tx_ms=summary(tp.sync_latencies),
+                )
+                for tp in self.tpdos
+                if tp.valid or tp.queued
+            ],
+            "rpdos": [
+                dict(
+                    rp.info(),
+                    received=rp.received,
+                    applied=rp.applied_count,
+                    length_errors=rp.length_errors,
+                    timeouts=rp.timeouts,
+                )
+                for rp in self.rpdos
+                if rp.valid or rp.received
+            ],
+            "heartbeat_consumer": [
+                {
+                    "node_id": m.node_id,
+                    "status": m.status,
+                    "nmt_state": m.state_name,
+                    "received": m.received,
+                    "missed": m.missed,
+                    "timeouts": m.timeouts,
+                }
+                for m in self.consumer.nodes.values()
+            ],
         }
 
     def __repr__(self) -> str:

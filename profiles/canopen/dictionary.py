@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import configparser
 import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from canopen import objectdictionary as cod
-from canopen.objectdictionary import ODArray, ODRecord, ODVariable, ObjectDictionary, datatypes
+from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
@@ -40,18 +41,34 @@ Validator = Callable[[int, Any, bytes], None]
 Watcher = Callable[[int, int], None]
 """``watcher(index, sub)``: called after a write was stored."""
 
-_TYPE_NAMES = {v: k for k, v in vars(datatypes).items() if k.isupper() and isinstance(v, int) and k not in
-               ("SIGNED_TYPES", "UNSIGNED_TYPES")}
+_TYPE_NAMES = {
+    v: k
+    for k, v in vars(datatypes).items()
+    if k.isupper() and isinstance(v, int) and k not in ("SIGNED_TYPES", "UNSIGNED_TYPES")
+}
 
 # objects the services read, with the data type CiA 301 gives them (clause 7.5.2.x)
 _TYPES = {
-    0x1000: datatypes.UNSIGNED32, 0x1001: datatypes.UNSIGNED8, 0x1005: datatypes.UNSIGNED32,
-    0x1006: datatypes.UNSIGNED32, 0x1007: datatypes.UNSIGNED32, 0x100C: datatypes.UNSIGNED16,
-    0x100D: datatypes.UNSIGNED8, 0x1012: datatypes.UNSIGNED32, 0x1014: datatypes.UNSIGNED32,
-    0x1015: datatypes.UNSIGNED16, 0x1017: datatypes.UNSIGNED16, 0x1019: datatypes.UNSIGNED8,
+    0x1000: datatypes.UNSIGNED32,
+    0x1001: datatypes.UNSIGNED8,
+    0x1005: datatypes.UNSIGNED32,
+    0x1006: datatypes.UNSIGNED32,
+    0x1007: datatypes.UNSIGNED32,
+    0x100C: datatypes.UNSIGNED16,
+    0x100D: datatypes.UNSIGNED8,
+    0x1012: datatypes.UNSIGNED32,
+    0x1014: datatypes.UNSIGNED32,
+    0x1015: datatypes.UNSIGNED16,
+    0x1017: datatypes.UNSIGNED16,
+    0x1019: datatypes.UNSIGNED8,
 }
-_PDO_COMM_TYPES = {1: datatypes.UNSIGNED32, 2: datatypes.UNSIGNED8, 3: datatypes.UNSIGNED16, 5: datatypes.UNSIGNED16,
-                   6: datatypes.UNSIGNED8}
+_PDO_COMM_TYPES = {
+    1: datatypes.UNSIGNED32,
+    2: datatypes.UNSIGNED8,
+    3: datatypes.UNSIGNED16,
+    5: datatypes.UNSIGNED16,
+    6: datatypes.UNSIGNED8,
+}
 
 
 class EdsError(ValueError):
@@ -71,7 +88,9 @@ def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionar
     device (`DEFAULT_EDS`). Raises `EdsError` naming the file and the problem."""
     path = DEFAULT_EDS if eds is None else Path(eds)
     if path.suffix.lower() not in (".eds", ".dcf"):
-        raise EdsError(f"{path}: an object dictionary is an .eds or .dcf file (CiA 306), not {path.suffix or 'a file without suffix'}")
+        raise EdsError(
+            f"{path}: an object dictionary is an .eds or .dcf file (CiA 306), not {path.suffix or 'a file without suffix'}"
+        )
     if not path.is_file():
         raise EdsError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
     try:
@@ -99,6 +118,7 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
     there; the data type CiA 301 gives every communication object the device uses; each PDO
     communication parameter with its mapping parameter and the sub-indices 1 and 2; and every
     default value fitting its data type. Raises `EdsError` naming ``source`` and the object."""
+
     def fail(why: str) -> None:
         raise EdsError(f"{source}: {why}")
 
@@ -109,8 +129,10 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
     if not isinstance(idx[0x1018], (ODRecord, ODArray)) or 1 not in idx[0x1018].subindices:
         fail("object 0x1018 (identity) must be a record with sub-index 1, vendor-ID (CiA 301 7.5.2.24)")
     if 0x1017 not in idx and not (0x100C in idx and 0x100D in idx):
-        fail("neither 0x1017 (producer heartbeat time) nor 0x100C/0x100D (node guarding) is defined: "
-             "a device needs one error control protocol (CiA 301 7.2.8.3.2)")
+        fail(
+            "neither 0x1017 (producer heartbeat time) nor 0x100C/0x100D (node guarding) is defined: "
+            "a device needs one error control protocol (CiA 301 7.2.8.3.2)"
+        )
     for index, dtype in _TYPES.items():
         obj = idx.get(index)
         if obj is None:
@@ -118,8 +140,10 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
         if not isinstance(obj, ODVariable):
             fail(f"object 0x{index:04X} ({obj.name}) must be a VAR of type {type_name(dtype)}")
         if obj.data_type != dtype:
-            fail(f"object 0x{index:04X} ({obj.name}) must be {type_name(dtype)} (CiA 301 7.5.2), "
-                 f"not {type_name(obj.data_type)}")
+            fail(
+                f"object 0x{index:04X} ({obj.name}) must be {type_name(dtype)} (CiA 301 7.5.2), "
+                f"not {type_name(obj.data_type)}"
+            )
     for comm, mapping, kind in ((0x1400, 0x1600, "RPDO"), (0x1800, 0x1A00, "TPDO")):
         for n in range(512):
             c, m = idx.get(comm + n), idx.get(mapping + n)
@@ -127,31 +151,45 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
                 continue
             if c is None or m is None:
                 have, missing = (comm + n, mapping + n) if m is None else (mapping + n, comm + n)
-                fail(f"{kind}{n + 1}: 0x{have:04X} is defined without 0x{missing:04X} (a PDO needs its "
-                     f"communication and its mapping parameter, CiA 301 7.5.2.35-7.5.2.38)")
+                fail(
+                    f"{kind}{n + 1}: 0x{have:04X} is defined without 0x{missing:04X} (a PDO needs its "
+                    f"communication and its mapping parameter, CiA 301 7.5.2.35-7.5.2.38)"
+                )
             if not isinstance(c, ODRecord) or 1 not in c.subindices or 2 not in c.subindices:
-                fail(f"0x{comm + n:04X} ({kind}{n + 1} communication parameter) must be a record with sub-index 1 "
-                     f"(COB-ID) and 2 (transmission type)")
+                fail(
+                    f"0x{comm + n:04X} ({kind}{n + 1} communication parameter) must be a record with sub-index 1 "
+                    f"(COB-ID) and 2 (transmission type)"
+                )
             for sub, dtype in _PDO_COMM_TYPES.items():
                 if sub in c.subindices and c.subindices[sub].data_type != dtype:
-                    fail(f"0x{comm + n:04X} sub-index {sub} must be {type_name(dtype)}, not "
-                         f"{type_name(c.subindices[sub].data_type)}")
+                    fail(
+                        f"0x{comm + n:04X} sub-index {sub} must be {type_name(dtype)}, not "
+                        f"{type_name(c.subindices[sub].data_type)}"
+                    )
             if not isinstance(m, (ODRecord, ODArray)) or 0 not in m.subindices:
-                fail(f"0x{mapping + n:04X} ({kind}{n + 1} mapping parameter) must be a record with sub-index 0 "
-                     f"(number of mapped objects)")
+                fail(
+                    f"0x{mapping + n:04X} ({kind}{n + 1} mapping parameter) must be a record with sub-index 0 "
+                    f"(number of mapped objects)"
+                )
             for sub, var in m.subindices.items():
                 want = datatypes.UNSIGNED8 if sub == 0 else datatypes.UNSIGNED32
                 if var.data_type != want:
-                    fail(f"0x{mapping + n:04X} sub-index {sub} must be {type_name(want)}, not {type_name(var.data_type)}")
+                    fail(
+                        f"0x{mapping + n:04X} sub-index {sub} must be {type_name(want)}, not {type_name(var.data_type)}"
+                    )
             if len(m.subindices) - 1 > 64:
                 fail(f"0x{mapping + n:04X}: at most 64 mapping entries (CiA 301 7.5.2.36)")
     for var in _variables(od):
         try:
             _initial(var)
         except (ValueError, TypeError, OverflowError) as exc:
-            where = f"0x{var.index:04X}" + (f" sub-index {var.subindex}" if not isinstance(var.parent, ObjectDictionary) else "")
-            fail(f"{where} ({var.name}): default value {var.value if var.value is not None else var.default!r} "
-                 f"does not fit {type_name(var.data_type)}: {_one_line(exc)}")
+            where = f"0x{var.index:04X}" + (
+                f" sub-index {var.subindex}" if not isinstance(var.parent, ObjectDictionary) else ""
+            )
+            fail(
+                f"{where} ({var.name}): default value {var.value if var.value is not None else var.default!r} "
+                f"does not fit {type_name(var.data_type)}: {_one_line(exc)}"
+            )
 
 
 def _variables(od: ObjectDictionary) -> Iterator[ODVariable]:
@@ -180,7 +218,7 @@ def _initial(var: ODVariable) -> bytes:
     if size is not None and len(data) != size:
         raise ValueError(f"{len(data)} bytes for a {size}-byte type")
     if var.data_type in datatypes.INTEGER_TYPES and isinstance(value, int):
-        if var.min is not None and value < var.min or var.max is not None and value > var.max:
+        if (var.min is not None and value < var.min) or (var.max is not None and value > var.max):
             raise ValueError(f"outside LowLimit..HighLimit {var.min}..{var.max}")
     return bytes(data)
 
@@ -251,8 +289,9 @@ class ObjectStore:
         try:
             data = var.encode_raw(value)
         except (ValueError, TypeError, OverflowError) as exc:
-            raise SdoAbort(abort.INVALID_VALUE, f"{value!r} does not fit 0x{index:04X}:{sub} "
-                                                f"({type_name(var.data_type)}): {exc}") from None
+            raise SdoAbort(
+                abort.INVALID_VALUE, f"{value!r} does not fit 0x{index:04X}:{sub} ({type_name(var.data_type)}): {exc}"
+            ) from None
         return self.write(index, sub, bytes(data))
 
     def write(self, index: int, sub: int, data: bytes, *, sdo: bool = False) -> bool:

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import struct
 from collections import deque
-from typing import Any, Callable, NamedTuple
-
-from stack import Frame
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 from profiles.canopen import cob
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
 __all__ = ["EmcyProducer", "Emcy", "decode_emcy", "register_bits", "describe", "ERROR_CODES"]
 
@@ -50,10 +50,17 @@ ERROR_CODES = {
 }
 
 _CLASSES = [  # (code, mask, description): the classes of CiA 301's table, most specific first
-    (0x0000, 0xFF00, "error reset or no error"), (0x1000, 0xFF00, "generic error"), (0x2000, 0xF000, "current"),
-    (0x3000, 0xF000, "voltage"), (0x4000, 0xF000, "temperature"), (0x5000, 0xFF00, "device hardware"),
-    (0x6000, 0xF000, "device software"), (0x7000, 0xFF00, "additional modules"), (0x8000, 0xF000, "monitoring"),
-    (0x9000, 0xFF00, "external error"), (0xF000, 0xFF00, "additional functions"),
+    (0x0000, 0xFF00, "error reset or no error"),
+    (0x1000, 0xFF00, "generic error"),
+    (0x2000, 0xF000, "current"),
+    (0x3000, 0xF000, "voltage"),
+    (0x4000, 0xF000, "temperature"),
+    (0x5000, 0xFF00, "device hardware"),
+    (0x6000, 0xF000, "device software"),
+    (0x7000, 0xFF00, "additional modules"),
+    (0x8000, 0xF000, "monitoring"),
+    (0x9000, 0xFF00, "external error"),
+    (0xF000, 0xFF00, "additional functions"),
     (0xFF00, 0xFF00, "device specific"),
 ]
 
@@ -113,8 +120,15 @@ class EmcyProducer:
     fields of 0x1003 (0: no history). Counters: ``sent``, ``raised``, ``cleared``.
     """
 
-    def __init__(self, send: Callable[[Frame], Any], call_at: Callable[..., Any], now: Callable[[], int],
-                 allowed: Callable[[], bool], *, history_size: int = 8) -> None:
+    def __init__(
+        self,
+        send: Callable[[Frame], Any],
+        call_at: Callable[..., Any],
+        now: Callable[[], int],
+        allowed: Callable[[], bool],
+        *,
+        history_size: int = 8,
+    ) -> None:
         self.send = send
         self.call_at = call_at
         self.now = now
@@ -144,7 +158,7 @@ class EmcyProducer:
         restricted, and the CAN-ID changes only while EMCY is disabled (0x0609 0030 otherwise)."""
         can_id = value & 0x7FF
         enabled = not value & 0x8000_0000 and can_id != 0
-        if value & 0x7FFF_F800 or cob.is_restricted(can_id) and enabled:
+        if value & 0x7FFF_F800 or (cob.is_restricted(can_id) and enabled):
             raise SdoAbort(abort.INVALID_VALUE, f"0x1014: 0x{value:08X} is no usable COB-ID EMCY")
         if self.enabled and enabled and can_id != self.cob_id:
             raise SdoAbort(abort.INVALID_VALUE, "0x1014: set bit 31 (not valid) before changing the CAN-ID")
@@ -173,7 +187,7 @@ class EmcyProducer:
         self.raised += 1
         if self.history_size:
             self.history.insert(0, ((additional & 0xFFFF) << 16) | code)
-            del self.history[self.history_size:]
+            del self.history[self.history_size :]
         self._emit(code, info)
         return True
 

@@ -15,13 +15,13 @@ reply comes before the next request and that the toggle bit alternates.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
-
-from stack import Frame
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtState, state_name
+from stack import Frame
 
 __all__ = ["NodeGuardingSlave", "NodeGuardingMaster", "GuardedNode"]
 
@@ -36,8 +36,14 @@ class NodeGuardingSlave:
     request and 'resumed' when requests come again.
     """
 
-    def __init__(self, node_id: int, send: Callable[[Frame], Any], call_at: Callable[..., Any],
-                 state: Callable[[], NmtState], on_life_guarding: Callable[[str], Any] | None = None) -> None:
+    def __init__(
+        self,
+        node_id: int,
+        send: Callable[[Frame], Any],
+        call_at: Callable[..., Any],
+        state: Callable[[], NmtState],
+        on_life_guarding: Callable[[str], Any] | None = None,
+    ) -> None:
         self.cob_id = cob.HEARTBEAT + node_id
         self.send = send
         self.call_at = call_at
@@ -120,8 +126,14 @@ class NodeGuardingMaster:
     when the next request is due, or a toggle bit that did not alternate, is a node guarding
     event (``on_event(node, 'no reply' | 'toggle')``)."""
 
-    def __init__(self, send: Callable[[Frame], Any], call_at: Callable[..., Any], now: Callable[[], int],
-                 guard_time_ms: int, on_event: Callable[[GuardedNode, str], Any] | None = None) -> None:
+    def __init__(
+        self,
+        send: Callable[[Frame], Any],
+        call_at: Callable[..., Any],
+        now: Callable[[], int],
+        guard_time_ms: int,
+        on_event: Callable[[GuardedNode, str], Any] | None = None,
+    ) -> None:
         if guard_time_ms <= 0:
             raise ValueError(f"guard_time_ms {guard_time_ms!r}: a guard time is a positive number of ms (0x100C)")
         self.send = send

@@ -16,18 +16,24 @@ EMCY 0x8130, "life guard error or heartbeat error").
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
-
-from stack import Frame
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtState, state_name
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
-__all__ = ["HeartbeatProducer", "HeartbeatConsumer", "MonitoredNode", "consumer_entry", "parse_consumer_entry",
-           "check_consumer_entry"]
+__all__ = [
+    "HeartbeatProducer",
+    "HeartbeatConsumer",
+    "MonitoredNode",
+    "consumer_entry",
+    "parse_consumer_entry",
+    "check_consumer_entry",
+]
 
 MS = 1_000_000
 
@@ -58,8 +64,9 @@ def check_consumer_entry(sub: int, value: int, entries: dict[int, int]) -> None:
         for k, other_value in entries.items():
             other, other_ms = parse_consumer_entry(other_value)
             if k != sub and other == nid and other_ms:
-                raise SdoAbort(abort.PARAMETER_INCOMPATIBLE, f"0x1016:{sub}: node {nid} is monitored by "
-                                                             f"sub-index {k} already")
+                raise SdoAbort(
+                    abort.PARAMETER_INCOMPATIBLE, f"0x1016:{sub}: node {nid} is monitored by sub-index {k} already"
+                )
 
 
 class HeartbeatProducer:
@@ -69,8 +76,14 @@ class HeartbeatProducer:
     clock, ``state()`` gives the NMT state to report. ``sent`` counts heartbeats queued.
     """
 
-    def __init__(self, node_id: int, send: Callable[[Frame], Any], call_at: Callable[..., Any],
-                 now: Callable[[], int], state: Callable[[], NmtState]) -> None:
+    def __init__(
+        self,
+        node_id: int,
+        send: Callable[[Frame], Any],
+        call_at: Callable[..., Any],
+        now: Callable[[], int],
+        state: Callable[[], NmtState],
+    ) -> None:
         self.cob_id = cob.HEARTBEAT + node_id
         self.send = send
         self.call_at = call_at
@@ -162,11 +175,16 @@ class HeartbeatConsumer:
     ``call_at``/``now`` are the node's timers and clock.
     """
 
-    def __init__(self, call_at: Callable[..., Any], now: Callable[[], int], *,
-                 on_timeout: Callable[[MonitoredNode], Any] | None = None,
-                 on_state: Callable[[MonitoredNode, int | None, int], Any] | None = None,
-                 on_bootup: Callable[[MonitoredNode], Any] | None = None,
-                 on_resume: Callable[[MonitoredNode], Any] | None = None) -> None:
+    def __init__(
+        self,
+        call_at: Callable[..., Any],
+        now: Callable[[], int],
+        *,
+        on_timeout: Callable[[MonitoredNode], Any] | None = None,
+        on_state: Callable[[MonitoredNode, int | None, int], Any] | None = None,
+        on_bootup: Callable[[MonitoredNode], Any] | None = None,
+        on_resume: Callable[[MonitoredNode], Any] | None = None,
+    ) -> None:
         self.call_at = call_at
         self.now = now
         self.on_timeout = on_timeout

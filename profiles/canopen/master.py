@@ -25,10 +25,9 @@ frame of the SYNC the master sent (`TxDone.sof`) to the end of the PDO's frame (
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
-
-from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxRequest
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtCommand, NmtState, state_name
@@ -40,6 +39,7 @@ from profiles.canopen.options import MasterOptions
 from profiles.canopen.sdo.client import SdoClient, SdoResult
 from profiles.canopen.stats import summary
 from profiles.canopen.sync import SyncProducer
+from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxRequest
 
 __all__ = ["CanopenMaster", "ManagedNode", "PdoStats"]
 
@@ -91,14 +91,23 @@ class CanopenMaster:
         self.node = node
         self.options = o = MasterOptions.parse(options)
         self.nodes = {nid: ManagedNode(nid) for nid in o.nodes}
-        self.sdo = {nid: SdoClient(self._sdo_sender(nid), node.call_later, timeout_ns=o.sdo_timeout_ms * MS)
-                    for nid in o.nodes}
-        self.consumer = HeartbeatConsumer(node.call_at, node.now, on_timeout=self._heartbeat_lost,
-                                          on_bootup=self._bootup, on_resume=self._heartbeat_back)
+        self.sdo = {
+            nid: SdoClient(self._sdo_sender(nid), node.call_later, timeout_ns=o.sdo_timeout_ms * MS) for nid in o.nodes
+        }
+        self.consumer = HeartbeatConsumer(
+            node.call_at,
+            node.now,
+            on_timeout=self._heartbeat_lost,
+            on_bootup=self._bootup,
+            on_resume=self._heartbeat_back,
+        )
         self.sync = SyncProducer(self._send, node.call_at, node.now)
         self.sync.configure(o.sync_cob_id, o.sync_period_us * US, o.sync_overflow)
-        self.guarding = (NodeGuardingMaster(self._send, node.call_at, node.now, o.node_guarding_ms,
-                                            self._guarding_event) if o.node_guarding_ms else None)
+        self.guarding = (
+            NodeGuardingMaster(self._send, node.call_at, node.now, o.node_guarding_ms, self._guarding_event)
+            if o.node_guarding_ms
+            else None
+        )
         self.pdos: dict[int, PdoStats] = {}
         self.events: list[tuple[int, int, str]] = []  # (time, node-ID, what)
         self.last_sync: int | None = None
@@ -119,7 +128,7 @@ class CanopenMaster:
             self.consumer.observe(o.nodes)
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> "CanopenMaster":
+    def start(self) -> CanopenMaster:
         """Subscribe, reset the nodes, wait for their boot-up messages (see the module docstring)."""
         if self.running:
             return self
@@ -213,7 +222,9 @@ class CanopenMaster:
                 if not res.ok:
                     self.nodes[nid].config_errors.append(str(res))
                 then()
+
             self.sdo[nid].download(index, sub, data, done)
+
         return step
 
     def _configure_step(self, nid: int, index: int, sub: int, value: Any) -> Callable[[Callable[[], None]], None]:
@@ -234,7 +245,9 @@ class CanopenMaster:
                     then()
                     return
                 self._write_step(nid, index, sub, data)(then)
+
             self.sdo[nid].upload(index, sub, sized)
+
         return step
 
     def _read_pdo_step(self, nid: int, n: int) -> Callable[[Callable[[], None]], None]:
@@ -257,8 +270,11 @@ class CanopenMaster:
                             st = self.pdos[can_id] = PdoStats(can_id, nid, f"TPDO{n + 1}")
                         st.transmission_type = res2.value
                     then()
+
                 self.sdo[nid].upload(0x1800 + n, 2, got_type)
+
             self.sdo[nid].upload(0x1800 + n, 1, got_cob)
+
         return step
 
     def _boot_deadline(self) -> None:
@@ -355,29 +371,48 @@ class CanopenMaster:
             m = self.consumer.nodes.get(nid)
             g = self.guarding.nodes.get(nid) if self.guarding is not None else None
             item: dict[str, Any] = {
-                "node_id": nid, "status": rec.status, "nmt_state": self.node_state(nid),
+                "node_id": nid,
+                "status": rec.status,
+                "nmt_state": self.node_state(nid),
                 "last_state": m.state_name if m is not None else "UNKNOWN",
-                "boots": rec.boots, "heartbeats_received": m.received if m else 0,
+                "boots": rec.boots,
+                "heartbeats_received": m.received if m else 0,
                 "heartbeats_missed": m.missed if m and self.options.heartbeat_consumer_ms else 0,
                 "heartbeat_timeouts": m.timeouts if m and self.options.heartbeat_consumer_ms else 0,
-                "emcy_received": len(rec.emcy), "emcy_codes": sorted({e.code for _, e in rec.emcy}),
+                "emcy_received": len(rec.emcy),
+                "emcy_codes": sorted({e.code for _, e in rec.emcy}),
                 "config_errors": list(rec.config_errors),
             }
             if g is not None:
-                item["guarding"] = {"requests": g.requests, "replies": g.replies, "missed": g.missed,
-                                    "toggle_errors": g.toggle_errors}
+                item["guarding"] = {
+                    "requests": g.requests,
+                    "replies": g.replies,
+                    "missed": g.missed,
+                    "toggle_errors": g.toggle_errors,
+                }
             nodes.append(item)
-        pdos = [{"cob_id": st.cob_id, "node_id": st.node_id, "pdo": st.pdo, "transmission_type": st.transmission_type,
-                 "received": st.received, "sync_latency_ms": summary(st.latencies)}
-                for st in sorted(self.pdos.values(), key=lambda s: s.cob_id) if st.received]
+        pdos = [
+            {
+                "cob_id": st.cob_id,
+                "node_id": st.node_id,
+                "pdo": st.pdo,
+                "transmission_type": st.transmission_type,
+                "received": st.received,
+                "sync_latency_ms": summary(st.latencies),
+            }
+            for st in sorted(self.pdos.values(), key=lambda s: s.cob_id)
+            if st.received
+        ]
         return {
             "profile": "canopen-master",
             "node": self.node.name,
             "sync": {"period_us": self.options.sync_period_us, "sent": self.sync_sent},
             "nodes": nodes,
             "pdos": pdos,
-            "sdo": {"completed": sum(c.completed for c in self.sdo.values()),
-                    "aborted": sum(c.aborted for c in self.sdo.values()),
-                    "timeouts": sum(c.timeouts for c in self.sdo.values())},
+            "sdo": {
+                "completed": sum(c.completed for c in self.sdo.values()),
+                "aborted": sum(c.aborted for c in self.sdo.values()),
+                "timeouts": sum(c.timeouts for c in self.sdo.values()),
+            },
             "events": [{"t_ms": round(t / MS, 6), "node_id": nid, "event": what} for t, nid, what in self.events],
         }

@@ -8,12 +8,11 @@ the heartbeat (`profiles.canopen.heartbeat`) and re-initialises what a reset ask
 
 from __future__ import annotations
 
-from typing import Callable
-
-from stack import Frame
+from collections.abc import Callable
 
 from profiles.canopen import cob
 from profiles.canopen._state import RESETS, NmtCommand, NmtState, ResetKind, next_state
+from stack import Frame
 
 __all__ = ["NmtSlave", "nmt_command", "NmtState", "NmtCommand", "ResetKind"]
 
@@ -36,8 +35,9 @@ class NmtSlave:
     acted on), ``ignored`` (wrong length, unknown specifier, or while initialising).
     """
 
-    def __init__(self, node_id: int, on_state: Callable[[NmtState, NmtState], None],
-                 on_reset: Callable[[ResetKind], None]) -> None:
+    def __init__(
+        self, node_id: int, on_state: Callable[[NmtState, NmtState], None], on_reset: Callable[[ResetKind], None]
+    ) -> None:
         self.node_id = cob.check_node_id(node_id)
         self.state = NmtState.INITIALISING
         self.on_state = on_state

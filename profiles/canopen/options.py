@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 from profiles.canopen import cob
 from profiles.canopen.pdo.common import NO_RTR, NOT_VALID
@@ -22,8 +23,14 @@ from profiles.canopen.sdo.abort import SdoAbort
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.canopen.dictionary import ObjectStore
 
-__all__ = ["DeviceOptions", "MasterOptions", "PdoOptions", "parse_object_key", "parse_mapping_entry",
-           "apply_device_options"]
+__all__ = [
+    "DeviceOptions",
+    "MasterOptions",
+    "PdoOptions",
+    "parse_object_key",
+    "parse_mapping_entry",
+    "apply_device_options",
+]
 
 _U16 = 0xFFFF
 _U32 = 0xFFFF_FFFF
@@ -73,8 +80,9 @@ def parse_object_key(name: str, key: Any) -> tuple[int, int]:
             sub = int(m.group(2), 0) if m.group(2) else 0
             if index <= _U16 and sub <= 255:
                 return index, sub
-    raise ValueError(f"{name} {key!r}: an object is 'INDEX' or 'INDEX:SUB' ('0x2001:1'), index 0..0xFFFF, "
-                     f"sub-index 0..255")
+    raise ValueError(
+        f"{name} {key!r}: an object is 'INDEX' or 'INDEX:SUB' ('0x2001:1'), index 0..0xFFFF, sub-index 0..255"
+    )
 
 
 def parse_mapping_entry(name: str, value: Any) -> int:
@@ -83,16 +91,20 @@ def parse_mapping_entry(name: str, value: Any) -> int:
     if isinstance(value, int) and not isinstance(value, bool):
         return _int(name, value, 0, _U32, "a mapping entry is an UNSIGNED32")
     if isinstance(value, (list, tuple)) and len(value) == 3:
-        return entry_value(_int(name, value[0], 0, _U16, "index"), _int(name, value[1], 0, 255, "sub-index"),
-                           _int(name, value[2], 1, 64, "length in bits"))
+        return entry_value(
+            _int(name, value[0], 0, _U16, "index"),
+            _int(name, value[1], 0, 255, "sub-index"),
+            _int(name, value[2], 1, 64, "length in bits"),
+        )
     if isinstance(value, str):
         m = re.fullmatch(r"\s*(0x[0-9a-fA-F]{1,4}|\d+)\s*:\s*(0x[0-9a-fA-F]{1,2}|\d+)\s*/\s*(\d+)\s*", value)
         if m:
             index, sub, bits = (int(g, 0) for g in m.groups())
             if index <= _U16 and sub <= 255 and 1 <= bits <= 64:
                 return entry_value(index, sub, bits)
-    raise ValueError(f"{name} {value!r}: a mapping entry is 'INDEX:SUB/BITS' ('0x2002:0/32'), "
-                     f"[index, sub, bits] or the UNSIGNED32")
+    raise ValueError(
+        f"{name} {value!r}: a mapping entry is 'INDEX:SUB/BITS' ('0x2002:0/32'), [index, sub, bits] or the UNSIGNED32"
+    )
 
 
 @dataclass
@@ -109,7 +121,7 @@ class PdoOptions:
     mapping: list[int] | None = None
 
     @classmethod
-    def parse(cls, name: str, table: Any, *, receive: bool) -> "PdoOptions":
+    def parse(cls, name: str, table: Any, *, receive: bool) -> PdoOptions:
         """One ``tpdo.N`` / ``rpdo.N`` table."""
         if not isinstance(table, Mapping):
             raise ValueError(f"{name} {table!r}: a table of PDO parameters")
@@ -128,8 +140,10 @@ class PdoOptions:
             elif key == "transmission_type":
                 tt = _int(where, value, 0, 255, "CiA 301 transmission type")
                 if 241 <= tt <= (253 if receive else 251):
-                    raise ValueError(f"{where} {tt}: reserved for {'an RPDO' if receive else 'a TPDO'} "
-                                     f"(0..240, {'' if receive else '252, 253, '}254, 255)")
+                    raise ValueError(
+                        f"{where} {tt}: reserved for {'an RPDO' if receive else 'a TPDO'} "
+                        f"(0..240, {'' if receive else '252, 253, '}254, 255)"
+                    )
                 out.transmission_type = tt
             elif key == "inhibit_100us":
                 out.inhibit_100us = _int(where, value, 0, _U16, "0x1800 sub-index 3, 100 µs units")
@@ -147,8 +161,10 @@ class PdoOptions:
 def _pdo_tables(name: str, value: Any, *, receive: bool) -> dict[int, PdoOptions]:
     if not isinstance(value, Mapping):
         raise ValueError(f"{name} {value!r}: a table of PDO numbers ('1' = {{ transmission_type = 1 }})")
-    return {_int(f"{name} key", k, 1, 512, "PDO number"): PdoOptions.parse(f"{name}.{k}", v, receive=receive)
-            for k, v in value.items()}
+    return {
+        _int(f"{name} key", k, 1, 512, "PDO number"): PdoOptions.parse(f"{name}.{k}", v, receive=receive)
+        for k, v in value.items()
+    }
 
 
 def _consumers(name: str, value: Any) -> dict[int, int]:
@@ -195,7 +211,7 @@ class DeviceOptions:
     values: dict[tuple[int, int], Any] = field(default_factory=dict)
 
     @classmethod
-    def parse(cls, options: Mapping[str, Any]) -> "DeviceOptions":
+    def parse(cls, options: Mapping[str, Any]) -> DeviceOptions:
         """Check every option (ValueError naming the option, the value and the rule)."""
         known = {f.name for f in fields(cls)}
         out = cls()
@@ -211,7 +227,9 @@ class DeviceOptions:
             elif key == "life_time_factor":
                 out.life_time_factor = _int(key, value, 0, 255, "0x100D life time factor")
             elif key in ("sync_period_us", "sync_window_us"):
-                setattr(out, key, _int(key, value, 0, _U32, f"0x{0x1006 if key == 'sync_period_us' else 0x1007:04X}, µs"))
+                setattr(
+                    out, key, _int(key, value, 0, _U32, f"0x{0x1006 if key == 'sync_period_us' else 0x1007:04X}, µs")
+                )
             elif key in ("sync_producer", "start_operational", "remap_in_operational"):
                 setattr(out, key, _bool(key, value))
             elif key == "sync_cob_id":
@@ -263,7 +281,7 @@ class MasterOptions:
     configure: dict[int, dict[tuple[int, int], Any]] = field(default_factory=dict)
 
     @classmethod
-    def parse(cls, options: Mapping[str, Any]) -> "MasterOptions":
+    def parse(cls, options: Mapping[str, Any]) -> MasterOptions:
         """Check every option (ValueError naming the option, the value and the rule)."""
         known = {f.name for f in fields(cls)}
         out = cls()
@@ -318,7 +336,7 @@ class MasterOptions:
         return out
 
 
-def apply_device_options(s: "ObjectStore", o: DeviceOptions) -> None:
+def apply_device_options(s: ObjectStore, o: DeviceOptions) -> None:
     """Write the options into the dictionary before boot-up, as a DCF would (every object through
     `ObjectStore.set`: its type and limits apply); a value the dictionary refuses is a ValueError
     naming the option. CiA 301 objects: 0x1017, 0x100C/0x100D, 0x1016, 0x1006, 0x1007, 0x1019,
@@ -342,8 +360,10 @@ def apply_device_options(s: "ObjectStore", o: DeviceOptions) -> None:
     if o.heartbeat_consumers:
         subs = sorted(k for k in od.indices[0x1016].subindices if k) if 0x1016 in od.indices else []
         if len(o.heartbeat_consumers) > len(subs):
-            raise ValueError(f"heartbeat_consumers: {len(o.heartbeat_consumers)} nodes, the dictionary's 0x1016 "
-                             f"has {len(subs)} entries")
+            raise ValueError(
+                f"heartbeat_consumers: {len(o.heartbeat_consumers)} nodes, the dictionary's 0x1016 "
+                f"has {len(subs)} entries"
+            )
         for sub, (nid, ms) in zip(subs, sorted(o.heartbeat_consumers.items())):
             put(0x1016, sub, (nid << 16) | ms, "heartbeat_consumers")
     if o.sync_period_us is not None:

@@ -50,10 +50,9 @@ class CanopenDeviceProfile:
 
     kind = "canopen"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: "Context") -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         self.decl = decl
-        self.device = CanopenDevice(node, decl.options["node_id"], decl.options["eds"],
-                                    **decl.options["canopen"])
+        self.device = CanopenDevice(node, decl.options["node_id"], decl.options["eds"], **decl.options["canopen"])
 
     def start(self) -> None:
         """Boot the device (boot-up message, pre-operational)."""
@@ -69,7 +68,7 @@ class CanopenMasterProfile:
 
     kind = "canopen-master"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: "Context") -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         self.decl = decl
         self.master = CanopenMaster(node, **decl.options["canopen"])
 
@@ -82,7 +81,7 @@ class CanopenMasterProfile:
         return self.master.metrics()
 
 
-def _check(scenario: "Scenario", tables: dict[str, Any]) -> None:
+def _check(scenario: Scenario, tables: dict[str, Any]) -> None:
     """Check every CANopen node's options now, so that a bad one is a one-line error before the
     run; node-IDs are unique on a bus."""
     seen: dict[int, str] = {}
@@ -91,14 +90,18 @@ def _check(scenario: "Scenario", tables: dict[str, Any]) -> None:
             continue
         loc = where(scenario.source, f"[[nodes]] #{i} {d.name!r}")
         if d.messages:
-            raise ScenarioError(f"{loc}: messages: a {d.profile} node sends what CiA 301 says (PDOs, SDO, NMT, "
-                                "heartbeat): configure its PDOs in [nodes.canopen] instead")
+            raise ScenarioError(
+                f"{loc}: messages: a {d.profile} node sends what CiA 301 says (PDOs, SDO, NMT, "
+                "heartbeat): configure its PDOs in [nodes.canopen] instead"
+            )
         try:
             if d.profile == "canopen":
                 nid = d.options["node_id"]
                 if nid in seen:
-                    raise ScenarioError(f"{loc}: node_id: {nid} is already node {seen[nid]!r}'s (node-IDs are "
-                                        "unique on a CANopen network)")
+                    raise ScenarioError(
+                        f"{loc}: node_id: {nid} is already node {seen[nid]!r}'s (node-IDs are "
+                        "unique on a CANopen network)"
+                    )
                 seen[nid] = d.name
                 DeviceOptions.parse(d.options["canopen"])
                 if d.options["eds"] is not None:
@@ -113,7 +116,7 @@ def _check(scenario: "Scenario", tables: dict[str, Any]) -> None:
             raise ScenarioError(f"{loc}: canopen: {exc}") from None
 
 
-def _summarize(profiles: list[Any], context: "Context") -> dict[str, Any]:
+def _summarize(profiles: list[Any], context: Context) -> dict[str, Any]:
     return {p.decl.name: p.summary() for p in profiles}
 
 
@@ -128,18 +131,28 @@ def _text(figures: dict[str, Any]) -> list[str]:
         if f.get("profile") == "canopen":
             miss = sum(v for (_, nid), v in missed.items() if nid == f["node_id"])
             seen = state.get(f["node_id"], "-")
-            lines.append(f"{f['node']:<14} {f['node_id']:>3} {f['nmt_state'] + (' (' + seen + ')' if seen not in ('-', f['nmt_state']) else ''):<16} "
-                         f"{f['heartbeats_sent']:>15} {miss:>6}")
-    late = {(f["node_id"], tp.get("cob_id")): tp.get("not_in_window", 0)
-            for f in figures.values() if f.get("profile") == "canopen" for tp in f["tpdos"]}
+            lines.append(
+                f"{f['node']:<14} {f['node_id']:>3} {f['nmt_state'] + (' (' + seen + ')' if seen not in ('-', f['nmt_state']) else ''):<16} "
+                f"{f['heartbeats_sent']:>15} {miss:>6}"
+            )
+    late = {
+        (f["node_id"], tp.get("cob_id")): tp.get("not_in_window", 0)
+        for f in figures.values()
+        if f.get("profile") == "canopen"
+        for tp in f["tpdos"]
+    }
     for m in masters:
-        lines.append(f"{'PDO (master ' + m['node'] + ')':<24} {'received':>8} {'SYNC->end min/mean/p99/max (ms)':>34} "
-                     f"{'not in window':>13}")
+        lines.append(
+            f"{'PDO (master ' + m['node'] + ')':<24} {'received':>8} {'SYNC->end min/mean/p99/max (ms)':>34} "
+            f"{'not in window':>13}"
+        )
         for p in m["pdos"]:
             s = p["sync_latency_ms"] or {}
             lat = "/".join(f"{s[k]:.3f}" for k in ("min", "mean", "p99", "max")) if s.get("count") else "-"
-            lines.append(f"{p['pdo'] + ' 0x%03X' % p['cob_id']:<24} {p['received']:>8} {lat:>34} "
-                         f"{late.get((p['node_id'], p['cob_id']), 0):>13}")
+            lines.append(
+                f"{p['pdo'] + ' 0x{:03X}'.format(p['cob_id']):<24} {p['received']:>8} {lat:>34} "
+                f"{late.get((p['node_id'], p['cob_id']), 0):>13}"
+            )
     return lines
 
 
@@ -149,12 +162,28 @@ _DEVICE_KEYS = {
     "canopen": Key(dict, {}, doc="device options (heartbeat_ms, sync_window_us, tpdo, rpdo, values, ...)"),
 }
 
-DEVICE = register(ProfileKind(
-    name="canopen", build=CanopenDeviceProfile, node_keys=_DEVICE_KEYS, timed_messages=False, parse=_check,
-    result_key="canopen", summarize=_summarize, text=_text, description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)"))
+DEVICE = register(
+    ProfileKind(
+        name="canopen",
+        build=CanopenDeviceProfile,
+        node_keys=_DEVICE_KEYS,
+        timed_messages=False,
+        parse=_check,
+        result_key="canopen",
+        summarize=_summarize,
+        text=_text,
+        description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)",
+    )
+)
 
-MASTER = register(ProfileKind(
-    name="canopen-master", build=CanopenMasterProfile,
-    node_keys={"canopen": Key(dict, {}, doc="master options (nodes, sync_period_us, heartbeat_consumer_ms, ...)")},
-    timed_messages=False, result_key="canopen", summarize=_summarize,
-    description="CiA 301 NMT master, SYNC producer, heartbeat consumer"))
+MASTER = register(
+    ProfileKind(
+        name="canopen-master",
+        build=CanopenMasterProfile,
+        node_keys={"canopen": Key(dict, {}, doc="master options (nodes, sync_period_us, heartbeat_consumer_ms, ...)")},
+        timed_messages=False,
+        result_key="canopen",
+        summarize=_summarize,
+        description="CiA 301 NMT master, SYNC producer, heartbeat consumer",
+    )
+)

@@ -7,7 +7,7 @@ metrics recorder reads those); this only summarises.
 from __future__ import annotations
 
 import math
-from typing import Iterable
+from collections.abc import Iterable
 
 __all__ = ["summary", "percentile"]
 
@@ -26,5 +26,10 @@ def summary(samples_ns: Iterable[int]) -> dict[str, float | int | None]:
     if not s:
         return {"count": 0, "min": None, "mean": None, "p99": None, "max": None}
     ms = 1e6
-    return {"count": len(s), "min": round(s[0] / ms, 6), "mean": round(sum(s) / len(s) / ms, 6),
-            "p99": round(percentile(s, 99) / ms, 6), "max": round(s[-1] / ms, 6)}
+    return {
+        "count": len(s),
+        "min": round(s[0] / ms, 6),
+        "mean": round(sum(s) / len(s) / ms, 6),
+        "p99": round(percentile(s, 99) / ms, 6),
+        "max": round(s[-1] / ms, 6),
+    }

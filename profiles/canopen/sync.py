@@ -15,13 +15,13 @@ data length).
 
 from __future__ import annotations
 
-from typing import Any, Callable
-
-from stack import Frame
+from collections.abc import Callable
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
 __all__ = ["SyncConsumer", "SyncProducer", "SYNC_TIMEOUT_FACTOR", "check_cob_id_sync", "check_counter_overflow"]
 
@@ -38,9 +38,14 @@ class SyncConsumer:
     ``call_at`` is the node's timer. Counters: ``received``, ``length_errors``, ``timeouts``.
     """
 
-    def __init__(self, call_at: Callable[..., Any], on_sync: Callable[[int | None, int], Any], *,
-                 on_length_error: Callable[[int], Any] | None = None,
-                 on_timeout: Callable[[bool], Any] | None = None) -> None:
+    def __init__(
+        self,
+        call_at: Callable[..., Any],
+        on_sync: Callable[[int | None, int], Any],
+        *,
+        on_length_error: Callable[[int], Any] | None = None,
+        on_timeout: Callable[[bool], Any] | None = None,
+    ) -> None:
         self.call_at = call_at
         self.on_sync = on_sync
         self.on_length_error = on_length_error

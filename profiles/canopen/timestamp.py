@@ -12,13 +12,13 @@ given by whoever starts the device) plus the node's time.
 from __future__ import annotations
 
 import struct
-from typing import Any, Callable
-
-from stack import Frame
+from collections.abc import Callable
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
 __all__ = ["encode_time_of_day", "decode_time_of_day", "TimeProducer", "EPOCH_1984", "DAY_MS", "check_cob_id_time"]
 

@@ -40,20 +40,20 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Master", "Slave", "MASTER", "SLAVE", "PLOTS", "summarize", "text"]
 
 
-def _build_master(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> Master:
+def _build_master(node: NodeAPI, decl: NodeDecl, context: Context) -> Master:
     return Master(node, decl, context)
 
 
-def _build_slave(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> Slave:
+def _build_slave(node: NodeAPI, decl: NodeDecl, context: Context) -> Slave:
     return Slave(node, decl, context)
 
 
-def _traffic(decl: "NodeDecl", scenario: "Scenario") -> "list[MessageSpec]":
+def _traffic(decl: NodeDecl, scenario: Scenario) -> list[MessageSpec]:
     """The node's streams in the holistic model (`profiles.polling.analysis`)."""
     return holistic(scenario).specs.get(decl.name, [])
 
 
-def _alone(scenario: "Scenario", net: "Network", master: str) -> str | None:
+def _alone(scenario: Scenario, net: Network, master: str) -> str | None:
     """Why the frame-length bound does not apply to this master's cycle (None: it does) — it needs
     the cycle alone on a fault-free bus."""
     mine = {master, *net.masters[master].slaves}
@@ -73,17 +73,17 @@ def _ms(v: Any) -> float | None:
     return None if v is None else float(v) / 1e6
 
 
-def _in_window(scenario: "Scenario", windows: list[tuple[int, int, bool]]) -> list[list[Any]]:
+def _in_window(scenario: Scenario, windows: list[tuple[int, int, bool]]) -> list[list[Any]]:
     w = scenario.plot.get("window_ms")
     t0, t1 = (round(w[0] * 1e6), round(w[1] * 1e6)) if w else (0, 50_000_000)
     return [[a / 1e6, b / 1e6, ov] for a, b, ov in windows if b >= t0 and a <= t1]
 
 
-def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
+def summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
     """``master_slave`` of the results: every master's cycle beside its worst case, and every
     slave as its master and itself saw it (see the package docstring)."""
     sc = context.scenario
-    net: "Network" = sc.tables[NETWORK_TABLE]
+    net: Network = sc.tables[NETWORK_TABLE]
     stuffing = sc.analysis.get("stuffing", "worst")
     h = holistic(sc)
     out: dict[str, Any] = {"masters": {}, "slaves": {}}
@@ -97,13 +97,18 @@ def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
         fig = p.figures()
         fig["cycle_period_ms"] = cfg.cycle_ns / 1e6
         fig["cycle_bound_ms"] = _ms(chain) if why is None else _ms(rta)
-        fig["bound_method"] = ("frame lengths, processing delays and inter-frame spaces (the cycle alone on a "
-                               "fault-free bus)" if why is None else
-                               f"holistic response-time analysis ({why})" if rta is not None else
-                               f"none ({why}; " + ("; ".join(h.notes) or "the analysis does not apply") + ")")
+        fig["bound_method"] = (
+            "frame lengths, processing delays and inter-frame spaces (the cycle alone on a fault-free bus)"
+            if why is None
+            else f"holistic response-time analysis ({why})"
+            if rta is not None
+            else f"none ({why}; " + ("; ".join(h.notes) or "the analysis does not apply") + ")"
+        )
         if sc.faults:
-            fig["bound_note"] = ("the scenario injects faults: the bound is the fault-free cycle's (clean_cycle_ms: "
-                                 "the cycles in which every slave due answered in time)")
+            fig["bound_note"] = (
+                "the scenario injects faults: the bound is the fault-free cycle's (clean_cycle_ms: "
+                "the cycles in which every slave due answered in time)"
+            )
         fig["chain_bound_ms"] = _ms(chain)
         fig["rta_cycle_bound_ms"] = _ms(rta)
         fig["rta_notes"] = h.notes
@@ -120,17 +125,24 @@ def summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
                 offsets = h.offsets_ns.get(tx.request.name)
             worst = [p.links[s].response_ns for s in tx.slaves]
             measured = max((max(a) for a in worst if len(a)), default=None)
-            txs.append({"name": tx.request.name, "style": tx.style, "slaves": list(tx.slaves),
-                        "timeout_ms": tx.timeout_ns / 1e6, "retries": tx.retries,
-                        "bound_ms": _ms(alone),
-                        "rta_bound_ms": _ms(h.transaction_ns.get(tx.request.name)),
-                        "response_ms_max": _ms(measured),
-                        # from the cycle's start (the master queues its first request): when the
-                        # request's data reached the slave(s), and when the last answer came back
-                        "request_end_ms_max": _ms(p.offsets[tx.request.name][0] or None),
-                        "request_end_bound_ms": None if offsets is None else _ms(offsets[0]),
-                        "end_ms_max": _ms(p.offsets[tx.request.name][1] or None),
-                        "end_bound_ms": None if offsets is None else _ms(offsets[1])})
+            txs.append(
+                {
+                    "name": tx.request.name,
+                    "style": tx.style,
+                    "slaves": list(tx.slaves),
+                    "timeout_ms": tx.timeout_ns / 1e6,
+                    "retries": tx.retries,
+                    "bound_ms": _ms(alone),
+                    "rta_bound_ms": _ms(h.transaction_ns.get(tx.request.name)),
+                    "response_ms_max": _ms(measured),
+                    # from the cycle's start (the master queues its first request): when the
+                    # request's data reached the slave(s), and when the last answer came back
+                    "request_end_ms_max": _ms(p.offsets[tx.request.name][0] or None),
+                    "request_end_bound_ms": None if offsets is None else _ms(offsets[0]),
+                    "end_ms_max": _ms(p.offsets[tx.request.name][1] or None),
+                    "end_bound_ms": None if offsets is None else _ms(offsets[1]),
+                }
+            )
         fig["transactions"] = txs
         fig["window_cycles_ms"] = _in_window(sc, p.windows)
         out["masters"][cfg.name] = fig
@@ -154,34 +166,59 @@ def text(figures: dict[str, Any]) -> list[str]:
     lines = []
     for name, m in figures.get("masters", {}).items():
         c, clean = m["cycle_ms"] or {}, m["clean_cycle_ms"] or {}
-        lines.append(f"master {name}: {m['cycles']} cycles of {m['cycle_period_ms']:g} ms, {m['overruns']} overruns; "
-                     f"cycle {_f(c.get('min'), 0)}..{_f(c.get('max'), 0)} ms (answered in time: max "
-                     f"{_f(clean.get('max'), 0)}), worst case {_f(m['cycle_bound_ms'], 0)} ms by {m['bound_method']}")
-        lines.append(f"{'transaction':<16} {'style':<10} {'exchange max':>12} {'bound':>7}  (ms, request SOF -> end of "
-                     "the last answer)")
+        lines.append(
+            f"master {name}: {m['cycles']} cycles of {m['cycle_period_ms']:g} ms, {m['overruns']} overruns; "
+            f"cycle {_f(c.get('min'), 0)}..{_f(c.get('max'), 0)} ms (answered in time: max "
+            f"{_f(clean.get('max'), 0)}), worst case {_f(m['cycle_bound_ms'], 0)} ms by {m['bound_method']}"
+        )
+        lines.append(
+            f"{'transaction':<16} {'style':<10} {'exchange max':>12} {'bound':>7}  (ms, request SOF -> end of "
+            "the last answer)"
+        )
         for t in m["transactions"]:
             bound = t["bound_ms"] if m["bound_method"].startswith("frame") else t["rta_bound_ms"]
             lines.append(f"{t['name'][:16]:<16} {t['style']:<10} {_f(t['response_ms_max'], 12)} {_f(bound)}")
     slaves = figures.get("slaves", {})
     if slaves:
-        lines.append(f"{'slave':<12} {'polls':>6} {'answers':>7} {'timeouts':>8} {'missed':>6} {'lost':>5} "
-                     f"{'resp max':>8} {'jitter':>7} {'cos':>5} {'master lost':>11}")
+        lines.append(
+            f"{'slave':<12} {'polls':>6} {'answers':>7} {'timeouts':>8} {'missed':>6} {'lost':>5} "
+            f"{'resp max':>8} {'jitter':>7} {'cos':>5} {'master lost':>11}"
+        )
         for name, s in slaves.items():
             r = s["response_ms"] or {}
-            lines.append(f"{name[:12]:<12} {s['polls']:>6} {s['responses']:>7} {s['timeouts']:>8} {s['missed']:>6} "
-                         f"{'yes' if s['lost'] else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
-                         f"{s.get('master_lost', 0):>11}")
+            lines.append(
+                f"{name[:12]:<12} {s['polls']:>6} {s['responses']:>7} {s['timeouts']:>8} {s['missed']:>6} "
+                f"{'yes' if s['lost'] else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
+                f"{s.get('master_lost', 0):>11}"
+            )
     return lines
 
 
-MASTER = register(ProfileKind(
-    name="master", build=_build_master, node_keys=MASTER_KEYS, timed_messages=False, parse=parse_network,
-    result_key="master_slave", summarize=summarize, traffic=_traffic, text=text,
-    description="master/slave polling: the master runs its poll list as a cycle"))
+MASTER = register(
+    ProfileKind(
+        name="master",
+        build=_build_master,
+        node_keys=MASTER_KEYS,
+        timed_messages=False,
+        parse=parse_network,
+        result_key="master_slave",
+        summarize=summarize,
+        traffic=_traffic,
+        text=text,
+        description="master/slave polling: the master runs its poll list as a cycle",
+    )
+)
 
-SLAVE = register(ProfileKind(
-    name="slave", build=_build_slave, node_keys=SLAVE_KEYS, timed_messages=False, traffic=_traffic,
-    description="master/slave polling: a slave answers its master's requests"))
+SLAVE = register(
+    ProfileKind(
+        name="slave",
+        build=_build_slave,
+        node_keys=SLAVE_KEYS,
+        timed_messages=False,
+        traffic=_traffic,
+        description="master/slave polling: a slave answers its master's requests",
+    )
+)
 
 PLOTS = {"poll_cycle": poll_cycle}
 """Plots ``canstack experiment --plot`` adds for a scenario with a master."""

@@ -97,8 +97,16 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.polling.config import MasterConfig, Network, SlaveConfig, Transaction
     from profiles.scenario import MessageDecl, Scenario
 
-__all__ = ["frame_bits", "frame_bits_min", "transaction_bound_ns", "cycle_bound_ns", "holistic", "Holistic",
-           "MAX_ITERATIONS", "MASTER_SLAVE_PROFILES"]
+__all__ = [
+    "frame_bits",
+    "frame_bits_min",
+    "transaction_bound_ns",
+    "cycle_bound_ns",
+    "holistic",
+    "Holistic",
+    "MAX_ITERATIONS",
+    "MASTER_SLAVE_PROFILES",
+]
 
 MAX_ITERATIONS = 100
 """The holistic iteration gives up (no bound) after this many rounds."""
@@ -106,7 +114,7 @@ MAX_ITERATIONS = 100
 MASTER_SLAVE_PROFILES = ("master", "slave")
 
 
-def frame_bits(m: "MessageDecl", stuffing: str = "worst") -> int:
+def frame_bits(m: MessageDecl, stuffing: str = "worst") -> int:
     """Bits from SOF to the end of EOF of a declared message's frame: worst-case stuffing (eq. 1 of
     Davis et al. less its 3-bit intermission; a remote frame carries no data bytes) or, with
     ``stuffing="exact"``, the exact length of its fixed payload."""
@@ -115,7 +123,7 @@ def frame_bits(m: "MessageDecl", stuffing: str = "worst") -> int:
     return frame_bits_worst(0 if m.remote else m.dlc, m.extended) - INTERMISSION_BITS
 
 
-def frame_bits_min(m: "MessageDecl") -> int:
+def frame_bits_min(m: MessageDecl) -> int:
     """The shortest the frame can be: no stuff bits (44 + 8n standard, 64 + 8n extended)."""
     return (64 if m.extended else 44) + (0 if m.remote else 8 * min(m.dlc, 8))
 
@@ -124,7 +132,7 @@ def _tau(bitrate: int) -> Fraction:
     return Fraction(10**9, bitrate)
 
 
-def _delay_max(tx: "Transaction", slaves: "dict[str, SlaveConfig]", k: int) -> int:
+def _delay_max(tx: Transaction, slaves: dict[str, SlaveConfig], k: int) -> int:
     # a remote-reply mailbox answers in the controller: no application delay
     return 0 if tx.style == "remote" else slaves[tx.slaves[k]].processing_max_ns
 
@@ -135,8 +143,9 @@ def _makespan(ready: list[Fraction], occupy: list[Fraction]) -> Fraction:
     return max(r + sum((o for rj, o in zip(ready, occupy) if rj >= r), Fraction(0)) for r in ready)
 
 
-def transaction_bound_ns(tx: "Transaction", slaves: "dict[str, SlaveConfig]", bitrate: int,
-                         stuffing: str = "worst") -> Fraction:
+def transaction_bound_ns(
+    tx: Transaction, slaves: dict[str, SlaveConfig], bitrate: int, stuffing: str = "worst"
+) -> Fraction:
     """Worst case, in ns, from the request's SOF to the end of its last response on a bus that
     carries nothing else (see the module docstring)."""
     tau = _tau(bitrate)
@@ -146,16 +155,18 @@ def transaction_bound_ns(tx: "Transaction", slaves: "dict[str, SlaveConfig]", bi
     return frame_bits(tx.request, stuffing) * tau + _makespan(ready, occupy) - ifs
 
 
-def cycle_bound_ns(master: "MasterConfig", slaves: "dict[str, SlaveConfig]", bitrate: int,
-                   stuffing: str = "worst") -> Fraction:
+def cycle_bound_ns(
+    master: MasterConfig, slaves: dict[str, SlaveConfig], bitrate: int, stuffing: str = "worst"
+) -> Fraction:
     """Worst case, in ns, of a poll cycle on a bus that carries nothing else: the transactions'
     bounds plus one intermission between consecutive ones."""
     txs = master.transactions
     if not txs:
         return Fraction(0)
     tau = _tau(bitrate)
-    return (sum((transaction_bound_ns(t, slaves, bitrate, stuffing) for t in txs), Fraction(0))
-            + INTERMISSION_BITS * tau * (len(txs) - 1))
+    return sum(
+        (transaction_bound_ns(t, slaves, bitrate, stuffing) for t in txs), Fraction(0)
+    ) + INTERMISSION_BITS * tau * (len(txs) - 1)
 
 
 # ---------------------------------------------------------------------------------------------- shared bus
@@ -183,7 +194,7 @@ class Holistic:
     notes: list[str] = field(default_factory=list)
 
 
-def _spec(m: "MessageDecl", period: int, deadline: int, jitter: Fraction, stuffing: str) -> MessageSpec:
+def _spec(m: MessageDecl, period: int, deadline: int, jitter: Fraction, stuffing: str) -> MessageSpec:
     bits: int | None = frame_bits(m, stuffing) + INTERMISSION_BITS
     if stuffing != "exact" and not m.remote:
         bits = None  # eq. 1 from the DLC, as every other stream of the analysis
@@ -201,8 +212,15 @@ class _Foreign:
     can delay it at any point; the others ("lower") only by a frame already on the bus when the
     window opens, or one that starts while the chain waits for a slave's processing delay."""
 
-    def __init__(self, specs: list[MessageSpec], rta: dict[str, Any], chain_top: int, bitrate: int,
-                 errors: ErrorModel | None = None, longest: Fraction = Fraction(0)) -> None:
+    def __init__(
+        self,
+        specs: list[MessageSpec],
+        rta: dict[str, Any],
+        chain_top: int,
+        bitrate: int,
+        errors: ErrorModel | None = None,
+        longest: Fraction = Fraction(0),
+    ) -> None:
         self.t_error = None if errors is None else Fraction(errors.t_error_ns)
         self.higher: list[tuple[Fraction, int, int, Fraction]] = []
         self.lower: list[tuple[Fraction, int, int, Fraction]] = []
@@ -249,7 +267,7 @@ class _Chain:
     """One master's chain of frames: their release windows relative to the cycle's start, and the
     bounds on the cycle and on each transaction."""
 
-    def __init__(self, master: "MasterConfig", net: "Network", bitrate: int, stuffing: str) -> None:
+    def __init__(self, master: MasterConfig, net: Network, bitrate: int, stuffing: str) -> None:
         self.master = master
         self.net = net
         self.tau = _tau(bitrate)
@@ -258,18 +276,19 @@ class _Chain:
         keys = [frame_of(m).key for tx in master.transactions for m in (tx.request, *tx.responses)]
         self.top = max(keys, default=0)
 
-    def c(self, m: "MessageDecl") -> Fraction:
+    def c(self, m: MessageDecl) -> Fraction:
         return (frame_bits(m, self.stuffing) + INTERMISSION_BITS) * self.tau
 
-    def gap(self, tx: "Transaction") -> tuple[Fraction, int]:
+    def gap(self, tx: Transaction) -> tuple[Fraction, int]:
         """How long the bus may wait for the slaves' processing, and in how many idle stretches
         (one per answer that can be ready after the request's intermission)."""
         ifs = INTERMISSION_BITS * self.tau
         delays = [_delay_max(tx, self.net.slaves, k) for k in range(len(tx.slaves))]
         return max(Fraction(0), Fraction(max(delays)) - ifs), sum(1 for d in delays if d > ifs)
 
-    def bounds(self, foreign: _Foreign | None) -> tuple[dict[str, tuple[Fraction, Fraction]], Fraction,
-                                                        dict[str, tuple[Fraction, Fraction, Fraction]]]:
+    def bounds(
+        self, foreign: _Foreign | None
+    ) -> tuple[dict[str, tuple[Fraction, Fraction]], Fraction, dict[str, tuple[Fraction, Fraction, Fraction]]]:
         """Release windows [o_min, o_max] of the chain's frames, the bound on the cycle (its first
         request's queuing to the end of its last answer) and on each transaction. Without
         ``foreign`` the chain is alone on the bus. Per transaction: its own bound, and the bounds on
@@ -308,7 +327,7 @@ class _Chain:
         return out, hi, per_tx
 
 
-def _other_specs(scenario: "Scenario") -> tuple[list[MessageSpec], list[str]]:
+def _other_specs(scenario: Scenario) -> tuple[list[MessageSpec], list[str]]:
     specs: list[MessageSpec] = []
     unmodelled = []
     for d in scenario.nodes:
@@ -322,11 +341,11 @@ def _other_specs(scenario: "Scenario") -> tuple[list[MessageSpec], list[str]]:
     return specs, unmodelled
 
 
-def holistic(scenario: "Scenario") -> Holistic:
+def holistic(scenario: Scenario) -> Holistic:
     """The analysis of the scenario's bus with its master/slave traffic (see the module
     docstring), computed once per scenario, bitrate, stuffing and error model (cached in the
     scenario's master/slave network)."""
-    net: "Network" = scenario.tables["master_slave"]
+    net: Network = scenario.tables["master_slave"]
     stuffing = scenario.analysis.get("stuffing", "worst")
     t_err = scenario.analysis.get("t_error_ms")
     key = (scenario.bitrate, stuffing, t_err)
@@ -336,7 +355,7 @@ def holistic(scenario: "Scenario") -> Holistic:
     return got
 
 
-def _holistic(scenario: "Scenario", net: "Network", stuffing: str, t_err: Any) -> Holistic:
+def _holistic(scenario: Scenario, net: Network, stuffing: str, t_err: Any) -> Holistic:
     bitrate = scenario.bitrate
     tau = _tau(bitrate)
     others, unmodelled = _other_specs(scenario)
@@ -374,8 +393,14 @@ def _holistic(scenario: "Scenario", net: "Network", stuffing: str, t_err: Any) -
                 w_cos[name] = Fraction(r.response_ns) - new_j.get(name, _jitter_of(flat, name))
             windows = {}
             for ch in chains:
-                foreign = _Foreign([x for x in flat if x.name not in ch.names], rta, ch.top, bitrate, errors,
-                                   max((Fraction(rta[n].c_ns) for n in ch.names), default=Fraction(0)))
+                foreign = _Foreign(
+                    [x for x in flat if x.name not in ch.names],
+                    rta,
+                    ch.top,
+                    bitrate,
+                    errors,
+                    max((Fraction(rta[n].c_ns) for n in ch.names), default=Fraction(0)),
+                )
                 got, end, per_tx = ch.bounds(foreign)
                 windows.update(got)
                 last[ch.master.name] = (end, per_tx)
@@ -400,7 +425,7 @@ def _holistic(scenario: "Scenario", net: "Network", stuffing: str, t_err: Any) -
     return result
 
 
-def _cos_names(net: "Network") -> list[str]:
+def _cos_names(net: Network) -> list[str]:
     return [m.name for s in net.slaves.values() for m in s.cos]
 
 
@@ -408,7 +433,7 @@ def _jitter_of(flat: list[MessageSpec], name: str) -> int:
     return next(x.jitter_ns for x in flat if x.name == name)
 
 
-def _ack_jitters(net: "Network", w_cos: dict[str, Fraction], tau: Fraction) -> dict[str, Fraction]:
+def _ack_jitters(net: Network, w_cos: dict[str, Fraction], tau: Fraction) -> dict[str, Fraction]:
     """An acknowledgement is released when the COS frame it answers ends: J_cos + W_cos − L_min."""
     out = {}
     for master in net.masters.values():
@@ -419,7 +444,7 @@ def _ack_jitters(net: "Network", w_cos: dict[str, Fraction], tau: Fraction) -> d
     return out
 
 
-def _build_specs(net: "Network", jitter: dict[str, Fraction], stuffing: str) -> dict[str, list[MessageSpec]]:
+def _build_specs(net: Network, jitter: dict[str, Fraction], stuffing: str) -> dict[str, list[MessageSpec]]:
     """The streams of every master and slave node, with the jitters of this round."""
     specs: dict[str, list[MessageSpec]] = {n: [] for n in list(net.masters) + list(net.slaves)}
     for master in net.masters.values():
@@ -434,20 +459,26 @@ def _build_specs(net: "Network", jitter: dict[str, Fraction], stuffing: str) -> 
                 continue
             # one acknowledgement per frame of the link's one COS/cyclic message: its interval
             m = link.messages[0]
-            specs[master.name].append(_spec(link.ack, m.interval_ns or 0, m.deadline_ns or m.interval_ns or 0,
-                                            jitter[link.ack.name], stuffing))
+            specs[master.name].append(
+                _spec(
+                    link.ack, m.interval_ns or 0, m.deadline_ns or m.interval_ns or 0, jitter[link.ack.name], stuffing
+                )
+            )
     for s in net.slaves.values():
         for m in s.cos:
-            specs[s.name].append(_spec(m, m.interval_ns or 0, m.deadline_ns or m.interval_ns or 0,
-                                       Fraction(m.jitter_ns), stuffing))
+            specs[s.name].append(
+                _spec(m, m.interval_ns or 0, m.deadline_ns or m.interval_ns or 0, Fraction(m.jitter_ns), stuffing)
+            )
     return specs
 
 
-def _inversion_note(scenario: "Scenario") -> str | None:
+def _inversion_note(scenario: Scenario) -> str | None:
     """The spine's rule: a node without a priority queue breaks the analysis for its messages and
     every one of lower priority — here the cycle gets no bound."""
     for d in scenario.nodes:
         if not d.priority_queue and (d.messages or d.profile in MASTER_SLAVE_PROFILES):
-            return (f"node {d.name!r} uses a {d.queue} queue (priority inversion): the analysis gives no bound "
-                    "for the cycle")
+            return (
+                f"node {d.name!r} uses a {d.queue} queue (priority inversion): the analysis gives no bound "
+                "for the cycle"
+            )
     return None

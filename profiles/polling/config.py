@@ -55,21 +55,43 @@ per-message metrics and the response-time analysis cover them like any other.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any
 
-from profiles.base import frame_of
 import profiles.polling.plan as ids
+from profiles.base import frame_of
 from profiles.polling.analysis import transaction_bound_ns
 from profiles.scenario import MessageDecl, ms_to_ns
-from profiles.schema import (REQUIRED, Key, ScenarioError, identifier_rule, in_range, non_negative, one_of,
-                             positive, read_table, where)
+from profiles.schema import (
+    REQUIRED,
+    Key,
+    ScenarioError,
+    identifier_rule,
+    in_range,
+    non_negative,
+    one_of,
+    positive,
+    read_table,
+    where,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.scenario import NodeDecl, Scenario
 
-__all__ = ["Transaction", "CosLink", "MasterConfig", "SlaveConfig", "Network", "parse_network", "MASTER_KEYS",
-           "SLAVE_KEYS", "POLL_KEYS", "STYLES", "NETWORK_TABLE"]
+__all__ = [
+    "Transaction",
+    "CosLink",
+    "MasterConfig",
+    "SlaveConfig",
+    "Network",
+    "parse_network",
+    "MASTER_KEYS",
+    "SLAVE_KEYS",
+    "POLL_KEYS",
+    "STYLES",
+    "NETWORK_TABLE",
+]
 
 STYLES = ("polled", "remote", "bit_strobe", "cos")
 NETWORK_TABLE = "master_slave"
@@ -77,8 +99,12 @@ NETWORK_TABLE = "master_slave"
 
 MASTER_KEYS = {
     "cycle_ms": Key(float, REQUIRED, positive("the poll cycle"), "the poll cycle, ms"),
-    "poll": Key(list, REQUIRED, lambda v: None if v else "a master needs at least one [[nodes.poll]] entry",
-                "the poll list: [[nodes.poll]] tables"),
+    "poll": Key(
+        list,
+        REQUIRED,
+        lambda v: None if v else "a master needs at least one [[nodes.poll]] entry",
+        "the poll list: [[nodes.poll]] tables",
+    ),
     "mac_id": Key(int, 0, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
     "plan": Key(str, "devicenet", one_of(*ids.PLANS), "identifier plan: devicenet | custom"),
     "offset_ms": Key(float, 0.0, non_negative(), "start of the first cycle"),
@@ -91,11 +117,16 @@ MASTER_KEYS = {
 
 SLAVE_KEYS = {
     "mac_id": Key(int, None, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
-    "processing_ms": Key(float, 0.0, non_negative("a processing delay"),
-                         "longest delay from the end of a request to queuing the answer"),
+    "processing_ms": Key(
+        float, 0.0, non_negative("a processing delay"), "longest delay from the end of a request to queuing the answer"
+    ),
     "processing_min_ms": Key(float, None, non_negative("a processing delay"), "shortest delay (default: the longest)"),
-    "watchdog_ms": Key(float, None, positive("a watchdog time"),
-                       "loss of master after this long without a request (default: 4 poll cycles)"),
+    "watchdog_ms": Key(
+        float,
+        None,
+        positive("a watchdog time"),
+        "loss of master after this long without a request (default: 4 poll cycles)",
+    ),
 }
 
 POLL_KEYS = {
@@ -124,7 +155,7 @@ _STYLE_KEYS = {
 }
 _WHY_NOT = {
     ("bit_strobe", "retries"): "a bit-strobe command is a broadcast: repeating it makes every strobed slave answer "
-                               "again; a missed strobe response waits for the next cycle",
+    "again; a missed strobe response waits for the next cycle",
     ("remote", "dlc"): "a remote frame's DLC is the DLC of the data frame it asks for (the slave's response)",
     ("remote", "data"): "a remote frame carries no data",
     ("remote", "id"): "a remote frame has the identifier of the data frame it asks for (give response_id)",
@@ -218,14 +249,14 @@ class Network:
 # ---------------------------------------------------------------------------------------------- parsing
 
 
-def _label(i: int, d: "NodeDecl") -> str:
+def _label(i: int, d: NodeDecl) -> str:
     return f"[[nodes]] #{i} {d.name!r}"
 
 
 class _Parser:
     """Reads the masters' poll lists and the slaves' messages of one scenario."""
 
-    def __init__(self, scenario: "Scenario") -> None:
+    def __init__(self, scenario: Scenario) -> None:
         self.sc = scenario
         self.src = scenario.source
         self.index = {d.name: i for i, d in enumerate(scenario.nodes, 1)}
@@ -234,7 +265,7 @@ class _Parser:
         self.owner: dict[str, tuple[str, int]] = {}  # slave -> (master, entry)
         self.net = Network({}, {})
 
-    def loc(self, d: "NodeDecl", *more: str) -> str:
+    def loc(self, d: NodeDecl, *more: str) -> str:
         return where(self.src, _label(self.index[d.name], d), *more)
 
     def err(self, loc: str, text: str) -> ScenarioError:
@@ -253,36 +284,52 @@ class _Parser:
             self.net.masters[d.name] = self.master(d)
         for d in slaves:
             if d.name not in self.owner:
-                raise self.err(self.loc(d), "no master polls this slave: name it in a master's [[nodes.poll]] "
-                                            "(slave = ...) — a slave answers one master")
+                raise self.err(
+                    self.loc(d),
+                    "no master polls this slave: name it in a master's [[nodes.poll]] "
+                    "(slave = ...) — a slave answers one master",
+                )
         for d in slaves:
             self.classify(d)
         for d in masters:
             self.check_timeouts(d)
         return self.net
 
-    def slave(self, d: "NodeDecl") -> SlaveConfig:
+    def slave(self, d: NodeDecl) -> SlaveConfig:
         o = d.options
         hi = ms_to_ns(o["processing_ms"])
         lo = hi if o["processing_min_ms"] is None else ms_to_ns(o["processing_min_ms"])
         if lo > hi:
-            raise self.err(self.loc(d), f"processing_min_ms: {o['processing_min_ms']!r} is above processing_ms "
-                                        f"{o['processing_ms']!r}")
+            raise self.err(
+                self.loc(d),
+                f"processing_min_ms: {o['processing_min_ms']!r} is above processing_ms {o['processing_ms']!r}",
+            )
         for j, m in enumerate(d.messages, 1):
             if m.remote:
-                raise self.err(self.loc(d, f"[[nodes.messages]] #{j} {m.name!r}"),
-                               "remote: a slave answers with data frames (the master sends the remote frames)")
+                raise self.err(
+                    self.loc(d, f"[[nodes.messages]] #{j} {m.name!r}"),
+                    "remote: a slave answers with data frames (the master sends the remote frames)",
+                )
         wd = None if o["watchdog_ms"] is None else ms_to_ns(o["watchdog_ms"])
         return SlaveConfig(d.name, "", o["mac_id"], lo, hi, wd or 0)
 
-    def master(self, d: "NodeDecl") -> MasterConfig:
+    def master(self, d: NodeDecl) -> MasterConfig:
         o = d.options
         if d.messages:
-            raise self.err(self.loc(d, f"[[nodes.messages]] #1 {d.messages[0].name!r}"),
-                           "a master sends the requests of its poll list only (declare other traffic on a csma node)")
-        cfg = MasterConfig(name=d.name, mac_id=o["mac_id"], plan=o["plan"], cycle_ns=ms_to_ns(o["cycle_ms"]),
-                           offset_ns=ms_to_ns(o["offset_ms"]), lost_after=o["lost_after"],
-                           lost_poll_every=o["lost_poll_every"], restart_after_bus_off=o["restart_after_bus_off"])
+            raise self.err(
+                self.loc(d, f"[[nodes.messages]] #1 {d.messages[0].name!r}"),
+                "a master sends the requests of its poll list only (declare other traffic on a csma node)",
+            )
+        cfg = MasterConfig(
+            name=d.name,
+            mac_id=o["mac_id"],
+            plan=o["plan"],
+            cycle_ns=ms_to_ns(o["cycle_ms"]),
+            offset_ns=ms_to_ns(o["offset_ms"]),
+            lost_after=o["lost_after"],
+            lost_poll_every=o["lost_poll_every"],
+            restart_after_bus_off=o["restart_after_bus_off"],
+        )
         strobes = 0
         for j, raw in enumerate(o["poll"], 1):
             loc = self.loc(d, f"[[nodes.poll]] #{j}")
@@ -294,16 +341,18 @@ class _Parser:
                     why = _WHY_NOT.get((style, k), f"only {having} entries have it")
                     raise self.err(loc, f"{k}: not a key of a {style} entry ({why})")
             if e["extended"] and cfg.plan == "devicenet":
-                raise self.err(loc, "extended: the DeviceNet plan uses 11-bit identifiers "
-                                    "(plan = \"custom\" for others)")
+                raise self.err(loc, 'extended: the DeviceNet plan uses 11-bit identifiers (plan = "custom" for others)')
             if style == "cos":
                 cfg.cos.append(self.cos_link(d, cfg, j, e, loc))
                 continue
             if style == "bit_strobe":
                 strobes += 1
                 if strobes > 1 and cfg.plan == "devicenet":
-                    raise self.err(loc, "a DeviceNet master has one bit-strobe command identifier (0x400 | MAC << 3): "
-                                        "name every strobed slave in one entry")
+                    raise self.err(
+                        loc,
+                        "a DeviceNet master has one bit-strobe command identifier (0x400 | MAC << 3): "
+                        "name every strobed slave in one entry",
+                    )
             cfg.transactions.append(self.transaction(d, cfg, j, e, loc))
         for t in cfg.transactions:
             d.messages.append(t.request)
@@ -313,7 +362,7 @@ class _Parser:
         return cfg
 
     # -- entries
-    def claim(self, master: "NodeDecl", slave: Any, j: int, loc: str, key: str) -> SlaveConfig:
+    def claim(self, master: NodeDecl, slave: Any, j: int, loc: str, key: str) -> SlaveConfig:
         if not isinstance(slave, str):
             raise self.err(loc, f"{key}: {slave!r} is not a node name")
         if slave not in self.index:
@@ -321,11 +370,12 @@ class _Parser:
         s = self.net.slaves.get(slave)
         if s is None:
             prof = self.sc.node(slave).profile
-            raise self.err(loc, f"{key}: {slave!r} is a {prof} node, not a slave (give it profile = \"slave\")")
+            raise self.err(loc, f'{key}: {slave!r} is a {prof} node, not a slave (give it profile = "slave")')
         prev = self.owner.get(slave)
         if prev is not None and prev[0] != master.name:
-            raise self.err(loc, f"{key}: {slave!r} is already polled by master {prev[0]!r} "
-                                "(a slave answers one master)")
+            raise self.err(
+                loc, f"{key}: {slave!r} is already polled by master {prev[0]!r} (a slave answers one master)"
+            )
         self.owner[slave] = (master.name, j)
         s.master = master.name
         return s
@@ -335,24 +385,31 @@ class _Parser:
         for m in d.messages:
             if m.can_id == can_id and m.extended == extended and not m.remote:
                 if m.interval_ns is not None:
-                    raise self.err(loc, f"slave {s.name!r} releases {m.name!r} ({m.id_text}) on its own (period_ms or "
-                                        f"sporadic_ms): the answer to a poll is released by the poll")
+                    raise self.err(
+                        loc,
+                        f"slave {s.name!r} releases {m.name!r} ({m.id_text}) on its own (period_ms or "
+                        f"sporadic_ms): the answer to a poll is released by the poll",
+                    )
                 return m
         ident = f"0x{can_id:08X}" if extended else f"0x{can_id:03X}"
-        raise self.err(loc, f"slave {s.name!r} declares no message with identifier {ident} ({what}): add it to its "
-                            "[[nodes.messages]]")
+        raise self.err(
+            loc,
+            f"slave {s.name!r} declares no message with identifier {ident} ({what}): add it to its [[nodes.messages]]",
+        )
 
-    def plan_id(self, e: dict[str, Any], key: str, cfg: MasterConfig, wanted: int | None, loc: str,
-                what: str) -> int:
+    def plan_id(self, e: dict[str, Any], key: str, cfg: MasterConfig, wanted: int | None, loc: str, what: str) -> int:
         """The identifier of ``key``: the plan's (DeviceNet) or the one given (custom)."""
         given = e[key]
         if cfg.plan == "devicenet":
             if given is not None and given != wanted:
-                raise self.err(loc, f"{key}: 0x{given:X} is not the DeviceNet {what} 0x{wanted:03X} "
-                                    "(leave it out, or set plan = \"custom\")")
+                raise self.err(
+                    loc,
+                    f"{key}: 0x{given:X} is not the DeviceNet {what} 0x{wanted:03X} "
+                    '(leave it out, or set plan = "custom")',
+                )
             return wanted  # type: ignore[return-value]
         if given is None:
-            raise self.err(loc, f"key {key!r} is required with plan = \"custom\" ({what})")
+            raise self.err(loc, f'key {key!r} is required with plan = "custom" ({what})')
         rule = identifier_rule(e["extended"])(given)
         if rule is not None:
             raise self.err(loc, f"{key}: {rule}")
@@ -376,33 +433,62 @@ class _Parser:
             if e["data"] is not None and len(data) != e["dlc"]:
                 raise self.err(loc, f"data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {e['dlc']}")
             if e["data"] is None:
-                data = (default + bytes(8))[:e["dlc"]]
+                data = (default + bytes(8))[: e["dlc"]]
         return len(data), data
 
-    def new_message(self, d: "NodeDecl", loc: str, name: str, can_id: int, extended: bool, dlc: int,
-                    data: bytes | None, remote: bool, **options: Any) -> MessageDecl:
+    def new_message(
+        self,
+        d: NodeDecl,
+        loc: str,
+        name: str,
+        can_id: int,
+        extended: bool,
+        dlc: int,
+        data: bytes | None,
+        remote: bool,
+        **options: Any,
+    ) -> MessageDecl:
         if name in self.names:
-            raise self.err(loc, f"name: {name!r} is already a message of node {self.names[name]!r} (message names are "
-                                "unique in a scenario; give this entry a name)")
-        m = MessageDecl(name=name, node=d.name, can_id=can_id, extended=extended, dlc=dlc, data=data, remote=remote,
-                        period_ns=None, sporadic_ns=None, mean_ns=None, offset_ns=0, jitter_ns=0, deadline_ns=None,
-                        options=options)
+            raise self.err(
+                loc,
+                f"name: {name!r} is already a message of node {self.names[name]!r} (message names are "
+                "unique in a scenario; give this entry a name)",
+            )
+        m = MessageDecl(
+            name=name,
+            node=d.name,
+            can_id=can_id,
+            extended=extended,
+            dlc=dlc,
+            data=data,
+            remote=remote,
+            period_ns=None,
+            sporadic_ns=None,
+            mean_ns=None,
+            offset_ns=0,
+            jitter_ns=0,
+            deadline_ns=None,
+            options=options,
+        )
         k = frame_of(m).key
         if k in self.keys:
-            raise self.err(loc, f"the request {m.id_text}{' RTR' if remote else ''} is already sent as message "
-                                f"{self.keys[k]!r}: two senders of one identifier collide on the bus")
+            raise self.err(
+                loc,
+                f"the request {m.id_text}{' RTR' if remote else ''} is already sent as message "
+                f"{self.keys[k]!r}: two senders of one identifier collide on the bus",
+            )
         self.names[name] = d.name
         self.keys[k] = name
         return m
 
-    def timing(self, e: dict[str, Any], d: "NodeDecl", loc: str, style: str) -> tuple[int, int]:
+    def timing(self, e: dict[str, Any], d: NodeDecl, loc: str, style: str) -> tuple[int, int]:
         timeout = e["timeout_ms"] if e["timeout_ms"] is not None else d.options["timeout_ms"]
         if timeout is None:
             raise self.err(loc, "key 'timeout_ms' is required (on the entry, or on the master for every entry)")
         retries = 0 if style == "bit_strobe" else (e["retries"] if e["retries"] is not None else d.options["retries"])
         return ms_to_ns(timeout), retries
 
-    def transaction(self, d: "NodeDecl", cfg: MasterConfig, j: int, e: dict[str, Any], loc: str) -> Transaction:
+    def transaction(self, d: NodeDecl, cfg: MasterConfig, j: int, e: dict[str, Any], loc: str) -> Transaction:
         style = e["style"]
         ext = e["extended"]
         if style == "bit_strobe":
@@ -416,31 +502,43 @@ class _Parser:
             if cfg.plan == "devicenet":
                 resp_ids = [ids.bit_strobe_response(m) for m in macs]  # type: ignore[arg-type]
                 if e["response_ids"] is not None and list(e["response_ids"]) != resp_ids:
-                    raise self.err(loc, "response_ids: not the DeviceNet bit-strobe responses 0x380 | MAC of the "
-                                        "slaves (leave it out, or set plan = \"custom\")")
+                    raise self.err(
+                        loc,
+                        "response_ids: not the DeviceNet bit-strobe responses 0x380 | MAC of the "
+                        'slaves (leave it out, or set plan = "custom")',
+                    )
             else:
                 resp_ids = e["response_ids"]
                 if resp_ids is None:
-                    raise self.err(loc, "key 'response_ids' is required with plan = \"custom\" (one identifier per "
-                                        "slave, in the order of slaves)")
+                    raise self.err(
+                        loc,
+                        "key 'response_ids' is required with plan = \"custom\" (one identifier per "
+                        "slave, in the order of slaves)",
+                    )
                 if len(resp_ids) != len(slaves):
                     raise self.err(loc, f"response_ids: {len(resp_ids)} identifiers for {len(slaves)} slaves")
                 for r in resp_ids:
-                    rule = identifier_rule(ext)(r) if isinstance(r, int) and not isinstance(r, bool) else \
-                        f"{r!r} is not an integer identifier"
+                    rule = (
+                        identifier_rule(ext)(r)
+                        if isinstance(r, int) and not isinstance(r, bool)
+                        else f"{r!r} is not an integer identifier"
+                    )
                     if rule is not None:
                         raise self.err(loc, f"response_ids: {rule}")
-            req_id = self.plan_id(e, "id", cfg, ids.bit_strobe_command(cfg.mac_id), loc,
-                                  f"bit-strobe command of master MAC {cfg.mac_id}")
-            default = ids.strobe_data([m for m in macs if m is not None]) if all(m is not None for m in macs) \
-                else bytes(8)
+            req_id = self.plan_id(
+                e, "id", cfg, ids.bit_strobe_command(cfg.mac_id), loc, f"bit-strobe command of master MAC {cfg.mac_id}"
+            )
+            default = (
+                ids.strobe_data([m for m in macs if m is not None]) if all(m is not None for m in macs) else bytes(8)
+            )
             if e["dlc"] is None and e["data"] is None:
                 dlc, data = 8, default
             else:
                 dlc, data = self.request_payload(e, loc, default)
             if cfg.plan == "devicenet" and dlc != 8:
-                raise self.err(loc, f"dlc: {dlc}: the DeviceNet bit-strobe command carries 8 bytes (64 bits, one per "
-                                    "MAC ID)")
+                raise self.err(
+                    loc, f"dlc: {dlc}: the DeviceNet bit-strobe command carries 8 bytes (64 bits, one per MAC ID)"
+                )
             responses = [self.response_of(s, r, ext, loc, "its bit-strobe response") for s, r in zip(slaves, resp_ids)]
             for s, r in zip(slaves, responses):
                 self.answer(s, r, loc, j)
@@ -464,8 +562,9 @@ class _Parser:
             req = self.new_message(d, loc, name, resp.can_id, ext, resp.dlc, None, True, poll=j, style=style)
             s.mailbox.append(resp)
         else:
-            req_id = self.plan_id(e, "id", cfg, None if mac is None else ids.poll_command(mac), loc,
-                                  f"poll command of MAC {mac}")
+            req_id = self.plan_id(
+                e, "id", cfg, None if mac is None else ids.poll_command(mac), loc, f"poll command of MAC {mac}"
+            )
             dlc, data = self.request_payload(e, loc, b"")
             req = self.new_message(d, loc, name, req_id, ext, dlc, data, False, poll=j, style=style)
             s.answers[frame_of(req).key] = resp
@@ -476,13 +575,17 @@ class _Parser:
     def answer(self, s: SlaveConfig, m: MessageDecl, loc: str, j: int) -> None:
         for known in list(s.answers.values()) + s.mailbox:
             if known is m:
-                raise self.err(loc, f"slave {s.name!r}: message {m.name!r} already answers another entry of the poll "
-                                    "list (one entry per connection)")
+                raise self.err(
+                    loc,
+                    f"slave {s.name!r}: message {m.name!r} already answers another entry of the poll "
+                    "list (one entry per connection)",
+                )
 
-    def cos_link(self, d: "NodeDecl", cfg: MasterConfig, j: int, e: dict[str, Any], loc: str) -> CosLink:
+    def cos_link(self, d: NodeDecl, cfg: MasterConfig, j: int, e: dict[str, Any], loc: str) -> CosLink:
         if e["slave"] is None:
-            raise self.err(loc, "key 'slave' is required: the slave whose change-of-state / cyclic messages the master "
-                                "consumes")
+            raise self.err(
+                loc, "key 'slave' is required: the slave whose change-of-state / cyclic messages the master consumes"
+            )
         s = self.claim(d, e["slave"], j, loc, "slave")
         mac = self.mac(s, cfg, loc)
         timed = [m for m in self.sc.node(s.name).messages if m.interval_ns is not None]
@@ -490,22 +593,30 @@ class _Parser:
             timed = [m for m in timed if m.can_id == ids.cos_message(mac)]  # type: ignore[arg-type]
         if not timed:
             want = f" 0x{ids.cos_message(mac):03X}" if cfg.plan == "devicenet" else ""  # type: ignore[arg-type]
-            raise self.err(loc, f"slave {s.name!r} produces no change-of-state / cyclic message{want} (a message with "
-                                "period_ms or sporadic_ms)")
+            raise self.err(
+                loc,
+                f"slave {s.name!r} produces no change-of-state / cyclic message{want} (a message with "
+                "period_ms or sporadic_ms)",
+            )
         ack = None
         if e["ack"]:
             if len(timed) > 1:
-                raise self.err(loc, f"ack: slave {s.name!r} produces {len(timed)} COS/cyclic messages; an acknowledged "
-                                    "connection carries one (or set ack = false)")
-            ack_id = self.plan_id(e, "ack_id", cfg, None if mac is None else ids.cos_ack(mac), loc,
-                                  f"COS/cyclic acknowledge of MAC {mac}")
-            ack = self.new_message(d, loc, e["name"] or f"ack_{s.name}", ack_id, e["extended"], 0, b"", False,
-                                   poll=j, style="cos")
+                raise self.err(
+                    loc,
+                    f"ack: slave {s.name!r} produces {len(timed)} COS/cyclic messages; an acknowledged "
+                    "connection carries one (or set ack = false)",
+                )
+            ack_id = self.plan_id(
+                e, "ack_id", cfg, None if mac is None else ids.cos_ack(mac), loc, f"COS/cyclic acknowledge of MAC {mac}"
+            )
+            ack = self.new_message(
+                d, loc, e["name"] or f"ack_{s.name}", ack_id, e["extended"], 0, b"", False, poll=j, style="cos"
+            )
             s.requests.add(frame_of(ack).key)
         return CosLink(j, s.name, tuple(timed), ack)
 
     # -- checks across nodes
-    def check_macs(self, masters: "list[NodeDecl]", slaves: "list[NodeDecl]") -> None:
+    def check_macs(self, masters: list[NodeDecl], slaves: list[NodeDecl]) -> None:
         """MAC IDs are unique on a DeviceNet network (its identifiers are made from them): among
         the DeviceNet masters and every slave that has one."""
         seen: dict[int, str] = {}
@@ -515,11 +626,14 @@ class _Parser:
             if mac is None:
                 continue
             if mac in seen:
-                raise self.err(self.loc(d), f"mac_id: {mac} is already the MAC ID of node {seen[mac]!r} (MAC IDs are "
-                                            "unique on a DeviceNet network)")
+                raise self.err(
+                    self.loc(d),
+                    f"mac_id: {mac} is already the MAC ID of node {seen[mac]!r} (MAC IDs are "
+                    "unique on a DeviceNet network)",
+                )
             seen[mac] = d.name
 
-    def classify(self, d: "NodeDecl") -> None:
+    def classify(self, d: NodeDecl) -> None:
         """Every message of a slave has a role: answers a poll, or is produced on its own (COS/cyclic);
         under DeviceNet its identifier must be the one of that role."""
         s = self.net.slaves[d.name]
@@ -534,26 +648,39 @@ class _Parser:
                 if m.extended:
                     raise self.err(loc, "extended: the DeviceNet plan uses 11-bit identifiers")
                 mac = s.mac_id
-                roles = {ids.poll_response(mac): "poll response", ids.bit_strobe_response(mac): "bit-strobe response",  # type: ignore[arg-type]
-                         ids.cos_message(mac): "change of state / cyclic"}  # type: ignore[arg-type]
+                roles = {
+                    ids.poll_response(mac): "poll response",
+                    ids.bit_strobe_response(mac): "bit-strobe response",  # type: ignore[arg-type]
+                    ids.cos_message(mac): "change of state / cyclic",
+                }  # type: ignore[arg-type]
                 role = roles.get(m.can_id)
                 if role is None:
                     listed = ", ".join(f"{v} 0x{k:03X}" for k, v in roles.items())
-                    raise self.err(loc, f"id: 0x{m.can_id:03X} is not an I/O identifier of MAC ID {mac} in the "
-                                        f"DeviceNet plan ({listed})")
+                    raise self.err(
+                        loc,
+                        f"id: 0x{m.can_id:03X} is not an I/O identifier of MAC ID {mac} in the "
+                        f"DeviceNet plan ({listed})",
+                    )
                 if timed and role != "change of state / cyclic":
-                    raise self.err(loc, f"the {role} 0x{m.can_id:03X} is released by the poll: remove period_ms / "
-                                        "sporadic_ms")
+                    raise self.err(
+                        loc, f"the {role} 0x{m.can_id:03X} is released by the poll: remove period_ms / sporadic_ms"
+                    )
                 if not timed and role == "change of state / cyclic":
-                    raise self.err(loc, f"a change of state / cyclic message (0x{m.can_id:03X}) is produced by the "
-                                        "slave: give it period_ms (cyclic) or sporadic_ms (change of state)")
+                    raise self.err(
+                        loc,
+                        f"a change of state / cyclic message (0x{m.can_id:03X}) is produced by the "
+                        "slave: give it period_ms (cyclic) or sporadic_ms (change of state)",
+                    )
             if timed:
                 s.cos.append(m)
             elif id(m) not in answering:
-                raise self.err(loc, f"no entry of master {s.master!r} asks for {m.name!r} ({m.id_text}): an untimed "
-                                    "message of a slave answers a poll (or give it period_ms / sporadic_ms)")
+                raise self.err(
+                    loc,
+                    f"no entry of master {s.master!r} asks for {m.name!r} ({m.id_text}): an untimed "
+                    "message of a slave answers a poll (or give it period_ms / sporadic_ms)",
+                )
 
-    def check_timeouts(self, d: "NodeDecl") -> None:
+    def check_timeouts(self, d: NodeDecl) -> None:
         """A timeout below the transaction's worst case would declare a slave missing that answers
         in time: refused."""
         cfg = self.net.masters[d.name]
@@ -561,12 +688,15 @@ class _Parser:
             bound = transaction_bound_ns(t, self.net.slaves, self.sc.bitrate)
             if t.timeout_ns < bound:
                 loc = self.loc(d, f"[[nodes.poll]] #{t.index}")
-                raise self.err(loc, f"timeout_ms: {t.timeout_ns / 1e6:g} is below the worst case of this transaction, "
-                                    f"{float(bound) / 1e6:.4f} ms (frames with worst-case stuffing, the processing "
-                                    "delay and the inter-frame spaces): a slave that answers in time would time out")
+                raise self.err(
+                    loc,
+                    f"timeout_ms: {t.timeout_ns / 1e6:g} is below the worst case of this transaction, "
+                    f"{float(bound) / 1e6:.4f} ms (frames with worst-case stuffing, the processing "
+                    "delay and the inter-frame spaces): a slave that answers in time would time out",
+                )
 
 
-def parse_network(scenario: "Scenario", tables: Mapping[str, Any]) -> None:
+def parse_network(scenario: Scenario, tables: Mapping[str, Any]) -> None:
     """The profile kinds' ``parse`` hook: read and check the masters' poll lists and the slaves'
     connections, add the masters' requests to their declared messages, and store the `Network` in
     ``scenario.tables["master_slave"]`` (nothing when the scenario has no master or slave)."""

@@ -31,7 +31,7 @@ def free_ids(used: set[int], count: int, *, start: int = 0, step: int = 1) -> li
     return out
 
 
-def express_message_set(mset: "MessageSet") -> dict[str, Any]:
+def express_message_set(mset: MessageSet) -> dict[str, Any]:
     """The set as a scenario: a master ``master`` and one slave per sending node (see the
     module docstring)."""
     cycle = min(m.period_ns for m in mset.messages)
@@ -40,8 +40,9 @@ def express_message_set(mset: "MessageSet") -> dict[str, Any]:
     requests = free_ids({m.can_id for m in mset.messages}, len(polled))
     poll: list[dict[str, Any]] = []
     for m, rid in zip(polled, requests):
-        poll.append({"slave": m.node, "name": f"poll_{m.name}", "id": rid, "response_id": m.can_id,
-                     "timeout_ms": cycle / 1e6})
+        poll.append(
+            {"slave": m.node, "name": f"poll_{m.name}", "id": rid, "response_id": m.can_id, "timeout_ms": cycle / 1e6}
+        )
     for node in dict.fromkeys(m.node for m in cyclic):
         poll.append({"style": "cos", "slave": node, "ack": False})
     slaves = []
@@ -55,6 +56,17 @@ def express_message_set(mset: "MessageSet") -> dict[str, Any]:
                 msg["period_ms"] = m.period_ns / 1e6
             msgs.append(msg)
         slaves.append({"name": node, "profile": "slave", "messages": msgs})
-    return {"bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
-            "nodes": [{"name": "master", "profile": "master", "plan": "custom", "cycle_ms": cycle / 1e6,
-                       "retries": 0, "poll": poll}] + slaves}
+    return {
+        "bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
+        "nodes": [
+            {
+                "name": "master",
+                "profile": "master",
+                "plan": "custom",
+                "cycle_ms": cycle / 1e6,
+                "retries": 0,
+                "poll": poll,
+            }
+        ]
+        + slaves,
+    }

@@ -4,9 +4,19 @@ clock (ns). A profile keeps every event in ``events`` and calls the callbacks gi
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
-__all__ = ["Reporter", "CycleOverrun", "SlaveLost", "SlaveBack", "MasterStopped", "MasterResumed", "MasterLost", "MasterBack"]
+__all__ = [
+    "Reporter",
+    "CycleOverrun",
+    "SlaveLost",
+    "SlaveBack",
+    "MasterStopped",
+    "MasterResumed",
+    "MasterLost",
+    "MasterBack",
+]
 
 
 class CycleOverrun(NamedTuple):

@@ -49,10 +49,11 @@ __all__ = ["Master", "SlaveLink", "IDLE", "SENDING", "WAITING", "STOPPED"]
 IDLE, SENDING, WAITING, STOPPED = "idle", "sending", "waiting", "stopped"
 
 
-def rx_filters(messages: "list[MessageDecl]") -> list[dict[str, Any]]:
+def rx_filters(messages: list[MessageDecl]) -> list[dict[str, Any]]:
     """python-can acceptance filters that pass exactly these messages' identifiers."""
-    return [{"can_id": m.can_id, "can_mask": 0x1FFFFFFF if m.extended else 0x7FF, "extended": m.extended}
-            for m in messages]
+    return [
+        {"can_id": m.can_id, "can_mask": 0x1FFFFFFF if m.extended else 0x7FF, "extended": m.extended} for m in messages
+    ]
 
 
 class SlaveLink:
@@ -63,8 +64,24 @@ class SlaveLink:
     its periods, late answers (after the timeout, or from a lost slave between its slow polls),
     and COS/cyclic messages consumed and acknowledged."""
 
-    __slots__ = ("name", "polls", "responses", "timeouts", "missed", "in_a_row", "lost", "lost_cycle",
-                 "lost_periods", "response_ns", "late", "cos", "acks", "last_end", "gap_min", "gap_max")
+    __slots__ = (
+        "name",
+        "polls",
+        "responses",
+        "timeouts",
+        "missed",
+        "in_a_row",
+        "lost",
+        "lost_cycle",
+        "lost_periods",
+        "response_ns",
+        "late",
+        "cos",
+        "acks",
+        "last_end",
+        "gap_min",
+        "gap_max",
+    )
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -103,19 +120,19 @@ class Master(Profile, Reporter):
 
     kind = "master"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         super().__init__(node, decl, context)
-        self.config: "MasterConfig" = context.scenario.tables[NETWORK_TABLE].masters[decl.name]
+        self.config: MasterConfig = context.scenario.tables[NETWORK_TABLE].masters[decl.name]
         self.frames = {m.name: frame_of(m) for m in decl.messages}
         self._track = {m.name: context.recorder.track(m) for m in decl.messages}
         self.links = {s: SlaveLink(s) for s in self.config.slaves}
-        self._answers: dict[int, tuple["Transaction", str]] = {}
-        watched: list["MessageDecl"] = []
+        self._answers: dict[int, tuple[Transaction, str]] = {}
+        watched: list[MessageDecl] = []
         for tx in self.config.transactions:
             for s, r in zip(tx.slaves, tx.responses):
                 self._answers[frame_of(r).key] = (tx, s)
                 watched.append(r)
-        self._cos: dict[int, "CosLink"] = {}
+        self._cos: dict[int, CosLink] = {}
         for link in self.config.cos:
             for m in link.messages:
                 self._cos[frame_of(m).key] = link
@@ -139,14 +156,14 @@ class Master(Profile, Reporter):
         self.offsets: dict[str, list[int]] = {t.request.name: [0, 0] for t in self.config.transactions}
         # the transaction in progress
         self._idx = 0
-        self._tx: "Transaction | None" = None
+        self._tx: Transaction | None = None
         self._attempt = 0
-        self._req: "TxRequest | None" = None
+        self._req: TxRequest | None = None
         self._queued_at = 0
         self._sof: int | None = None
         self._awaiting: set[str] = set()
-        self._timer: "Timer | None" = None
-        self._cycle_timer: "Timer | None" = None
+        self._timer: Timer | None = None
+        self._cycle_timer: Timer | None = None
         self.stopped_at: list[int] = []
 
     # ------------------------------------------------------------------ wiring
@@ -201,8 +218,9 @@ class Master(Profile, Reporter):
         self._sof = None
         now = self._queued_at = self.node.now()
         self.state = SENDING
-        self._req = self.queue(self.frames[tx.request.name], self._track[tx.request.name],
-                               not_after=now + tx.timeout_ns)
+        self._req = self.queue(
+            self.frames[tx.request.name], self._track[tx.request.name], not_after=now + tx.timeout_ns
+        )
         if self._req is None:  # queue full, or bus off (then the state listener stops the master)
             self.unsent += 1
             self.clean = False
@@ -237,7 +255,7 @@ class Master(Profile, Reporter):
         self._req = None
         self._timeout()
 
-    def _on_frame(self, ev: "Received") -> None:
+    def _on_frame(self, ev: Received) -> None:
         key = ev.frame.key
         hit = self._answers.get(key)
         if hit is not None:
@@ -361,17 +379,32 @@ class Master(Profile, Reporter):
         counts: dict[str, int] = {}
         for e in self.events:
             counts[type(e).__name__] = counts.get(type(e).__name__, 0) + 1
-        return {"cycles": self.cycle, "cycle_ms": stats_ms(self.cycle_ns), "clean_cycle_ms": stats_ms(self.clean_ns),
-                "overruns": self.overruns,
-                "unsent": self.unsent, "state": self.state,
-                "stopped_ms": [t / 1e6 for t in self.stopped_at], "events": counts}
+        return {
+            "cycles": self.cycle,
+            "cycle_ms": stats_ms(self.cycle_ns),
+            "clean_cycle_ms": stats_ms(self.clean_ns),
+            "overruns": self.overruns,
+            "unsent": self.unsent,
+            "state": self.state,
+            "stopped_ms": [t / 1e6 for t in self.stopped_at],
+            "events": counts,
+        }
 
     def link_figures(self, slave: str) -> dict[str, Any]:
         """The master's view of one slave (see `SlaveLink`) as JSON."""
         ln = self.links[slave]
-        return {"polls": ln.polls, "responses": ln.responses, "timeouts": ln.timeouts, "missed": ln.missed,
-                "lost": ln.lost, "lost_ms": [[a / 1e6 if a is not None else None, b / 1e6 if b is not None else None]
-                                             for a, b in ln.lost_periods],
-                "late": ln.late, "response_ms": stats_ms(ln.response_ns),
-                "jitter_ms": None if ln.gap_min is None else (ln.gap_max - ln.gap_min) / 1e6,  # type: ignore[operator]
-                "cos": ln.cos, "acks": ln.acks}
+        return {
+            "polls": ln.polls,
+            "responses": ln.responses,
+            "timeouts": ln.timeouts,
+            "missed": ln.missed,
+            "lost": ln.lost,
+            "lost_ms": [
+                [a / 1e6 if a is not None else None, b / 1e6 if b is not None else None] for a, b in ln.lost_periods
+            ],
+            "late": ln.late,
+            "response_ms": stats_ms(ln.response_ns),
+            "jitter_ms": None if ln.gap_min is None else (ln.gap_max - ln.gap_min) / 1e6,  # type: ignore[operator]
+            "cos": ln.cos,
+            "acks": ln.acks,
+        }

@@ -45,8 +45,18 @@ extended), for home-grown ECU networks.
 
 from __future__ import annotations
 
-__all__ = ["PLANS", "MAC_MAX", "poll_command", "poll_response", "bit_strobe_command", "bit_strobe_response",
-           "cos_message", "cos_ack", "strobe_data", "describe"]
+__all__ = [
+    "PLANS",
+    "MAC_MAX",
+    "poll_command",
+    "poll_response",
+    "bit_strobe_command",
+    "bit_strobe_response",
+    "cos_message",
+    "cos_ack",
+    "strobe_data",
+    "describe",
+]
 
 PLANS = ("devicenet", "custom")
 """The identifier plans a master may use."""
@@ -109,7 +119,7 @@ def cos_ack(slave_mac: int) -> int:
     return _group_2(slave_mac, GROUP_2_COS_ACK)
 
 
-def strobe_data(macs: "list[int] | tuple[int, ...]") -> bytes:
+def strobe_data(macs: list[int] | tuple[int, ...]) -> bytes:
     """The 8-byte bit-strobe command with the bits of ``macs`` set (MAC ID n: byte n // 8, bit n % 8)."""
     out = bytearray(8)
     for m in macs:
@@ -118,12 +128,22 @@ def strobe_data(macs: "list[int] | tuple[int, ...]") -> bytes:
     return bytes(out)
 
 
-_GROUP_1_NAMES = {0xC: "multicast poll response", 0xD: "change of state / cyclic", 0xE: "bit-strobe response",
-                  0xF: "poll response or COS/cyclic acknowledge"}
-_GROUP_2_NAMES = {0: "bit-strobe command (source MAC ID)", 1: "multicast poll command",
-                  2: "COS/cyclic acknowledge (destination)", 3: "explicit/unconnected response (source)",
-                  4: "explicit request (destination)", 5: "poll command / COS / cyclic (destination)",
-                  6: "Group 2 only unconnected explicit request", 7: "duplicate MAC ID check"}
+_GROUP_1_NAMES = {
+    0xC: "multicast poll response",
+    0xD: "change of state / cyclic",
+    0xE: "bit-strobe response",
+    0xF: "poll response or COS/cyclic acknowledge",
+}
+_GROUP_2_NAMES = {
+    0: "bit-strobe command (source MAC ID)",
+    1: "multicast poll command",
+    2: "COS/cyclic acknowledge (destination)",
+    3: "explicit/unconnected response (source)",
+    4: "explicit request (destination)",
+    5: "poll command / COS / cyclic (destination)",
+    6: "Group 2 only unconnected explicit request",
+    7: "duplicate MAC ID check",
+}
 
 
 def describe(can_id: int) -> str:

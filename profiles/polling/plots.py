@@ -15,7 +15,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["poll_cycle"]
 
 
-def poll_cycle(result: "Result", path: str | Path) -> Path:
+def poll_cycle(result: Result, path: str | Path) -> Path:
     """Write the timeline of ``result`` (recorded: ``record=True``) with the poll cycles behind it."""
     block = result.profiles.get("master_slave") or {}
     masters = block.get("masters", {})
@@ -28,12 +28,19 @@ def poll_cycle(result: "Result", path: str | Path) -> Path:
                 if end < t0 / 1e6 or start > t1 / 1e6:
                     continue
                 colour = "#ffb3b3" if overrun else "#dde8f5"
-                ax.axvspan(start, end, color=colour, alpha=0.8, zorder=0,
-                           label=f"{name}: poll cycle" if first else None)
+                ax.axvspan(
+                    start, end, color=colour, alpha=0.8, zorder=0, label=f"{name}: poll cycle" if first else None
+                )
                 ax.axvline(start, color="#4a6f9c", linewidth=0.8, zorder=0)
                 if bound is not None:
-                    ax.axvline(start + bound, color="#4a6f9c", linewidth=0.8, linestyle=":", zorder=0,
-                               label="worst-case cycle (bound)" if first else None)
+                    ax.axvline(
+                        start + bound,
+                        color="#4a6f9c",
+                        linewidth=0.8,
+                        linestyle=":",
+                        zorder=0,
+                        label="worst-case cycle (bound)" if first else None,
+                    )
                 first = False
         if not first:
             ax.legend(loc="upper right", fontsize=7)

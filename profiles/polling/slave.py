@@ -41,16 +41,19 @@ class Slave(Profile, Reporter):
 
     kind = "slave"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         super().__init__(node, decl, context)
-        self.config: "SlaveConfig" = context.scenario.tables[NETWORK_TABLE].slaves[decl.name]
-        self.frames: dict[str, "Frame"] = {m.name: frame_of(m) for m in decl.messages}
+        self.config: SlaveConfig = context.scenario.tables[NETWORK_TABLE].slaves[decl.name]
+        self.frames: dict[str, Frame] = {m.name: frame_of(m) for m in decl.messages}
         self._track = {m.name: context.recorder.track(m) for m in decl.messages}
         self._answer_of = {k: m.name for k, m in self.config.answers.items()}
         self._mailbox = {frame_of(m).key: m.name for m in self.config.mailbox}
         self._rng = context.rng("processing", decl.name)
-        self.sources = [s for m in self.config.cos
-                        if (s := source_for(node, m, self._produce, context.rng("release", decl.name, m.name)))]
+        self.sources = [
+            s
+            for m in self.config.cos
+            if (s := source_for(node, m, self._produce, context.rng("release", decl.name, m.name)))
+        ]
         self.state = RUNNING
         Reporter.__init__(self)
         self._deadline = 0
@@ -85,7 +88,7 @@ class Slave(Profile, Reporter):
             self.node.set_remote_reply(new)
 
     # ------------------------------------------------------------------ requests
-    def _on_frame(self, ev: "Received") -> None:
+    def _on_frame(self, ev: Received) -> None:
         key = ev.frame.key
         if key not in self.config.requests:
             return
@@ -112,7 +115,7 @@ class Slave(Profile, Reporter):
         if name is not None and ev.request.state == "sent":
             self._track[name].release(ev.request)
 
-    def _produce(self, m: "MessageDecl") -> None:
+    def _produce(self, m: MessageDecl) -> None:
         self.queue(self.frames[m.name], self._track[m.name])
 
     # ------------------------------------------------------------------ watchdog
@@ -146,8 +149,13 @@ class Slave(Profile, Reporter):
     def figures(self) -> dict[str, Any]:
         """Requests and acknowledgements received, watchdog expiries (loss of master) and returns,
         and the processing delay it was given."""
-        return {"state": self.state, "requests": self.requests, "acks_received": self.acks,
-                "master_lost": len(self.master_lost_at), "master_lost_ms": [t / 1e6 for t in self.master_lost_at],
-                "master_back_ms": [t / 1e6 for t in self.master_back_at],
-                "processing_ms": [self.config.processing_min_ns / 1e6, self.config.processing_max_ns / 1e6],
-                "watchdog_ms": self.config.watchdog_ns / 1e6}
+        return {
+            "state": self.state,
+            "requests": self.requests,
+            "acks_received": self.acks,
+            "master_lost": len(self.master_lost_at),
+            "master_lost_ms": [t / 1e6 for t in self.master_lost_at],
+            "master_back_ms": [t / 1e6 for t in self.master_back_at],
+            "processing_ms": [self.config.processing_min_ns / 1e6, self.config.processing_max_ns / 1e6],
+            "watchdog_ms": self.config.watchdog_ns / 1e6,
+        }

@@ -38,16 +38,16 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["TdmaProfile", "KIND", "PLOTS"]
 
 
-def _build(node: "NodeAPI", decl: "NodeDecl", context: "Context") -> TdmaProfile:
+def _build(node: NodeAPI, decl: NodeDecl, context: Context) -> TdmaProfile:
     return TdmaProfile(node, decl, context)
 
 
-def _summarize(profiles: "list[Profile]", context: "Context") -> dict[str, Any]:
+def _summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
     monitor = getattr(profiles[0], "monitor", None) if profiles else None
     return {} if monitor is None else monitor.summary()
 
 
-def _bounds(scenario: "Scenario") -> dict[str, tuple[int | None, str | None]]:
+def _bounds(scenario: Scenario) -> dict[str, tuple[int | None, str | None]]:
     """Each TDMA message's analytic worst case (`monitor.message_bounds`): release at its window's
     start to the end of EOF, for messages in exclusive windows."""
     schedule = scenario.tables.get("tdma")
@@ -60,9 +60,19 @@ def _bounds(scenario: "Scenario") -> dict[str, tuple[int | None, str | None]]:
     return out
 
 
-KIND = register(ProfileKind(name="tdma", build=_build, timed_messages=False, tables=("tdma",), parse=check_scenario,
-                            result_key="tdma", summarize=_summarize, bounds=_bounds,
-                            description="time-triggered CAN (TTCAN-like, ISO 11898-4): windows in a system matrix"))
+KIND = register(
+    ProfileKind(
+        name="tdma",
+        build=_build,
+        timed_messages=False,
+        tables=("tdma",),
+        parse=check_scenario,
+        result_key="tdma",
+        summarize=_summarize,
+        bounds=_bounds,
+        description="time-triggered CAN (TTCAN-like, ISO 11898-4): windows in a system matrix",
+    )
+)
 
 PLOTS = {"tdma_schedule": tdma_schedule}
 """Plots `canstack experiment --plot` adds for scenarios with TDMA nodes."""

@@ -30,7 +30,7 @@ def _us_up(ns: float) -> int:
     return math.ceil(ns / 1000)
 
 
-def express_message_set(mset: "MessageSet") -> dict[str, Any]:
+def express_message_set(mset: MessageSet) -> dict[str, Any]:
     """The set as a TDMA scenario (see the module docstring)."""
     bit_ns = 1e9 / mset.bitrate
     cycle_us = int(min(m.period_ns for m in mset.messages) // 1000)
@@ -67,17 +67,45 @@ def express_message_set(mset: "MessageSet") -> dict[str, Any]:
     windows = []
     for col in columns:
         for name, base, r in col["windows"]:
-            windows.append({"start_us": start, "length_us": col["length"], "kind": "exclusive", "messages": [name],
-                            "base_cycle": base, "repeat": r})
+            windows.append(
+                {
+                    "start_us": start,
+                    "length_us": col["length"],
+                    "kind": "exclusive",
+                    "messages": [name],
+                    "base_cycle": base,
+                    "repeat": r,
+                }
+            )
         start += col["length"]
     if start > cycle_us:
-        raise ValueError(f"the set does not fit a TDMA schedule: its windows need {start} µs of a {cycle_us} µs "
-                         f"basic cycle (after a {ref_us} µs reference message)")
+        raise ValueError(
+            f"the set does not fit a TDMA schedule: its windows need {start} µs of a {cycle_us} µs "
+            f"basic cycle (after a {ref_us} µs reference message)"
+        )
     nodes: list[dict[str, Any]] = [{"name": "time_master", "profile": "tdma"}]
     for node in mset.nodes:
-        nodes.append({"name": node, "profile": "tdma", "messages": [
-            {"name": m.name, "id": m.can_id, "dlc": m.dlc, "deadline_ms": m.deadline_ns / 1e6}
-            for m in mset.messages if m.node == node]})
-    return {"bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed}, "nodes": nodes,
-            "tdma": {"reference_id": ref_id, "time_masters": ["time_master"], "basic_cycle_us": cycle_us,
-                     "matrix_cycles": matrix, "tx_enable_us": tx_enable_us, "level": 1, "windows": windows}}
+        nodes.append(
+            {
+                "name": node,
+                "profile": "tdma",
+                "messages": [
+                    {"name": m.name, "id": m.can_id, "dlc": m.dlc, "deadline_ms": m.deadline_ns / 1e6}
+                    for m in mset.messages
+                    if m.node == node
+                ],
+            }
+        )
+    return {
+        "bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
+        "nodes": nodes,
+        "tdma": {
+            "reference_id": ref_id,
+            "time_masters": ["time_master"],
+            "basic_cycle_us": cycle_us,
+            "matrix_cycles": matrix,
+            "tx_enable_us": tx_enable_us,
+            "level": 1,
+            "windows": windows,
+        },
+    }

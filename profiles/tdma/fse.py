@@ -87,10 +87,10 @@ class MasterMode(str, Enum):
 class CycleListener(Protocol):
     """What an FSE tells the layer above (the TDMA profile)."""
 
-    def on_cycle(self, fse: "Fse") -> None:
+    def on_cycle(self, fse: Fse) -> None:
         """A basic cycle started and the node is in schedule."""
 
-    def on_lost(self, fse: "Fse") -> None:
+    def on_lost(self, fse: Fse) -> None:
         """The node left In_Schedule (Watch_Trigger, bus off)."""
 
 
@@ -99,8 +99,14 @@ class Fse:
     priority (its place in ``time_masters``) or None for a time slave; ``listener`` hears of each
     basic cycle in schedule."""
 
-    def __init__(self, node: "NodeAPI", schedule: "Schedule", *, priority: int | None = None,
-                 listener: CycleListener | None = None) -> None:
+    def __init__(
+        self,
+        node: NodeAPI,
+        schedule: Schedule,
+        *,
+        priority: int | None = None,
+        listener: CycleListener | None = None,
+    ) -> None:
         self.node = node
         self.schedule = schedule
         self.priority = priority
@@ -117,10 +123,10 @@ class Fse:
         self.tur = 1.0
         self.global_ref: float | None = None
         self.local_offset = 0
-        self.ref_req: "TxRequest | None" = None
+        self.ref_req: TxRequest | None = None
         self._prev_mark: tuple[int, int] | None = None  # (Ref_Mark, Master_Ref_Mark) of the last reference
-        self._timers: dict[str, "Timer"] = {}
-        self._marks: dict["TxRequest", int | None] = {}
+        self._timers: dict[str, Timer] = {}
+        self._marks: dict[TxRequest, int | None] = {}
         self._bit = schedule.bit_ns
         self._init_watch_ns = schedule.ntu(CYCLE_TIME_NTU)
         # counters
@@ -159,8 +165,9 @@ class Fse:
         """Power-up: listen for reference messages and enter Synchronising."""
         s = self.schedule
         top = 0x1FFFFFFF if s.reference_extended else 0x7FF
-        self.node.subscribe(self._received, [{"can_id": s.reference_id, "can_mask": top & ~7,
-                                              "extended": s.reference_extended}])
+        self.node.subscribe(
+            self._received, [{"can_id": s.reference_id, "can_mask": top & ~7, "extended": s.reference_extended}]
+        )
         self.node.listen(TxDone, self._tx_done)
         self.node.listen(TxFailed, self._tx_failed)
         self.node.listen(ErrorStateChanged, self._state_changed)
@@ -308,7 +315,7 @@ class Fse:
         elif ev.old == ErrorState.BUS_OFF.value:
             self.restart()
 
-    def _reference(self, sof: int, prio: int, info: "ReferenceInfo", *, own: bool) -> None:
+    def _reference(self, sof: int, prio: int, info: ReferenceInfo, *, own: bool) -> None:
         """A reference message completed (received, or sent by this node): a new basic cycle."""
         if self.sync is SyncMode.OFF:
             return
@@ -331,7 +338,7 @@ class Fse:
         if self.sync is SyncMode.IN_SCHEDULE and self.listener is not None:
             self.listener.on_cycle(self)
 
-    def _time_base(self, sof: int, info: "ReferenceInfo", own: bool) -> None:
+    def _time_base(self, sof: int, info: ReferenceInfo, own: bool) -> None:
         """Level 2: the global time at this reference and, on a receiver, the time unit ratio
         from the last two (Master_Ref_Mark against Ref_Mark)."""
         mark = info.mark
@@ -384,12 +391,20 @@ class Fse:
 
     def state(self) -> dict[str, Any]:
         """The node's TTCAN state and counters (JSON-ready)."""
-        out: dict[str, Any] = {"sync_mode": self.sync.value, "master_mode": self.master.value,
-                               "watch_triggers": self.watch_triggers, "restarts": self.restarts}
+        out: dict[str, Any] = {
+            "sync_mode": self.sync.value,
+            "master_mode": self.master.value,
+            "watch_triggers": self.watch_triggers,
+            "restarts": self.restarts,
+        }
         if self.priority is not None:
-            out.update(priority=self.priority, references_sent=self.references_sent,
-                       reference_retransmissions=self.reference_retransmissions, took_over=self.took_over,
-                       ref_trigger_offset=self.offset)
+            out.update(
+                priority=self.priority,
+                references_sent=self.references_sent,
+                reference_retransmissions=self.reference_retransmissions,
+                took_over=self.took_over,
+                ref_trigger_offset=self.offset,
+            )
         if self.bus_off:
             out["bus_off"] = self.bus_off
         if self.schedule.level == 2:

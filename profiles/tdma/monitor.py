@@ -28,8 +28,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from profiles.tdma.schedule import ARBITRATING, EXCLUSIVE, Window, decode_reference
 from profiles.base import frame_of
+from profiles.tdma.schedule import ARBITRATING, EXCLUSIVE, Window, decode_reference
 from stack import LocalClock, Received, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Monitor", "master_clock", "window_bounds", "message_bounds"]
 
 
-def master_clock(scenario: "Scenario", schedule: "Schedule", priority: int) -> LocalClock | None:
+def master_clock(scenario: Scenario, schedule: Schedule, priority: int) -> LocalClock | None:
     """The oscillator of the time master of ``priority`` (None when it is perfect)."""
     d = scenario.node(schedule.masters[priority])
     if not d.drift_ppm and not d.clock_offset_ns:
@@ -57,7 +57,7 @@ def window_bounds(clock: LocalClock | None, ref_sof: int, start_ns: int, end_ns:
     return clock.bus(mark + start_ns), clock.bus(mark + end_ns)
 
 
-def message_bounds(schedule: "Schedule", name: str) -> tuple[int | None, int | None, str | None]:
+def message_bounds(schedule: Schedule, name: str) -> tuple[int | None, int | None, str | None]:
     """The analytic worst case of a TDMA message, ns: (bound on the measured response — release
     at the window's start to the end of EOF —, bound on the latency of data ready at any time,
     why there is none).
@@ -77,8 +77,9 @@ def message_bounds(schedule: "Schedule", name: str) -> tuple[int | None, int | N
         return None, None, "arbitrating window: no guarantee (the frame may lose arbitration every time)"
     c = schedule.frame_ns[name] - schedule.ntu(3)
     response = schedule.tx_enable_ns + c
-    starts = sorted(k * schedule.basic_cycle_ns + w.start_ns for k in range(schedule.matrix_cycles)
-                    for w in ws if w.active(k))
+    starts = sorted(
+        k * schedule.basic_cycle_ns + w.start_ns for k in range(schedule.matrix_cycles) for w in ws if w.active(k)
+    )
     span = schedule.matrix_cycles * schedule.basic_cycle_ns
     gaps = [b - a for a, b in zip(starts, starts[1:])] + [starts[0] + span - starts[-1]]
     return response, max(gaps) + response, None
@@ -87,8 +88,12 @@ def message_bounds(schedule: "Schedule", name: str) -> tuple[int | None, int | N
 def _stats_us(values: list[int]) -> dict[str, float]:
     """min, mean, p99 (nearest rank) and max of ns values, in µs."""
     v = sorted(values)
-    return {"min": v[0] / 1000, "mean": sum(v) / len(v) / 1000, "p99": v[max(0, math.ceil(0.99 * len(v)) - 1)] / 1000,
-            "max": v[-1] / 1000}
+    return {
+        "min": v[0] / 1000,
+        "mean": sum(v) / len(v) / 1000,
+        "p99": v[max(0, math.ceil(0.99 * len(v)) - 1)] / 1000,
+        "max": v[-1] / 1000,
+    }
 
 
 @dataclass
@@ -134,7 +139,7 @@ class _Cycle:
 class Monitor:
     """Bookkeeping of the schedule on the bus (see the module docstring)."""
 
-    def __init__(self, schedule: "Schedule", context: "Context") -> None:
+    def __init__(self, schedule: Schedule, context: Context) -> None:
         self.schedule = schedule
         self.context = context
         sc = context.scenario
@@ -158,11 +163,11 @@ class Monitor:
         self.messages = {name: _MessageStats() for name in schedule.message_windows}
         self.gated = {name: _Traffic() for name in schedule.gated}
         self.unscheduled = _Traffic()
-        self.profiles: list["Profile"] = []
+        self.profiles: list[Profile] = []
         self.tol = schedule.ntu(1)
 
     @classmethod
-    def of(cls, context: "Context", schedule: "Schedule") -> "Monitor":
+    def of(cls, context: Context, schedule: Schedule) -> Monitor:
         """The scenario's monitor (made by the first TDMA profile built)."""
         for p in context.profiles.values():
             m = getattr(p, "monitor", None)
@@ -215,8 +220,14 @@ class Monitor:
             if gap > cycle + s.bit_ns:
                 self.late_references += 1
             if priority != last.priority:
-                self.switches.append({"at_ms": sof / 1e6, "from": s.masters[last.priority],
-                                      "to": s.masters[priority], "after_cycle_end_us": (gap - cycle) / 1000})
+                self.switches.append(
+                    {
+                        "at_ms": sof / 1e6,
+                        "from": s.masters[last.priority],
+                        "to": s.masters[priority],
+                        "after_cycle_end_us": (gap - cycle) / 1000,
+                    }
+                )
         self.reference_messages += 1
         self.by_master[priority] += 1
         bounds = [(w, *window_bounds(clock, sof, w.start_ns, w.end_ns)) for w in s.windows if w.active(count)]
@@ -297,38 +308,67 @@ class Monitor:
         windows = []
         for w in s.windows:
             st = self.windows[w.index]
-            windows.append({"window": w.index, "kind": w.kind, "start_us": w.start_ns / 1000,
-                            "length_us": w.length_ns / 1000, "base_cycle": w.base_cycle, "repeat": w.repeat,
-                            "messages": list(w.messages), "frames": st.frames, "late_starts": st.late_starts,
-                            "failed": st.failed, "lost_arbitration": st.lost_arbitration, "outside": st.outside,
-                            "intrusions": st.intrusions})
+            windows.append(
+                {
+                    "window": w.index,
+                    "kind": w.kind,
+                    "start_us": w.start_ns / 1000,
+                    "length_us": w.length_ns / 1000,
+                    "base_cycle": w.base_cycle,
+                    "repeat": w.repeat,
+                    "messages": list(w.messages),
+                    "frames": st.frames,
+                    "late_starts": st.late_starts,
+                    "failed": st.failed,
+                    "lost_arbitration": st.lost_arbitration,
+                    "outside": st.outside,
+                    "intrusions": st.intrusions,
+                }
+            )
         messages = []
         for name, st in self.messages.items():
             rta, latency, note = message_bounds(s, name)
             off = st.offsets
             row: dict[str, Any] = {
-                "name": name, "node": s.owners[name], "windows": [s.windows[i].index for i in s.message_windows[name]],
-                "frames": st.frames, "late_starts": st.late_starts, "failed": st.failed,
-                "lost_arbitration": st.lost_arbitration, "outside": st.outside,
+                "name": name,
+                "node": s.owners[name],
+                "windows": [s.windows[i].index for i in s.message_windows[name]],
+                "frames": st.frames,
+                "late_starts": st.late_starts,
+                "failed": st.failed,
+                "lost_arbitration": st.lost_arbitration,
+                "outside": st.outside,
                 "start_offset_us": None if not off else _stats_us(off),
                 "jitter_us": None if not off else (max(off) - min(off)) / 1000,
                 "rta_ms": None if rta is None else rta / 1e6,
-                "latency_bound_ms": None if latency is None else latency / 1e6}
+                "latency_bound_ms": None if latency is None else latency / 1e6,
+            }
             if note:
                 row["rta_note"] = note
             messages.append(row)
         nodes = {p.decl.name: p.summary() for p in self.profiles}
         for name, g in self.gates.items():
             nodes[name] = g.state()
-        outside = (sum(st.outside for st in self.windows.values()) + sum(t.outside for t in self.gated.values())
-                   + self.unscheduled.outside)
+        outside = (
+            sum(st.outside for st in self.windows.values())
+            + sum(t.outside for t in self.gated.values())
+            + self.unscheduled.outside
+        )
         return {
-            "level": s.level, "basic_cycle_us": s.basic_cycle_ns / 1000, "matrix_cycles": s.matrix_cycles,
-            "tx_enable_us": s.tx_enable_ns / 1000, "reference_messages": self.reference_messages,
-            "references_by_master": {m: n for m, n in zip(s.masters, self.by_master)},
-            "cycles_without_reference": missing, "late_references": self.late_references,
-            "master_switches": len(self.switches), "switches": self.switches, "outside": outside,
-            "windows": windows, "messages": messages,
+            "level": s.level,
+            "basic_cycle_us": s.basic_cycle_ns / 1000,
+            "matrix_cycles": s.matrix_cycles,
+            "tx_enable_us": s.tx_enable_ns / 1000,
+            "reference_messages": self.reference_messages,
+            "references_by_master": dict(zip(s.masters, self.by_master)),
+            "cycles_without_reference": missing,
+            "late_references": self.late_references,
+            "master_switches": len(self.switches),
+            "switches": self.switches,
+            "outside": outside,
+            "windows": windows,
+            "messages": messages,
             "gated": {n: vars(t) for n, t in self.gated.items()},
-            "unscheduled": vars(self.unscheduled), "nodes": nodes,
+            "unscheduled": vars(self.unscheduled),
+            "nodes": nodes,
         }

@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["tdma_schedule", "cycles_of"]
 
 
-def cycles_of(result: "Result") -> list[tuple[int, int, int]]:
+def cycles_of(result: Result) -> list[tuple[int, int, int]]:
     """The basic cycles of a recorded run: (SOF of the reference message, its Cycle_Count, the
     time master priority), in bus order."""
     s = result.scenario.tables["tdma"]
@@ -36,7 +36,7 @@ def cycles_of(result: "Result") -> list[tuple[int, int, int]]:
     return out
 
 
-def tdma_schedule(result: "Result", path: str | Path) -> Path:
+def tdma_schedule(result: Result, path: str | Path) -> Path:
     """Write the timeline of the plot window with the schedule's windows behind the frames (a
     run recorded with ``record=True``; `canstack experiment --plot DIR` writes it as
     ``tdma_schedule.png``)."""
@@ -67,15 +67,31 @@ def tdma_schedule(result: "Result", path: str | Path) -> Path:
                 x, width = a / 1e6, (b - a) / 1e6
                 if w.kind == EXCLUSIVE:
                     owner = s.owners[w.messages[0]]
-                    ax.add_patch(Rectangle((x, rows[owner] - 0.48), width, 0.96, facecolor=colours[owner], alpha=0.2,
-                                           edgecolor=colours[owner], linewidth=0.5))
+                    ax.add_patch(
+                        Rectangle(
+                            (x, rows[owner] - 0.48),
+                            width,
+                            0.96,
+                            facecolor=colours[owner],
+                            alpha=0.2,
+                            edgecolor=colours[owner],
+                            linewidth=0.5,
+                        )
+                    )
                 elif w.kind == ARBITRATING:
                     ax.axvspan(x, x + width, facecolor="gold", alpha=0.15, edgecolor="goldenrod", linewidth=0.5)
                 else:
                     ax.axvspan(x, x + width, facecolor="none", edgecolor="grey", hatch="//", alpha=0.3, linewidth=0.0)
-        ax.legend(handles=[Patch(facecolor="grey", alpha=0.3, label="exclusive window (owner's row)"),
-                           Patch(facecolor="gold", alpha=0.3, label="arbitrating window"),
-                           Patch(facecolor="none", edgecolor="grey", hatch="//", label="free window")],
-                  loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7, framealpha=0.8)
+        ax.legend(
+            handles=[
+                Patch(facecolor="grey", alpha=0.3, label="exclusive window (owner's row)"),
+                Patch(facecolor="gold", alpha=0.3, label="arbitrating window"),
+                Patch(facecolor="none", edgecolor="grey", hatch="//", label="free window"),
+            ],
+            loc="upper left",
+            bbox_to_anchor=(1.0, 1.0),
+            fontsize=7,
+            framealpha=0.8,
+        )
 
     return timeline(result, path, behind=behind)

@@ -42,17 +42,18 @@ class TdmaProfile(Profile):
 
     kind = "tdma"
 
-    def __init__(self, node: "NodeAPI", decl: "NodeDecl", context: Context) -> None:
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
         super().__init__(node, decl, context)
-        s: "Schedule" = context.scenario.tables["tdma"]
+        s: Schedule = context.scenario.tables["tdma"]
         self.schedule = s
         prio = s.masters.index(decl.name) if decl.name in s.masters else None
         self.fse = Fse(node, s, priority=prio, listener=self)
         self.frames = {m.name: frame_of(m) for m in decl.messages}
         self._track_of = {m.name: context.recorder.track(m) for m in decl.messages}
-        self.slots: list[tuple["Window", str]] = [(s.windows[i], m.name) for m in decl.messages
-                                                  for i in s.message_windows[m.name]]
-        self._timers: list["Timer"] = []
+        self.slots: list[tuple[Window, str]] = [
+            (s.windows[i], m.name) for m in decl.messages for i in s.message_windows[m.name]
+        ]
+        self._timers: list[Timer] = []
         self.monitor = Monitor.of(context, s)
         self.monitor.profiles.append(self)
 
@@ -66,8 +67,11 @@ class TdmaProfile(Profile):
         for t in self._timers:
             t.cancel()
         cc = fse.cycle_count or 0
-        self._timers = [self.node.call_at(fse.local(w.start_ns), self._open, w, name, fse.cycle_id)
-                        for w, name in self.slots if w.active(cc)]
+        self._timers = [
+            self.node.call_at(fse.local(w.start_ns), self._open, w, name, fse.cycle_id)
+            for w, name in self.slots
+            if w.active(cc)
+        ]
 
     def on_lost(self, fse: Fse) -> None:
         """Out of schedule: nothing more is sent until the node is synchronised again."""
@@ -75,7 +79,7 @@ class TdmaProfile(Profile):
             t.cancel()
         self._timers = []
 
-    def _open(self, w: "Window", name: str, cycle_id: int) -> None:
+    def _open(self, w: Window, name: str, cycle_id: int) -> None:
         fse = self.fse
         if fse.cycle_id != cycle_id or not fse.in_schedule:
             return
@@ -99,7 +103,7 @@ class GatedReceiver:
     """A CSMA node's view of the schedule: a time slave FSE and the gate
     (`profiles.csma.Gate`) that keeps its frames inside arbitrating windows."""
 
-    def __init__(self, node: "NodeAPI", name: str, schedule: "Schedule") -> None:
+    def __init__(self, node: NodeAPI, name: str, schedule: Schedule) -> None:
         self.node = node
         self.name = name
         self.schedule = schedule
@@ -111,7 +115,7 @@ class GatedReceiver:
         """Follow the reference messages."""
         self.fse.start()
 
-    def gate(self, frame: "Frame", now: int) -> tuple[int, int | None]:
+    def gate(self, frame: Frame, now: int) -> tuple[int, int | None]:
         """When a frame released at local time ``now`` may be queued, and its latest start: the
         first arbitrating window, in this basic cycle or a later one of the matrix, whose last
         start for this frame (worst-case length and error budget) is not past. Not in schedule
@@ -146,6 +150,9 @@ class GatedReceiver:
         """The node's view of the schedule, how often the gate withdrew a frame at once (not in
         schedule) and how long it held frames for their window (ms, local clock)."""
         w = self.waits
-        return dict(self.fse.state(), gated=True, withdrawn_unsynchronised=self.held,
-                    gate_wait_ms=None if not w else {"mean": sum(w) / len(w) / 1e6, "max": max(w) / 1e6})
-
+        return dict(
+            self.fse.state(),
+            gated=True,
+            withdrawn_unsynchronised=self.held,
+            gate_wait_ms=None if not w else {"mean": sum(w) / len(w) / 1e6, "max": max(w) / 1e6},
+        )

@@ -31,20 +31,36 @@ Reference message (the numbers and where they come from):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Mapping, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from profiles.analysis.rta import ERROR_FRAME_BITS, frame_bits_worst
-from profiles.schema import (REQUIRED, Key, ScenarioError, in_range, non_negative, one_of, positive, read_table,
-                             where)
+from profiles.schema import REQUIRED, Key, ScenarioError, in_range, non_negative, one_of, positive, read_table, where
 from stack import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.scenario import MessageDecl, NodeDecl, Scenario
 
-__all__ = ["Schedule", "Window", "ReferenceInfo", "parse_schedule", "check_scenario", "encode_reference",
-           "decode_reference", "EXCLUSIVE", "ARBITRATING", "FREE", "MATRIX_SIZES", "MAX_TIME_MASTERS",
-           "CYCLE_TIME_NTU", "MARK_MODULUS", "frame_ns_worst", "TDMA_KEYS", "WINDOW_KEYS"]
+__all__ = [
+    "Schedule",
+    "Window",
+    "ReferenceInfo",
+    "parse_schedule",
+    "check_scenario",
+    "encode_reference",
+    "decode_reference",
+    "EXCLUSIVE",
+    "ARBITRATING",
+    "FREE",
+    "MATRIX_SIZES",
+    "MAX_TIME_MASTERS",
+    "CYCLE_TIME_NTU",
+    "MARK_MODULUS",
+    "frame_ns_worst",
+    "TDMA_KEYS",
+    "WINDOW_KEYS",
+]
 
 EXCLUSIVE = "exclusive"
 ARBITRATING = "arbitrating"
@@ -201,8 +217,7 @@ class Schedule:
             return None
         return can_id & 7
 
-    def reference_frame(self, priority: int, cycle_count: int, *, mark: int | None = None,
-                        disc: bool = False) -> Frame:
+    def reference_frame(self, priority: int, cycle_count: int, *, mark: int | None = None, disc: bool = False) -> Frame:
         """The reference message time master ``priority`` sends to open basic cycle ``cycle_count``."""
         data = encode_reference(cycle_count, level=self.level, mark=mark, disc=disc)
         return Frame(self.reference_id | priority, data, extended=self.reference_extended)
@@ -233,21 +248,42 @@ def _us(v: float) -> int:
 
 
 TDMA_KEYS = {
-    "reference_id": Key(int, REQUIRED, non_negative(), "identifier of the reference message; its 3 LSBs carry the "
-                        "time master's priority"),
+    "reference_id": Key(
+        int,
+        REQUIRED,
+        non_negative(),
+        "identifier of the reference message; its 3 LSBs carry the time master's priority",
+    ),
     "reference_extended": Key(bool, False),
     "time_masters": Key(list, REQUIRED, doc="potential time masters (node names), highest priority first"),
     "basic_cycle_us": Key(float, REQUIRED, positive("the basic cycle"), "µs"),
-    "matrix_cycles": Key(int, 1, lambda v: None if v in MATRIX_SIZES else
-                         f"{v!r} is not one of {', '.join(map(str, MATRIX_SIZES))} (a system matrix has 2^n basic "
-                         "cycles, Cycle_Count 0..63)"),
+    "matrix_cycles": Key(
+        int,
+        1,
+        lambda v: (
+            None
+            if v in MATRIX_SIZES
+            else f"{v!r} is not one of {', '.join(map(str, MATRIX_SIZES))} (a system matrix has 2^n basic "
+            "cycles, Cycle_Count 0..63)"
+        ),
+    ),
     "tx_enable_us": Key(float, None, positive("the Tx_Enable window"), f"default {DEFAULT_TX_ENABLE_NTU} NTU"),
-    "level": Key(int, 1, lambda v: None if v in (1, 2) else f"{v!r} is not 1 or 2 (TTCAN level 1: cycle "
-                 "synchronisation; level 2: global time and drift correction)"),
-    "initial_ref_offset": Key(int, DEFAULT_INITIAL_REF_OFFSET, in_range(0, REF_OFFSET_LIMIT, "NTU, the backup "
-                              "masters' Initial_Ref_Offset")),
-    "watch_trigger_us": Key(float, None, positive("the Watch_Trigger"), "cycle time at which a missing reference "
-                            "message is an error"),
+    "level": Key(
+        int,
+        1,
+        lambda v: (
+            None
+            if v in (1, 2)
+            else f"{v!r} is not 1 or 2 (TTCAN level 1: cycle "
+            "synchronisation; level 2: global time and drift correction)"
+        ),
+    ),
+    "initial_ref_offset": Key(
+        int, DEFAULT_INITIAL_REF_OFFSET, in_range(0, REF_OFFSET_LIMIT, "NTU, the backup masters' Initial_Ref_Offset")
+    ),
+    "watch_trigger_us": Key(
+        float, None, positive("the Watch_Trigger"), "cycle time at which a missing reference message is an error"
+    ),
     "error_budget_bits": Key(int, 0, non_negative("bits an error may add inside a window")),
     "windows": Key(list, REQUIRED),
 }
@@ -262,7 +298,7 @@ WINDOW_KEYS = {
 }
 
 
-def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
+def parse_schedule(scenario: Scenario, raw: Any) -> Schedule:
     """Check the ``[tdma]`` table of ``scenario`` against its nodes and return the `Schedule`.
     Every refusal is a `ScenarioError` naming the file, the table, the key and the rule."""
     src = scenario.source
@@ -276,37 +312,47 @@ def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
 
     masters = t["time_masters"]
     if not masters or len(masters) > MAX_TIME_MASTERS:
-        raise ScenarioError(f"{loc}: time_masters: {len(masters)} names given: a TTCAN network has 1 to "
-                            f"{MAX_TIME_MASTERS} potential time masters (three identifier bits carry the priority)")
+        raise ScenarioError(
+            f"{loc}: time_masters: {len(masters)} names given: a TTCAN network has 1 to "
+            f"{MAX_TIME_MASTERS} potential time masters (three identifier bits carry the priority)"
+        )
     for name in masters:
         if not isinstance(name, str) or name not in tdma_nodes:
             raise ScenarioError(f"{loc}: time_masters: {name!r} is not a node with profile = 'tdma'")
     if len(set(masters)) != len(masters):
         dup = next(m for m in masters if masters.count(m) > 1)
-        raise ScenarioError(f"{loc}: time_masters: {dup!r} is named twice (each potential time master has one "
-                            "priority)")
+        raise ScenarioError(
+            f"{loc}: time_masters: {dup!r} is named twice (each potential time master has one priority)"
+        )
 
     ref_id, ref_ext = t["reference_id"], t["reference_extended"]
     top = 0x1FFFFFFF if ref_ext else 0x7FF
     if ref_id & 7:
-        raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X} has its three least significant bits set: they carry "
-                            f"the time master's priority (ISO 11898-4); give 0x{ref_id & ~7:X}")
+        raise ScenarioError(
+            f"{loc}: reference_id: 0x{ref_id:X} has its three least significant bits set: they carry "
+            f"the time master's priority (ISO 11898-4); give 0x{ref_id & ~7:X}"
+        )
     if ref_id + len(masters) - 1 > top:
         kind = "an extended (29-bit)" if ref_ext else "a standard (11-bit)"
-        raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X} with {len(masters)} time masters is not {kind} "
-                            f"identifier 0..0x{top:X}")
+        raise ScenarioError(
+            f"{loc}: reference_id: 0x{ref_id:X} with {len(masters)} time masters is not {kind} identifier 0..0x{top:X}"
+        )
     for m in scenario.messages:
         if m.extended == ref_ext and not m.remote and ref_id <= m.can_id < ref_id + len(masters):
-            raise ScenarioError(f"{loc}: reference_id: 0x{ref_id:X}..0x{ref_id + len(masters) - 1:X} (the reference "
-                                f"messages of {len(masters)} time masters) includes message {m.name!r} ({m.id_text}): "
-                                "each identifier has one sender")
+            raise ScenarioError(
+                f"{loc}: reference_id: 0x{ref_id:X}..0x{ref_id + len(masters) - 1:X} (the reference "
+                f"messages of {len(masters)} time masters) includes message {m.name!r} ({m.id_text}): "
+                "each identifier has one sender"
+            )
 
     basic = _us(t["basic_cycle_us"])
     ntu = bit_ns
     if basic > CYCLE_TIME_NTU * ntu:
-        raise ScenarioError(f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is {basic / ntu:.0f} NTU at "
-                            f"{bitrate} bit/s: Cycle_Time counts 16 bits (at most {CYCLE_TIME_NTU} NTU = "
-                            f"{CYCLE_TIME_NTU * ntu / 1000:g} µs)")
+        raise ScenarioError(
+            f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is {basic / ntu:.0f} NTU at "
+            f"{bitrate} bit/s: Cycle_Time counts 16 bits (at most {CYCLE_TIME_NTU} NTU = "
+            f"{CYCLE_TIME_NTU * ntu / 1000:g} µs)"
+        )
     tx_enable = _us(t["tx_enable_us"]) if t["tx_enable_us"] is not None else round(DEFAULT_TX_ENABLE_NTU * ntu)
     level = t["level"]
     ref_dlc = 1 if level == 1 else 4
@@ -320,21 +366,28 @@ def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
     else:
         watch = _us(t["watch_trigger_us"])
         if watch <= latest_ref:
-            raise ScenarioError(f"{loc}: watch_trigger_us: {t['watch_trigger_us']:g} µs must be after the backup "
-                                f"masters' reference message (the basic cycle {basic / 1000:g} µs + "
-                                f"Initial_Ref_Offset {offset} NTU + its {ref_ns / 1000:g} µs = "
-                                f"{latest_ref / 1000:g} µs)")
+            raise ScenarioError(
+                f"{loc}: watch_trigger_us: {t['watch_trigger_us']:g} µs must be after the backup "
+                f"masters' reference message (the basic cycle {basic / 1000:g} µs + "
+                f"Initial_Ref_Offset {offset} NTU + its {ref_ns / 1000:g} µs = "
+                f"{latest_ref / 1000:g} µs)"
+            )
     if watch > CYCLE_TIME_NTU * ntu:
-        raise ScenarioError(f"{loc}: watch_trigger_us: the Watch_Trigger at {watch / 1000:g} µs is past the 16-bit "
-                            f"Cycle_Time ({CYCLE_TIME_NTU} NTU = {CYCLE_TIME_NTU * ntu / 1000:g} µs): shorten "
-                            "basic_cycle_us")
+        raise ScenarioError(
+            f"{loc}: watch_trigger_us: the Watch_Trigger at {watch / 1000:g} µs is past the 16-bit "
+            f"Cycle_Time ({CYCLE_TIME_NTU} NTU = {CYCLE_TIME_NTU * ntu / 1000:g} µs): shorten "
+            "basic_cycle_us"
+        )
     budget_ns = round(t["error_budget_bits"] * ntu)
     matrix = t["matrix_cycles"]
 
     windows: list[Window] = []
     for i, rw in enumerate(t["windows"], 1):
-        windows.append(_window(rw, i, src, decls, owners, tdma_nodes, scenario, basic, matrix, ref_ns, budget_ns,
-                               tx_enable, bit_ns))
+        windows.append(
+            _window(
+                rw, i, src, decls, owners, tdma_nodes, scenario, basic, matrix, ref_ns, budget_ns, tx_enable, bit_ns
+            )
+        )
     _check_overlaps(windows, src, matrix)
 
     message_windows: dict[str, list[int]] = {}
@@ -345,45 +398,82 @@ def parse_schedule(scenario: "Scenario", raw: Any) -> Schedule:
         for m in n.messages:
             mloc = where(src, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
             if m.name not in message_windows:
-                raise ScenarioError(f"{mloc}: in no [[tdma.windows]]: a TDMA message is sent only in its time windows "
-                                    "(name it in a window's messages)")
+                raise ScenarioError(
+                    f"{mloc}: in no [[tdma.windows]]: a TDMA message is sent only in its time windows "
+                    "(name it in a window's messages)"
+                )
             _check_untimed(m, mloc)
 
     frame_ns = {name: frame_ns_worst(d.dlc, d.extended, d.remote, bit_ns) for name, d in decls.items()}
     gated = tuple(n.name for n in scenario.nodes if n.profile == "csma" and n.options.get("tdma_gated", True))
-    sched = Schedule(reference_id=ref_id, reference_extended=ref_ext, masters=tuple(masters), basic_cycle_ns=basic,
-                     matrix_cycles=matrix, tx_enable_ns=tx_enable, level=level, initial_ref_offset=offset,
-                     watch_ns=watch, error_budget_bits=t["error_budget_bits"], bitrate=bitrate,
-                     windows=tuple(windows), message_windows={k: tuple(v) for k, v in message_windows.items()},
-                     owners=owners, frame_ns=frame_ns, gated=gated)
+    sched = Schedule(
+        reference_id=ref_id,
+        reference_extended=ref_ext,
+        masters=tuple(masters),
+        basic_cycle_ns=basic,
+        matrix_cycles=matrix,
+        tx_enable_ns=tx_enable,
+        level=level,
+        initial_ref_offset=offset,
+        watch_ns=watch,
+        error_budget_bits=t["error_budget_bits"],
+        bitrate=bitrate,
+        windows=tuple(windows),
+        message_windows={k: tuple(v) for k, v in message_windows.items()},
+        owners=owners,
+        frame_ns=frame_ns,
+        gated=gated,
+    )
     _check_gated(scenario, sched)
     return sched
 
 
-def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: dict[str, str],
-            tdma_nodes: "dict[str, NodeDecl]", scenario: "Scenario", basic: int, matrix: int, ref_ns: int,
-            budget_ns: int, tx_enable: int, bit_ns: float) -> Window:
+def _window(
+    rw: Any,
+    i: int,
+    src: str,
+    decls: dict[str, MessageDecl],
+    owners: dict[str, str],
+    tdma_nodes: dict[str, NodeDecl],
+    scenario: Scenario,
+    basic: int,
+    matrix: int,
+    ref_ns: int,
+    budget_ns: int,
+    tx_enable: int,
+    bit_ns: float,
+) -> Window:
     loc = where(src, "[tdma]", f"[[tdma.windows]] #{i}")
     d = read_table(rw, WINDOW_KEYS, loc)
     start, length = _us(d["start_us"]), _us(d["length_us"])
     kind = d["kind"]
     repeat, base = d["repeat"], d["base_cycle"]
     if not _power_of_two(repeat):
-        raise ScenarioError(f"{loc}: repeat: {repeat} is not a power of two (a message repeats every 1, 2, 4, … "
-                            "basic cycles: the standard's Repeat_Factor)")
+        raise ScenarioError(
+            f"{loc}: repeat: {repeat} is not a power of two (a message repeats every 1, 2, 4, … "
+            "basic cycles: the standard's Repeat_Factor)"
+        )
     if repeat > matrix:
-        raise ScenarioError(f"{loc}: repeat: {repeat} is more than matrix_cycles {matrix} (the matrix repeats every "
-                            f"{matrix} basic cycles)")
+        raise ScenarioError(
+            f"{loc}: repeat: {repeat} is more than matrix_cycles {matrix} (the matrix repeats every "
+            f"{matrix} basic cycles)"
+        )
     if base >= repeat:
-        raise ScenarioError(f"{loc}: base_cycle: {base} must be below repeat {repeat} (the first basic cycle of the "
-                            f"matrix that uses the window, 0..{repeat - 1}: the standard's Cycle_Offset)")
+        raise ScenarioError(
+            f"{loc}: base_cycle: {base} must be below repeat {repeat} (the first basic cycle of the "
+            f"matrix that uses the window, 0..{repeat - 1}: the standard's Cycle_Offset)"
+        )
     if start < ref_ns:
-        raise ScenarioError(f"{loc}: start_us: {d['start_us']:g} µs overlaps the reference message, which takes "
-                            f"the first {ref_ns / 1000:g} µs of every basic cycle (its worst-case length with "
-                            "intermission)")
+        raise ScenarioError(
+            f"{loc}: start_us: {d['start_us']:g} µs overlaps the reference message, which takes "
+            f"the first {ref_ns / 1000:g} µs of every basic cycle (its worst-case length with "
+            "intermission)"
+        )
     if start + length > basic:
-        raise ScenarioError(f"{loc}: length_us: the window ends at {(start + length) / 1000:g} µs, past the end of "
-                            f"the basic cycle ({basic / 1000:g} µs, where the next reference message starts)")
+        raise ScenarioError(
+            f"{loc}: length_us: the window ends at {(start + length) / 1000:g} µs, past the end of "
+            f"the basic cycle ({basic / 1000:g} µs, where the next reference message starts)"
+        )
     names = d["messages"]
     for name in names:
         if not isinstance(name, str):
@@ -391,9 +481,11 @@ def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: 
         if name not in decls:
             other = next((n for n in scenario.nodes for m in n.messages if m.name == name), None)
             if other is not None:
-                raise ScenarioError(f"{loc}: messages: {name!r} is a message of node {other.name!r} (profile "
-                                    f"{other.profile!r}): only messages of nodes with profile = 'tdma' go in windows "
-                                    "(CSMA nodes are gated into arbitrating windows)")
+                raise ScenarioError(
+                    f"{loc}: messages: {name!r} is a message of node {other.name!r} (profile "
+                    f"{other.profile!r}): only messages of nodes with profile = 'tdma' go in windows "
+                    "(CSMA nodes are gated into arbitrating windows)"
+                )
             raise ScenarioError(f"{loc}: messages: {name!r} is not a message of a node with profile = 'tdma'")
     if len(set(names)) != len(names):
         raise ScenarioError(f"{loc}: messages: {next(n for n in names if names.count(n) > 1)!r} is named twice")
@@ -404,11 +496,15 @@ def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: 
         if len(senders) > 1:
             a = next(n for n in names if owners[n] == senders[0])
             b = next(n for n in names if owners[n] == senders[1])
-            raise ScenarioError(f"{loc}: messages: {a!r} (node {senders[0]!r}) and {b!r} (node {senders[1]!r}): an "
-                                "exclusive window belongs to one node; make it arbitrating to let nodes compete")
+            raise ScenarioError(
+                f"{loc}: messages: {a!r} (node {senders[0]!r}) and {b!r} (node {senders[1]!r}): an "
+                "exclusive window belongs to one node; make it arbitrating to let nodes compete"
+            )
         if len(names) != 1:
-            raise ScenarioError(f"{loc}: messages: an exclusive window carries exactly one message (got {len(names)}); "
-                                "give each message its own window, or different base_cycle in the matrix")
+            raise ScenarioError(
+                f"{loc}: messages: an exclusive window carries exactly one message (got {len(names)}); "
+                "give each message its own window, or different base_cycle in the matrix"
+            )
     for name in names:
         m = decls[name]
         f = frame_ns_worst(m.dlc, m.extended, m.remote, bit_ns)
@@ -419,10 +515,13 @@ def _window(rw: Any, i: int, src: str, decls: "dict[str, MessageDecl]", owners: 
                 parts += f" after a Tx_Enable window of {tx_enable / 1000:g} µs"
             if budget_ns:
                 parts += f" plus the error budget {budget_ns / 1000:g} µs"
-            raise ScenarioError(f"{loc}: length_us: message {name!r} does not fit: {parts} needs {need / 1000:g} µs, "
-                                f"the window is {length / 1000:g} µs")
-    return Window(index=i, start_ns=start, length_ns=length, kind=kind, messages=tuple(names), base_cycle=base,
-                  repeat=repeat)
+            raise ScenarioError(
+                f"{loc}: length_us: message {name!r} does not fit: {parts} needs {need / 1000:g} µs, "
+                f"the window is {length / 1000:g} µs"
+            )
+    return Window(
+        index=i, start_ns=start, length_ns=length, kind=kind, messages=tuple(names), base_cycle=base, repeat=repeat
+    )
 
 
 def _share_cycles(a: Window, b: Window) -> int | None:
@@ -443,22 +542,25 @@ def _check_overlaps(windows: list[Window], src: str, matrix: int) -> None:
             if a.start_ns < b.end_ns and b.start_ns < a.end_ns:
                 c = _share_cycles(a, b)
                 if c is not None:
-                    raise ScenarioError(f"{where(src, '[tdma]', f'[[tdma.windows]] #{b.index}')}: start_us: overlaps "
-                                        f"{a.label()} in basic cycle {c} of the matrix (windows of one basic cycle "
-                                        "do not overlap)")
+                    raise ScenarioError(
+                        f"{where(src, '[tdma]', f'[[tdma.windows]] #{b.index}')}: start_us: overlaps "
+                        f"{a.label()} in basic cycle {c} of the matrix (windows of one basic cycle "
+                        "do not overlap)"
+                    )
 
 
-def _check_untimed(m: "MessageDecl", loc: str) -> None:
+def _check_untimed(m: MessageDecl, loc: str) -> None:
     for key, value in (("period_ms", m.period_ns), ("sporadic_ms", m.sporadic_ns), ("mean_ms", m.mean_ns)):
         if value is not None:
-            raise ScenarioError(f"{loc}: {key}: a TDMA message is released by its time window, not by a period: "
-                                "remove it")
+            raise ScenarioError(
+                f"{loc}: {key}: a TDMA message is released by its time window, not by a period: remove it"
+            )
     for key, value in (("offset_ms", m.offset_ns), ("jitter_ms", m.jitter_ns)):
         if value:
             raise ScenarioError(f"{loc}: {key}: a TDMA message is released at its window's start: remove it")
 
 
-def _check_gated(scenario: "Scenario", sched: Schedule) -> None:
+def _check_gated(scenario: Scenario, sched: Schedule) -> None:
     arb = sched.arbitrating()
     for n in scenario.nodes:
         if n.name not in sched.gated:
@@ -468,14 +570,16 @@ def _check_gated(scenario: "Scenario", sched: Schedule) -> None:
             if not any(w.length_ns >= f + sched.budget_ns for w in arb):
                 loc = where(scenario.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
                 widest = max((w.length_ns for w in arb), default=0)
-                raise ScenarioError(f"{loc}: no arbitrating window fits it ({f / 1000:g} µs worst case"
-                                    + (f" + error budget {sched.budget_ns / 1000:g} µs" if sched.budget_ns else "")
-                                    + (f"; the widest is {widest / 1000:g} µs" if arb else "; the schedule has none")
-                                    + "): a gated CSMA node sends only in arbitrating windows (set tdma_gated = false "
-                                    "on the node to let it send at any time)")
+                raise ScenarioError(
+                    f"{loc}: no arbitrating window fits it ({f / 1000:g} µs worst case"
+                    + (f" + error budget {sched.budget_ns / 1000:g} µs" if sched.budget_ns else "")
+                    + (f"; the widest is {widest / 1000:g} µs" if arb else "; the schedule has none")
+                    + "): a gated CSMA node sends only in arbitrating windows (set tdma_gated = false "
+                    "on the node to let it send at any time)"
+                )
 
 
-def check_scenario(scenario: "Scenario", tables: dict[str, Any]) -> None:
+def check_scenario(scenario: Scenario, tables: dict[str, Any]) -> None:
     """The profile's ``parse`` hook: read ``[tdma]`` when the scenario has TDMA nodes (refusing
     one without the other), store the `Schedule` in ``scenario.tables["tdma"]``, and give each
     TDMA message that has a single window its period (repeat × basic cycle), so that the
@@ -484,13 +588,17 @@ def check_scenario(scenario: "Scenario", tables: dict[str, Any]) -> None:
     if "tdma" not in tables:
         if tdma_nodes:
             n = tdma_nodes[0]
-            raise ScenarioError(f"{where(scenario.source, f'[[nodes]] {n.name!r}')}: profile: 'tdma' needs a [tdma] "
-                                "table in the scenario (the schedule: reference_id, time_masters, basic_cycle_us, "
-                                "[[tdma.windows]])")
+            raise ScenarioError(
+                f"{where(scenario.source, f'[[nodes]] {n.name!r}')}: profile: 'tdma' needs a [tdma] "
+                "table in the scenario (the schedule: reference_id, time_masters, basic_cycle_us, "
+                "[[tdma.windows]])"
+            )
         return
     if not tdma_nodes:
-        raise ScenarioError(f"{where(scenario.source, '[tdma]')}: no node has profile = 'tdma' (a schedule needs its "
-                            "time-triggered nodes)")
+        raise ScenarioError(
+            f"{where(scenario.source, '[tdma]')}: no node has profile = 'tdma' (a schedule needs its "
+            "time-triggered nodes)"
+        )
     sched = parse_schedule(scenario, tables["tdma"])
     scenario.tables["tdma"] = sched
     for n in tdma_nodes:

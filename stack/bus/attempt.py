@@ -33,14 +33,26 @@ already: inconsistent omission if the transmitter then fails before retransmitti
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import TYPE_CHECKING, Any
 
+from stack.controller.confinement import (
+    BUS_OFF,
+    DOMINANT_BITS_TOLERATED,
+    PASSIVE,
+    RULE_1_REC,
+    RULE_2_REC,
+    RULE_3_TEC,
+    RULE_4_TEC,
+    RULE_5_REC,
+    RULE_6_STEP,
+    after_rx_success,
+    after_tx_success,
+    state_for,
+)
 from stack.wire.coding import Field
 from stack.wire.decoder import BitDecoder
-from stack.controller.confinement import (BUS_OFF, DOMINANT_BITS_TOLERATED, PASSIVE, RULE_1_REC, RULE_2_REC, RULE_3_TEC,
-                                          RULE_4_TEC, RULE_5_REC, RULE_6_STEP, after_rx_success, after_tx_success,
-                                          state_for)
 
 if TYPE_CHECKING:  # pragma: no cover
     from stack.controller.node import Node
@@ -88,17 +100,44 @@ class AttemptResult:
     wire: str
     first_error: tuple[str, str, int, int] | None
     outcomes: dict[str, NodeOutcome]
-    winner: "TxRequest | None"
+    winner: TxRequest | None
     accepted_frame: Any = None
 
 
 class _View:
-    __slots__ = ("node", "out", "role", "req", "bits", "arb_end", "stuff", "dec", "phase", "flag_kind",
-                 "flag_n", "flag_levels", "dom_run", "first_after", "delim_n", "im_n", "overloads",
-                 "passive", "listen_only", "stuck", "deaf_ack", "ack_slot", "eof_last", "frame_done",
-                 "flag_had_dominant", "tec0", "rec0", "want_overloads", "bit")
+    __slots__ = (
+        "node",
+        "out",
+        "role",
+        "req",
+        "bits",
+        "arb_end",
+        "stuff",
+        "dec",
+        "phase",
+        "flag_kind",
+        "flag_n",
+        "flag_levels",
+        "dom_run",
+        "first_after",
+        "delim_n",
+        "im_n",
+        "overloads",
+        "passive",
+        "listen_only",
+        "stuck",
+        "deaf_ack",
+        "ack_slot",
+        "eof_last",
+        "frame_done",
+        "flag_had_dominant",
+        "tec0",
+        "rec0",
+        "want_overloads",
+        "bit",
+    )
 
-    def __init__(self, node: "Node", req: "TxRequest | None", stuck: int | None, deaf_ack: bool) -> None:
+    def __init__(self, node: Node, req: TxRequest | None, stuck: int | None, deaf_ack: bool) -> None:
         self.node = node
         self.out = NodeOutcome(node.name, "tx" if req is not None else "rx")
         self.role = "tx" if req is not None else "rx"
@@ -142,8 +181,13 @@ class _View:
                     return 1
                 return 0 if self.bits[b] == "0" else 1
             dec = self.dec
-            if dec.in_frame and dec.field == Field.ACK_SLOT and dec.crc_matches and not self.deaf_ack \
-                    and not self.listen_only:
+            if (
+                dec.in_frame
+                and dec.field == Field.ACK_SLOT
+                and dec.crc_matches
+                and not self.deaf_ack
+                and not self.listen_only
+            ):
                 return 0
             return 1
         if ph == FLAG:
@@ -151,10 +195,15 @@ class _View:
         return 1
 
 
-def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips: dict[int, Any],
-                     stuck: dict["Node", tuple[int, ...]] | None = None, deaf_ack: Iterable["Node"] = (),
-                     overload: dict["Node", int] | None = None,
-                     leave: dict["Node", int] | None = None) -> AttemptResult:
+def simulate_attempt(
+    txs: Iterable[TxRequest],
+    nodes: Iterable[Node],
+    flips: dict[int, Any],
+    stuck: dict[Node, tuple[int, ...]] | None = None,
+    deaf_ack: Iterable[Node] = (),
+    overload: dict[Node, int] | None = None,
+    leave: dict[Node, int] | None = None,
+) -> AttemptResult:
     """Replay one attempt bit by bit for every node on the bus.
 
     ``flips`` maps a bit position (from SOF) to the nodes that perceive that bit inverted (a set
@@ -174,13 +223,15 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     txs = list(txs)
     tx_nodes = {q.node: q for q in txs}
     onset_of = {n: (spec[2] if len(spec) > 2 else 0) for n, spec in stuck.items()}
-    views = [_View(n, tx_nodes.get(n), stuck[n][0] if n in stuck and onset_of[n] <= 0 else None, n in deaf)
-             for n in nodes]
+    views = [
+        _View(n, tx_nodes.get(n), stuck[n][0] if n in stuck and onset_of[n] <= 0 else None, n in deaf) for n in nodes
+    ]
     release = {v: stuck[v.node][1] for v in views if v.node in stuck}
     # faults that begin inside the attempt: (bit, view, what)
-    pending = sorted([(onset_of[v.node], i, "stuck") for i, v in enumerate(views)
-                      if v.node in stuck and onset_of[v.node] > 0]
-                     + [(leave[v.node], i, "leave") for i, v in enumerate(views) if leave and v.node in leave])
+    pending = sorted(
+        [(onset_of[v.node], i, "stuck") for i, v in enumerate(views) if v.node in stuck and onset_of[v.node] > 0]
+        + [(leave[v.node], i, "leave") for i, v in enumerate(views) if leave and v.node in leave]
+    )
     for v in views:
         v.want_overloads = (overload or {}).get(v.node, 0)
     wire_bits: list[str] = []
@@ -225,8 +276,7 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
         if wire == 0 and holders and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
             # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits, to
             # the first release (or to the end of the attempt for a fault that never ends)
-            horizon = min([h for h in holders if h is not None] + [p[0] for p in pending[:1]],
-                          default=MAX_ATTEMPT_BITS)
+            horizon = min([h for h in holders if h is not None] + [p[0] for p in pending[:1]], default=MAX_ATTEMPT_BITS)
             skip = max(1, min(horizon, MAX_ATTEMPT_BITS) - b)
             for v in views:
                 if v.phase == AFTER_FLAG:
@@ -246,8 +296,7 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
                 first_error = ev
         if first_error is not None and first_flag_bit is None:
             first_flag_bit = b + 1
-        if all(v.phase in (IDLE, OFF) or (v.phase == FRAME and v.role == "rx" and not v.dec.in_frame)
-               for v in views):
+        if all(v.phase in (IDLE, OFF) or (v.phase == FRAME and v.role == "rx" and not v.dec.in_frame) for v in views):
             # every node is idle: the attempt is over (a node stuck dominant from here on is
             # the SOF of an episode of its own, started by the fault injector when the bus is
             # idle)
@@ -262,13 +311,17 @@ def simulate_attempt(txs: Iterable["TxRequest"], nodes: Iterable["Node"], flips:
     # the last 3 bits were everyone's intermission: the attempt proper ends before them
     if all(v.phase == IDLE for v in views) and b >= 3:
         b -= 3
-    res = AttemptResult(b, "".join(wire_bits), first_error, {v.node.name: v.out for v in views},
-                        winner_view.req if winner_view else None)
+    res = AttemptResult(
+        b,
+        "".join(wire_bits),
+        first_error,
+        {v.node.name: v.out for v in views},
+        winner_view.req if winner_view else None,
+    )
     return res
 
 
-def _common_prefix(txs: list["TxRequest"], views: list[_View], flips: dict[int, Any],
-                   stuck: dict["Node", int]) -> int:
+def _common_prefix(txs: list[TxRequest], views: list[_View], flips: dict[int, Any], stuck: dict[Node, int]) -> int:
     """Bits from SOF that every node sees exactly as the transmitters sent them: before the
     first flip, the first difference between transmitters, the ACK slot, and only when no node
     is stuck or listen-only-silent matters (listen-only nodes never drive, so they do not)."""
@@ -325,8 +378,9 @@ def _fast_dominant(v: _View, skip: int) -> None:
     v.dom_run = end
 
 
-def _error_detected(v: _View, b: int, kind: str, fld: Field | str, idx: int, pos: int,
-                    primary: bool = True) -> tuple[str, str, int, int]:
+def _error_detected(
+    v: _View, b: int, kind: str, fld: Field | str, idx: int, pos: int, primary: bool = True
+) -> tuple[str, str, int, int]:
     """Rules 1 and 3 when a node detects an error at bit ``b``; its flag starts at b + 1."""
     out = v.out
     det = (kind, fld.value if isinstance(fld, Field) else str(fld), idx, pos)
@@ -426,7 +480,7 @@ def _step_flag(v: _View, b: int, driven: int, p: int) -> None:
         # a passive flag is complete after 6 consecutive bits of equal level
         if len(lv) >= 6 and len(set(lv[-6:])) == 1:
             _flag_done(v)
-        return None
+        return
     if p == 1 and driven == 0:
         # bit error while sending an active error flag or overload flag: rules 4 and 5, and
         # a new error flag from the next bit — a passive one once the counters reached 128
@@ -440,11 +494,11 @@ def _step_flag(v: _View, b: int, driven: int, p: int) -> None:
             v.flag_n = 0
             v.flag_levels = []
             v.flag_had_dominant = False
-        return None
+        return
     v.flag_n += 1
     if v.flag_n >= 6:
         _flag_done(v)
-    return None
+    return
 
 
 def _step_after_flag(v: _View, b: int, driven: int, p: int) -> None:
@@ -457,11 +511,11 @@ def _step_after_flag(v: _View, b: int, driven: int, p: int) -> None:
         v.dom_run += 1
         if v.dom_run >= DOMINANT_BITS_TOLERATED and (v.dom_run - DOMINANT_BITS_TOLERATED) % RULE_6_STEP == 0:
             _bump(v, RULE_6_STEP, "rule 6")
-        return None
+        return
     v.first_after = False
     v.phase = DELIM
     v.delim_n = 1
-    return None
+    return
 
 
 def _step_delim(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, int] | None:
@@ -488,15 +542,20 @@ def _step_intermission(v: _View, b: int, driven: int, p: int) -> None:
         # dominant in the first two intermission bits: an overload frame (the limit of two
         # applies to the ones a receiver asks for, not to these)
         _start_overload(v)
-        return None
+        return
     v.im_n += 1
     if v.im_n >= 3:
         v.phase = IDLE
-    return None
+    return
 
 
-_PHASE_STEP = {FRAME: _step_frame, FLAG: _step_flag, AFTER_FLAG: _step_after_flag, DELIM: _step_delim,
-               INTERMISSION: _step_intermission}
+_PHASE_STEP = {
+    FRAME: _step_frame,
+    FLAG: _step_flag,
+    AFTER_FLAG: _step_after_flag,
+    DELIM: _step_delim,
+    INTERMISSION: _step_intermission,
+}
 
 
 def _flag_done(v: _View) -> None:

@@ -4,7 +4,8 @@ results, fault confinement (rules 1-8 as counted, 9-12 through the node), trace 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Iterable
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 from stack.bus.attempt import simulate_attempt
 from stack.bus.trace import TraceRecord
@@ -23,16 +24,24 @@ class BitLevelAttempts:
 
     __slots__ = ()  # SimBus declares the fields
 
-    nodes: "list[Node]"
+    nodes: list[Node]
     trace: list[TraceRecord]
     now_ns: int
     _tx: Any
     _tx_end: int
 
-    def _bitlevel(self, now: int, txs: tuple[TxRequest, ...], *, flips: dict[int, Any] | None = None,
-                  stuck: dict[Node, tuple[int, int | None]] | None = None, deaf: Iterable[Node] = (),
-                  collision: bool = False,
-                  overload: dict[Node, int] | None = None, leave: dict[Node, int] | None = None) -> None:
+    def _bitlevel(
+        self,
+        now: int,
+        txs: tuple[TxRequest, ...],
+        *,
+        flips: dict[int, Any] | None = None,
+        stuck: dict[Node, tuple[int, int | None]] | None = None,
+        deaf: Iterable[Node] = (),
+        collision: bool = False,
+        overload: dict[Node, int] | None = None,
+        leave: dict[Node, int] | None = None,
+    ) -> None:
         """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
         nodes = [n for n in self.nodes if n.on_bus]
         res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
@@ -46,8 +55,11 @@ class BitLevelAttempts:
         for name, o in res.outcomes.items():
             for bit, dt, dr in o.trail:
                 if bit + 1 < res.bits:
-                    self.call_at(now + self.bits_to_ns(bit + 1), self._interim_counters,
-                                 (by_name[name], o.tec0 + dt, o.rec0 + dr))
+                    self.call_at(
+                        now + self.bits_to_ns(bit + 1),
+                        self._interim_counters,
+                        (by_name[name], o.tec0 + dt, o.rec0 + dr),
+                    )
 
     def _interim_counters(self, node: Node, tec: int, rec: int) -> None:
         """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
@@ -117,8 +129,14 @@ class BitLevelAttempts:
             changes = {n: (before[n], by_name[n].state) for n in outcomes if before[n] is not by_name[n].state}
             self._record_bitlevel(txs, start, end, res, changes)
 
-    def _record_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, res: Any,
-                         changes: dict[str, tuple[ErrorState, ErrorState]]) -> None:
+    def _record_bitlevel(
+        self,
+        txs: tuple[TxRequest, ...],
+        start: int,
+        end: int,
+        res: Any,
+        changes: dict[str, tuple[ErrorState, ErrorState]],
+    ) -> None:
         first = res.first_error
         detail: dict[str, Any] = {}
         if changes:
@@ -126,8 +144,7 @@ class BitLevelAttempts:
         if first is not None:
             detail.update(error=first[0], field=first[1], bit=first[3])
         detail["seen_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.primary))
-        detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes
-                                      if n.name in res.outcomes)
+        detail["counters"] = " ".join(f"{n.name}:{n.tec}/{n.rec}" for n in self.nodes if n.name in res.outcomes)
         detail["detected_by"] = ",".join(sorted(n for n, o in res.outcomes.items() if o.detected))
         detail["rules"] = ";".join(f"{n}:{','.join(o.rules)}" for n, o in sorted(res.outcomes.items()) if o.rules)
         detail["roles"] = ",".join(f"{n}:{o.role}" for n, o in sorted(res.outcomes.items()))
@@ -140,14 +157,24 @@ class BitLevelAttempts:
         w = res.winner or txs[0] if txs else None
         if w is None:
             from stack.wire.frame import Frame as _F
+
             rec = TraceRecord(kind, start, end, "", _F(0), res.bits, 0, start, detail)
         else:
             # the sender: every transmitter that got its frame through (identical frames from
             # several nodes), else every one that tried
             ok = [q.node.name for q in txs if getattr(res.outcomes.get(q.node.name), "success", False)]
             names = ok if res.winner is not None and ok else [q.node.name for q in txs]
-            rec = TraceRecord(kind, start, end, "+".join(names), w.frame, res.bits,
-                              w.losses, w.t_queued, detail if (first or kind != "frame") else None)
+            rec = TraceRecord(
+                kind,
+                start,
+                end,
+                "+".join(names),
+                w.frame,
+                res.bits,
+                w.losses,
+                w.t_queued,
+                detail if (first or kind != "frame") else None,
+            )
         self.trace.append(rec)
         for cb in self._bus_listeners:
             cb(rec)

@@ -13,8 +13,9 @@ from __future__ import annotations
 import heapq
 from bisect import bisect_left
 from collections import Counter
+from collections.abc import Iterable
 from operator import attrgetter, itemgetter
-from typing import TYPE_CHECKING, Iterable
+from typing import TYPE_CHECKING
 
 from stack.wire.frame import Frame
 
@@ -35,12 +36,12 @@ class LazyDelivery:
 
     __slots__ = ()  # SimBus declares the fields
 
-    nodes: "list[Node]"
+    nodes: list[Node]
     delivered: int
-    _log: "list[tuple[int, Frame, Node]]"
+    _log: list[tuple[int, Frame, Node]]
     _log_base: int
-    _lazy: "list[Node]"
-    _key_receivers: "dict[int, tuple[Node, ...]]"
+    _lazy: list[Node]
+    _key_receivers: dict[int, tuple[Node, ...]]
 
     def sync(self, node: Node) -> None:
         """Bring a buffering node's FIFO and counters up to date from the delivery log."""
@@ -141,8 +142,14 @@ class LazyDelivery:
         for node in self._lazy:
             node.rx_cursor = self._log_base
 
-    def _absorb_indexed(self, node: Node, log: list[tuple[int, Frame, Node]], lists: list[list[int]],
-                        start: int, own_positions: Iterable[int]) -> None:
+    def _absorb_indexed(
+        self,
+        node: Node,
+        log: list[tuple[int, Frame, Node]],
+        lists: list[list[int]],
+        start: int,
+        own_positions: Iterable[int],
+    ) -> None:
         """The log positions of the identifiers ``node``'s filters pass go to its FIFO
         (`Node.absorb_positions`); once it is full the rest are counted as overruns by
         bisection, without a walk."""

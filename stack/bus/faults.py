@@ -16,17 +16,18 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
-from stack.wire.coding import Field
 from stack.controller.events import TxDone
-from stack.wire.frame import Frame
 from stack.controller.node import ErrorState, Node
+from stack.wire.coding import Field
+from stack.wire.frame import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stack.controller.queues import TxRequest
     from stack.bus.sim import SimBus
+    from stack.controller.queues import TxRequest
 
 __all__ = ["FaultInjector", "FIELD_GROUPS", "FlipRule"]
 
@@ -46,11 +47,35 @@ FIELD_GROUPS: dict[str, tuple[Field, ...]] = {
     "ack_delim": (Field.ACK_DELIM,),
     "eof": (Field.EOF,),
 }
-_MAX_BITS = {"sof": 1, "arbitration": 32, "control": 6, "data": 64, "crc": 15, "crc_delim": 1, "ack": 1,
-             "ack_delim": 1, "eof": 7, "raw": 160}
-_FIELD_MAX = {Field.SOF: 1, Field.ID: 11, Field.SRR: 1, Field.IDE: 1, Field.ID_EXT: 18, Field.RTR: 1,
-              Field.R1: 1, Field.R0: 1, Field.DLC: 4, Field.DATA: 64, Field.CRC: 15, Field.CRC_DELIM: 1,
-              Field.ACK_SLOT: 1, Field.ACK_DELIM: 1, Field.EOF: 7}
+_MAX_BITS = {
+    "sof": 1,
+    "arbitration": 32,
+    "control": 6,
+    "data": 64,
+    "crc": 15,
+    "crc_delim": 1,
+    "ack": 1,
+    "ack_delim": 1,
+    "eof": 7,
+    "raw": 160,
+}
+_FIELD_MAX = {
+    Field.SOF: 1,
+    Field.ID: 11,
+    Field.SRR: 1,
+    Field.IDE: 1,
+    Field.ID_EXT: 18,
+    Field.RTR: 1,
+    Field.R1: 1,
+    Field.R0: 1,
+    Field.DLC: 4,
+    Field.DATA: 64,
+    Field.CRC: 15,
+    Field.CRC_DELIM: 1,
+    Field.ACK_SLOT: 1,
+    Field.ACK_DELIM: 1,
+    Field.EOF: 7,
+}
 
 
 def _resolve_field(name: str) -> tuple[str, tuple[Field, ...] | None, int]:
@@ -122,7 +147,7 @@ class _Stuck:
 class FaultInjector:
     """Faults for one `SimBus`; create it once per bus (``FaultInjector(bus)``)."""
 
-    def __init__(self, bus: "SimBus") -> None:
+    def __init__(self, bus: SimBus) -> None:
         if bus._faults is not None:
             raise ValueError(f"bus {bus.name!r} already has a fault injector")
         self.bus = bus
@@ -147,8 +172,10 @@ class FaultInjector:
         for n in self.bus.nodes:
             if n.name == node:
                 return n
-        raise ValueError(f"unknown node {node!r}: nodes on bus {self.bus.name!r} are "
-                         f"{', '.join(n.name for n in self.bus.nodes) or 'none'}")
+        raise ValueError(
+            f"unknown node {node!r}: nodes on bus {self.bus.name!r} are "
+            f"{', '.join(n.name for n in self.bus.nodes) or 'none'}"
+        )
 
     def _nodes(self, nodes: Iterable[Node | str] | None) -> frozenset[Node] | None:
         if nodes is None:
@@ -157,9 +184,17 @@ class FaultInjector:
             nodes = [nodes]
         return frozenset(self._node(n) for n in nodes)
 
-    def flip(self, *, can_id: int | None = None, extended: bool | None = None, occurrence: int = 1,
-             field: str = "data", bit: int = 0, nodes: Iterable[Node | str] | None = None,
-             every: bool = False) -> FlipRule:
+    def flip(
+        self,
+        *,
+        can_id: int | None = None,
+        extended: bool | None = None,
+        occurrence: int = 1,
+        field: str = "data",
+        bit: int = 0,
+        nodes: Iterable[Node | str] | None = None,
+        every: bool = False,
+    ) -> FlipRule:
         """Flip bit ``bit`` of ``field`` (a group: sof, arbitration, control, data, crc,
         crc_delim, ack, ack_delim, eof; a field name such as DLC or ID_EXT; or 'raw' for a
         position from SOF counting stuff bits) in the ``occurrence``-th attempt of frames with
@@ -178,8 +213,7 @@ class FaultInjector:
         """Random bit errors at ``rate`` per bit (seeded by the bus seed). ``nodes`` None: global
         errors (everyone sees them); otherwise each listed node sees its own independent local
         errors at that rate."""
-        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0.0 <= rate <= 1.0 \
-                or math.isnan(rate):
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0.0 <= rate <= 1.0 or math.isnan(rate):
             raise ValueError(f"bit-error rate {rate!r} outside [0, 1]")
         ns = self._nodes(nodes)
         if ns is None:
@@ -229,8 +263,15 @@ class FaultInjector:
                 raise ValueError(f"reconnect at {reconnect_at} ns is not after disconnect at {at} ns")
             self.bus.call_at(int(reconnect_at), self.bus.reconnect, (n,))
 
-    def babbling_idiot(self, node: Node | str, *, can_id: int = 0x000, data: bytes = b"\xff" * 8,
-                       start: int = 0, end: int | None = None) -> None:
+    def babbling_idiot(
+        self,
+        node: Node | str,
+        *,
+        can_id: int = 0x000,
+        data: bytes = b"\xff" * 8,
+        start: int = 0,
+        end: int | None = None,
+    ) -> None:
         """From ``start`` to ``end`` ns the node floods the bus with a high-priority frame,
         queueing the next copy as soon as one is sent."""
         n = self._node(node)
@@ -285,16 +326,16 @@ class FaultInjector:
         """Nodes `disconnect` takes off the bus during the attempt starting now: the bit.
         Disconnects already past are dropped (every attempt consults this list)."""
         self._leaves = [(n, at) for n, at in self._leaves if at > now]
-        return {n: self._bits_after(now, at) for n, at in self._leaves
-                if at <= now + horizon and n.connected}
+        return {n: self._bits_after(now, at) for n, at in self._leaves if at <= now + horizon and n.connected}
 
-    def attempt(self, bus: "SimBus", now: int, txs: Sequence["TxRequest"]) -> dict[str, Any] | None:
+    def attempt(self, bus: SimBus, now: int, txs: Sequence[TxRequest]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
         frame = txs[0].frame
         flips: dict[int, Any] = {}
         for rule in self.flips:
-            if rule.can_id is not None and (frame.can_id != rule.can_id or
-                                            (rule.extended is not None and frame.extended != rule.extended)):
+            if rule.can_id is not None and (
+                frame.can_id != rule.can_id or (rule.extended is not None and frame.extended != rule.extended)
+            ):
                 continue
             pos = rule.position(frame)
             if pos is None:
@@ -302,9 +343,13 @@ class FaultInjector:
                 # standard frame): not an occurrence; said once per rule, not silently dropped
                 rule.skipped += 1
                 if rule.skipped == 1:
-                    warnings.warn(f"flip of bit {rule.bit} of {rule.group}: frame {frame!r} has only "
-                                  f"{rule.width(frame)} such bits; frames without it are skipped and do "
-                                  "not count as occurrences", RuntimeWarning, stacklevel=2)
+                    warnings.warn(
+                        f"flip of bit {rule.bit} of {rule.group}: frame {frame!r} has only "
+                        f"{rule.width(frame)} such bits; frames without it are skipped and do "
+                        "not count as occurrences",
+                        RuntimeWarning,
+                        stacklevel=2,
+                    )
                 continue
             rule.seen += 1
             if rule.seen == rule.occurrence or (rule.every and rule.seen >= rule.occurrence):
@@ -328,8 +373,13 @@ class FaultInjector:
         if not flips and not stuck and not deaf and not overload and not leave:
             return None
         self.injected += len(flips)
-        return {"flips": flips, "stuck": stuck or None, "deaf": deaf, "overload": overload or None,
-                "leave": leave or None}
+        return {
+            "flips": flips,
+            "stuck": stuck or None,
+            "deaf": deaf,
+            "overload": overload or None,
+            "leave": leave or None,
+        }
 
     def _disturb(self) -> None:
         """A stuck-dominant fault starting on an idle bus: every node sees a SOF. On a busy bus

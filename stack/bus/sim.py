@@ -28,19 +28,19 @@ from __future__ import annotations
 import heapq
 import itertools
 import random
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
-
-from stack.wire.coding import INTERMISSION_BITS
-from stack.controller.events import TxDone
-from stack.wire.frame import Frame
-from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
 from stack.bus.bitlevel import BitLevelAttempts
 from stack.bus.delivery import LOG_LIMIT, LazyDelivery
 from stack.bus.stats import BusStatistics, IdStats
 from stack.bus.trace import TraceRecord
+from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
+from stack.controller.events import TxDone
 from stack.controller.node import Node, Timer
 from stack.controller.queues import QUEUED, SENT, TxRequest
+from stack.wire.coding import INTERMISSION_BITS
+from stack.wire.frame import Frame
 
 __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
 
@@ -59,19 +59,56 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     the sense of `stack.controller.contract` and knows everything a node can be told.
     """
 
-    capabilities = frozenset({"bus-time", "sof", "arbitration-lost", "error-confinement", "one-shot",
-                              "latest-start"})
+    capabilities = frozenset({"bus-time", "sof", "arbitration-lost", "error-confinement", "one-shot", "latest-start"})
 
     # the fields as slots: the engine reads them once a frame (a dict of over 30 keys is slower)
-    __slots__ = ('bitrate', 'name', 'seed', 'rng', 'record', 'trace', 'nodes', '_dur', '_ifs_ns', '_suspend_ns',
-                 'bit_ns', 'now_ns', '_timers', 'seqs', '_contenders', '_suspended', 'rounds', '_idle_at', '_tx',
-                 '_tx_end', '_log', '_log_base', 'delivered', '_lazy', '_eager', '_arb_watch', '_rtr',
-                 '_key_receivers', '_ack_count', 'frames_ok', 'error_frames', 'collisions', 'busy_ns', 'id_stats',
-                 '_bus_listeners', '_rec_nonzero', '_faults', '_recessive_events', '_busoff', '_busoff_marks',
-                 '_idle_bits', "__dict__", "__weakref__")
+    __slots__ = (
+        "bitrate",
+        "name",
+        "seed",
+        "rng",
+        "record",
+        "trace",
+        "nodes",
+        "_dur",
+        "_ifs_ns",
+        "_suspend_ns",
+        "bit_ns",
+        "now_ns",
+        "_timers",
+        "seqs",
+        "_contenders",
+        "_suspended",
+        "rounds",
+        "_idle_at",
+        "_tx",
+        "_tx_end",
+        "_log",
+        "_log_base",
+        "delivered",
+        "_lazy",
+        "_eager",
+        "_arb_watch",
+        "_rtr",
+        "_key_receivers",
+        "_ack_count",
+        "frames_ok",
+        "error_frames",
+        "collisions",
+        "busy_ns",
+        "id_stats",
+        "_bus_listeners",
+        "_rec_nonzero",
+        "_faults",
+        "_recessive_events",
+        "_busoff",
+        "_busoff_marks",
+        "_idle_bits",
+        "__dict__",
+        "__weakref__",
+    )
 
-    def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0",
-                 record: bool = True) -> None:
+    def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0", record: bool = True) -> None:
         if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
             raise ValueError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
         self.bitrate = bitrate
@@ -151,7 +188,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         for n in self.nodes:
             if n.name == name:
                 return n
-        raise KeyError(f"no node named {name!r} on bus {self.name!r}: {', '.join(n.name for n in self.nodes) or 'none'}")
+        raise KeyError(
+            f"no node named {name!r} on bus {self.name!r}: {', '.join(n.name for n in self.nodes) or 'none'}"
+        )
 
     def disconnect(self, node: Node) -> None:
         """Take a node off the wire: it neither receives, acknowledges nor transmits."""
@@ -226,8 +265,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self._lazy = sorted(lazy, key=order.__getitem__)
         self._eager = sorted(eager, key=order.__getitem__)
         self._arb_watch = sorted(watch, key=order.__getitem__)
-        self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only
-                              and n.state is not BUS_OFF)
+        self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only and n.state is not BUS_OFF)
 
     def filters_changed(self, node: Node) -> None:
         """Acceptance filters or remote replies of ``node`` changed (the contract's
@@ -242,7 +280,6 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     def now(self) -> int:
         """Virtual time in ns."""
         return self.now_ns
-
 
     def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer:
         """Schedule ``callback(*args)`` at virtual time ``time`` ns (not before now)."""
@@ -273,8 +310,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         else:
             self._rec_nonzero.pop(node, None)
 
-    def run(self, until: int | None = None, *, duration: int | None = None,
-            frames: int | None = None) -> "SimBus":
+    def run(self, until: int | None = None, *, duration: int | None = None, frames: int | None = None) -> SimBus:
         """Advance the simulation to virtual time ``until`` (ns), for ``duration`` ns, or until
         ``frames`` more frames were transmitted successfully — whichever comes first. With no
         bound it runs until nothing is left to do."""
@@ -283,8 +319,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         limit = INF if until is None else until
         stop = INF if frames is None else self.frames_ok + frames
         if until is None and self._unbounded_risk():
-            raise ValueError("run() without until/duration would never end: a node keeps "
-                             "retransmitting without acknowledgement; give a time bound")
+            raise ValueError(
+                "run() without until/duration would never end: a node keeps "
+                "retransmitting without acknowledgement; give a time bound"
+            )
         timers = self._timers
         heappop = heapq.heappop
         while self.frames_ok < stop:
@@ -311,8 +349,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 self.now_ns = tb
                 if self._tx is not None:
                     self._complete()
-                elif self.fast and not (self._suspended or self._arb_watch or self._faults is not None
-                                        or self._ack_count < 2):
+                elif self.fast and not (
+                    self._suspended or self._arb_watch or self._faults is not None or self._ack_count < 2
+                ):
                     if not self._fast_frames(tt, limit, stop):
                         self._arbitrate()
                 else:
@@ -373,8 +412,13 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 except IndexError:  # nothing to send
                     break
                 node = req.node
-                if req.state is not QUEUED or node.offered is not req or not node.on_bus or node.ready_at > t0 \
-                        or node.state is PASSIVE:
+                if (
+                    req.state is not QUEUED
+                    or node.offered is not req
+                    or not node.on_bus
+                    or node.ready_at > t0
+                    or node.state is PASSIVE
+                ):
                     break
                 frame = req.frame
                 if frame.remote and rtr:
@@ -672,8 +716,16 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self.busy_ns += idle - start
         self._idle_at = idle
         if self.record:
-            rec = TraceRecord("frame", start, end, sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
-                              frame, frame.bits.length, winner.losses, winner.t_queued)
+            rec = TraceRecord(
+                "frame",
+                start,
+                end,
+                sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
+                frame,
+                frame.bits.length,
+                winner.losses,
+                winner.t_queued,
+            )
             self.trace.append(rec)
             for cb in self._bus_listeners:
                 cb(rec)
@@ -765,7 +817,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     def start_recovery(self, node: Node) -> None:
         """Rule 12: bus off ends after 128 occurrences of 11 consecutive recessive bits."""
         self._busoff_marks[node] = self._recessive_count(self.now_ns)
-        self.call_at(self.now_ns + self.bits_to_ns(RECOVERY_OCCURRENCES * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,))
+        self.call_at(
+            self.now_ns + self.bits_to_ns(RECOVERY_OCCURRENCES * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,)
+        )
 
     def _check_recovery(self, node: Node) -> None:
         if node.state is not BUS_OFF:
@@ -774,4 +828,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         if done >= RECOVERY_OCCURRENCES:
             node.recovered(self.now_ns)  # back to error active: state_changed puts it on the bus
         else:
-            self.call_at(self.now_ns + self.bits_to_ns((RECOVERY_OCCURRENCES - done) * RECOVERY_RECESSIVE_BITS), self._check_recovery, (node,))
+            self.call_at(
+                self.now_ns + self.bits_to_ns((RECOVERY_OCCURRENCES - done) * RECOVERY_RECESSIVE_BITS),
+                self._check_recovery,
+                (node,),
+            )

@@ -3,7 +3,8 @@ the results it reports (bus load, summary, the trace through python-can's writer
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -53,7 +54,7 @@ class BusStatistics:
 
     bitrate: int
     name: str
-    nodes: "list[Node]"
+    nodes: list[Node]
     trace: list[TraceRecord]
     frames_ok: int
     error_frames: int
@@ -101,10 +102,15 @@ class BusStatistics:
             # are two frames on the wire (labelled 'ID RTR' and 'ID'), so the counts add up
             "ids": {
                 id_text(s.can_id, s.extended, key == arbitration_key(s.can_id, s.extended, True)): {
-                    "id": s.can_id, "extended": s.extended,
+                    "id": s.can_id,
+                    "extended": s.extended,
                     "remote": key == arbitration_key(s.can_id, s.extended, True),
-                    "count": s.count, "latency_min_us": s.min / 1e3, "latency_mean_us": s.mean / 1e3,
-                    "latency_max_us": s.max / 1e3, "arbitration_losses": s.losses}
+                    "count": s.count,
+                    "latency_min_us": s.min / 1e3,
+                    "latency_mean_us": s.mean / 1e3,
+                    "latency_max_us": s.max / 1e3,
+                    "arbitration_losses": s.losses,
+                }
                 for key, s in sorted(self.id_stats.items())
             },
             "nodes": {n.name: n.counters() for n in self.nodes},

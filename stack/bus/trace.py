@@ -6,8 +6,9 @@ so Vector tools, candump tools and SavvyCAN read what we write.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import can
 
@@ -20,12 +21,12 @@ SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4", ".txt", ".db")
 # SocketCAN error frames (linux/can/error.h): the error class in the identifier, details in the
 # 8 data bytes. Names and values as in the kernel header.
 CAN_ERR_DLC = 8
-CAN_ERR_CRTL = 0x04       # controller problems, data[1]
-CAN_ERR_PROT = 0x08       # protocol violations, data[2..3]
-CAN_ERR_ACK = 0x20        # received no ACK on transmission
+CAN_ERR_CRTL = 0x04  # controller problems, data[1]
+CAN_ERR_PROT = 0x08  # protocol violations, data[2..3]
+CAN_ERR_ACK = 0x20  # received no ACK on transmission
 CAN_ERR_BUSOFF = 0x40
 CAN_ERR_BUSERROR = 0x80
-CAN_ERR_CNT = 0x200       # TX error counter in data[6], RX error counter in data[7]
+CAN_ERR_CNT = 0x200  # TX error counter in data[6], RX error counter in data[7]
 CAN_ERR_CRTL_RX_WARNING = 0x04
 CAN_ERR_CRTL_TX_WARNING = 0x08
 CAN_ERR_CRTL_RX_PASSIVE = 0x10
@@ -36,11 +37,29 @@ CAN_ERR_PROT_BIT = 0x01
 CAN_ERR_PROT_FORM = 0x02
 CAN_ERR_PROT_STUFF = 0x04
 CAN_ERR_PROT_TX = 0x80
-_PROT_TYPE = {"bit": CAN_ERR_PROT_BIT, "form": CAN_ERR_PROT_FORM, "stuff": CAN_ERR_PROT_STUFF,
-              "stuff-arbitration": CAN_ERR_PROT_STUFF, "crc": CAN_ERR_PROT_UNSPEC, "ack": CAN_ERR_PROT_UNSPEC}
+_PROT_TYPE = {
+    "bit": CAN_ERR_PROT_BIT,
+    "form": CAN_ERR_PROT_FORM,
+    "stuff": CAN_ERR_PROT_STUFF,
+    "stuff-arbitration": CAN_ERR_PROT_STUFF,
+    "crc": CAN_ERR_PROT_UNSPEC,
+    "ack": CAN_ERR_PROT_UNSPEC,
+}
 # CAN_ERR_PROT_LOC_* of each field (data[3]); the identifier's fields are split further below
-_PROT_LOC = {"SOF": 0x03, "SRR": 0x04, "IDE": 0x05, "r1": 0x0D, "r0": 0x09, "DLC": 0x0B, "DATA": 0x0A,
-             "CRC": 0x08, "CRC_DELIM": 0x18, "ACK_SLOT": 0x19, "ACK_DELIM": 0x1B, "EOF": 0x1A}
+_PROT_LOC = {
+    "SOF": 0x03,
+    "SRR": 0x04,
+    "IDE": 0x05,
+    "r1": 0x0D,
+    "r0": 0x09,
+    "DLC": 0x0B,
+    "DATA": 0x0A,
+    "CRC": 0x08,
+    "CRC_DELIM": 0x18,
+    "ACK_SLOT": 0x19,
+    "ACK_DELIM": 0x1B,
+    "EOF": 0x1A,
+}
 _LOC_ID28_21, _LOC_ID20_18, _LOC_SRTR, _LOC_RTR = 0x02, 0x06, 0x04, 0x0C
 _LOC_ID17_13, _LOC_ID12_05, _LOC_ID04_00 = 0x07, 0x0F, 0x0E
 
@@ -54,7 +73,7 @@ def _pairs(text: str | None) -> dict[str, str]:
     return out
 
 
-def _location(rec: "TraceRecord", field: str | None, position: int | None) -> int:
+def _location(rec: TraceRecord, field: str | None, position: int | None) -> int:
     """CAN_ERR_PROT_LOC_* for an error in ``field`` at stuffed ``position`` of the record's frame."""
     if field in _PROT_LOC:
         return _PROT_LOC[field]
@@ -71,7 +90,7 @@ def _location(rec: "TraceRecord", field: str | None, position: int | None) -> in
     return 0x00  # CAN_ERR_PROT_LOC_UNSPEC: an error delimiter, an overload frame
 
 
-def error_frame_content(rec: "TraceRecord") -> tuple[int, bytes]:
+def error_frame_content(rec: TraceRecord) -> tuple[int, bytes]:
     """A failed attempt as a SocketCAN error frame (linux/can/error.h): (identifier with the
     error class bits, 8 data bytes), from the point of view of the node that found the error
     first (the transmitter when it is among them), as its controller would report it.
@@ -106,9 +125,13 @@ def error_frame_content(rec: "TraceRecord") -> tuple[int, bytes]:
             if new == "error-active":
                 data[1] = CAN_ERR_CRTL_ACTIVE
             elif new == "error-warning":
-                data[1] = (CAN_ERR_CRTL_TX_WARNING if tec_n >= 96 else 0) | (CAN_ERR_CRTL_RX_WARNING if rec_n >= 96 else 0)
+                data[1] = (CAN_ERR_CRTL_TX_WARNING if tec_n >= 96 else 0) | (
+                    CAN_ERR_CRTL_RX_WARNING if rec_n >= 96 else 0
+                )
             elif new == "error-passive":
-                data[1] = (CAN_ERR_CRTL_TX_PASSIVE if tec_n >= 128 else 0) | (CAN_ERR_CRTL_RX_PASSIVE if rec_n >= 128 else 0)
+                data[1] = (CAN_ERR_CRTL_TX_PASSIVE if tec_n >= 128 else 0) | (
+                    CAN_ERR_CRTL_RX_PASSIVE if rec_n >= 128 else 0
+                )
     return can_id, bytes(data)
 
 
@@ -124,8 +147,18 @@ class TraceRecord:
 
     __slots__ = ("kind", "start", "end", "sender", "frame", "bits", "losses", "queued", "detail")
 
-    def __init__(self, kind: str, start: int, end: int, sender: str, frame: Frame, bits: int,
-                 losses: int, queued: int, detail: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        kind: str,
+        start: int,
+        end: int,
+        sender: str,
+        frame: Frame,
+        bits: int,
+        losses: int,
+        queued: int,
+        detail: dict[str, Any] | None = None,
+    ) -> None:
         self.kind = kind
         self.start = start
         self.end = end
@@ -138,9 +171,19 @@ class TraceRecord:
 
     def as_tuple(self) -> tuple[Any, ...]:
         """A plain tuple for comparisons (determinism checks)."""
-        return (self.kind, self.start, self.end, self.sender, self.frame.key, self.frame.dlc,
-                self.frame.data, self.bits, self.losses, self.queued,
-                tuple(sorted((self.detail or {}).items())))
+        return (
+            self.kind,
+            self.start,
+            self.end,
+            self.sender,
+            self.frame.key,
+            self.frame.dlc,
+            self.frame.data,
+            self.bits,
+            self.losses,
+            self.queued,
+            tuple(sorted((self.detail or {}).items())),
+        )
 
     def to_message(self, channel: Any = None) -> can.Message:
         """python-can message of this record (an error frame for 'error'/'collision', its
@@ -148,12 +191,21 @@ class TraceRecord:
         if self.kind == "frame":
             return self.frame.to_message(timestamp=self.end / 1e9, channel=channel)
         can_id, data = error_frame_content(self)
-        return can.Message(timestamp=self.end / 1e9, is_error_frame=True, channel=channel,
-                           arbitration_id=can_id, dlc=CAN_ERR_DLC, data=data, check=False)
+        return can.Message(
+            timestamp=self.end / 1e9,
+            is_error_frame=True,
+            channel=channel,
+            arbitration_id=can_id,
+            dlc=CAN_ERR_DLC,
+            data=data,
+            check=False,
+        )
 
     def __repr__(self) -> str:
-        return (f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
-                f" bits={self.bits} losses={self.losses}{' ' + str(self.detail) if self.detail else ''})")
+        return (
+            f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
+            f" bits={self.bits} losses={self.losses}{' ' + str(self.detail) if self.detail else ''})"
+        )
 
 
 def check_suffix(path: str | Path) -> str:
@@ -162,7 +214,8 @@ def check_suffix(path: str | Path) -> str:
     suffix = "".join(Path(path).suffixes[-1:]).lower()
     if suffix not in SUFFIXES:
         raise ValueError(
-            f"trace file {str(path)!r}: unknown suffix {suffix or '(none)'!r}; use one of {', '.join(SUFFIXES)}")
+            f"trace file {str(path)!r}: unknown suffix {suffix or '(none)'!r}; use one of {', '.join(SUFFIXES)}"
+        )
     return suffix
 
 

@@ -12,11 +12,23 @@ import argparse
 import importlib
 import math
 import sys
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from stack.wire.frame import id_text
 
-__all__ = ["CliError", "main", "parse_int", "parse_bitrate", "int_type", "seconds_type", "count_type", "parse_sample_point", "version", "format_id", "plural"]
+__all__ = [
+    "CliError",
+    "main",
+    "parse_int",
+    "parse_bitrate",
+    "int_type",
+    "seconds_type",
+    "count_type",
+    "parse_sample_point",
+    "version",
+    "format_id",
+    "plural",
+]
 
 # stack's own modules that contribute subcommands, in the order they are listed in --help;
 # packages above stack (dbc, profiles) add theirs through the "canstack.commands" entry point
@@ -30,9 +42,15 @@ SUBCOMMAND_MODULES = [
 ]
 # which module registers which subcommand: a command line naming one imports only that module
 # (`canstack decode` then starts without python-can or cantools); --help imports them all
-SUBCOMMANDS = {"demo": "stack.cli.demo", "frame": "stack.cli.demo", "bittiming": "stack.cli.bittiming",
-               "sync": "stack.cli.sync", "decode": "stack.cli.waveform", "render": "stack.cli.waveform",
-               "serve": "stack.cli.serve"}
+SUBCOMMANDS = {
+    "demo": "stack.cli.demo",
+    "frame": "stack.cli.demo",
+    "bittiming": "stack.cli.bittiming",
+    "sync": "stack.cli.sync",
+    "decode": "stack.cli.waveform",
+    "render": "stack.cli.waveform",
+    "serve": "stack.cli.serve",
+}
 
 
 #: The version when no distribution metadata is installed (a checkout run with PYTHONPATH);
@@ -72,6 +90,7 @@ def parse_int(text: str) -> int:
 def int_type(low: int, high: int, noun: str, rule: str) -> Callable[[str], int]:
     """An argparse type for a whole number (decimal or 0x hex) in ``low..high``: the errors say
     "'x' is not ``noun``" and "v: ``rule``"."""
+
     def parse(text: str) -> int:
         try:
             v = int(text, 0)
@@ -80,6 +99,7 @@ def int_type(low: int, high: int, noun: str, rule: str) -> Callable[[str], int]:
         if not low <= v <= high:
             raise argparse.ArgumentTypeError(f"{v}: {rule}")
         return v
+
     return parse
 
 
@@ -90,6 +110,7 @@ parse_bitrate = int_type(1_000, 1_000_000, "a whole number of bit/s", "a CAN 2.0
 
 def seconds_type(most: float) -> Callable[[str], float]:
     """An argparse type for a duration: a number of seconds > 0 and at most ``most``."""
+
     def parse(text: str) -> float:
         try:
             v = float(text)
@@ -98,11 +119,13 @@ def seconds_type(most: float) -> Callable[[str], float]:
         if not 0 < v <= most:
             raise argparse.ArgumentTypeError(f"{text}: a duration is > 0 and at most {most:g} s")
         return v
+
     return parse
 
 
 def count_type(what: str) -> Callable[[str], int]:
     """An argparse type for a count: a whole number >= 1 (``what`` names it in the error)."""
+
     def parse(text: str) -> int:
         try:
             v = int(text)
@@ -111,6 +134,7 @@ def count_type(what: str) -> Callable[[str], int]:
         if v < 1:
             raise argparse.ArgumentTypeError(f"{text!r}: {what} is at least 1")
         return v
+
     return parse
 
 
@@ -122,7 +146,9 @@ def parse_sample_point(text: str) -> float:
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number (percent, e.g. 87.5, or a fraction, 0.875)") from None
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number (percent, e.g. 87.5, or a fraction, 0.875)"
+        ) from None
     if not math.isfinite(v) or v <= 0:
         raise argparse.ArgumentTypeError(f"{text!r}: a sample point is a percentage 50..<100 (or a fraction 0.5..<1)")
     return v * 100 if v < 1 else v
@@ -177,13 +203,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(args_list)
         return int(args.func(args) or 0)
     except BrokenPipeError:  # output piped into head: not an error
-        try:
-            sys.stdout = None  # type: ignore[assignment]
-        finally:
-            return 0
+        sys.stdout = None  # type: ignore[assignment]  # nothing more may be flushed into the closed pipe
+        return 0
     except (CliError, ValueError, OSError) as exc:
         print(f"canstack: error: {exc}" if not str(exc).startswith("canstack") else f"{exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
-

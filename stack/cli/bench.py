@@ -31,13 +31,14 @@ import argparse
 import json
 import sys
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import can
 
+from stack.bus.sim import SimBus
 from stack.controller.events import TxDone
 from stack.wire.frame import Frame
-from stack.bus.sim import SimBus
 
 __all__ = ["bench_python_can_virtual", "bench_canstack_pair", "bench_saturated", "main"]
 
@@ -177,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     res["fps_10_nodes"] = fps10
     res["realtime_factor_10_nodes"] = rtf10
     _progress("1000 nodes, 1 Mbit/s, 100 % load")
-    fps1000, rtf1000 = max(bench_saturated(1000, int(300_000 * scale), True) for _ in range(rep))
+    fps1000, _rtf1000 = max(bench_saturated(1000, int(300_000 * scale), True) for _ in range(rep))
     res["fps_1000_nodes"] = fps1000
     res["scale_1000_vs_10_nodes"] = fps1000 / fps10
 
@@ -231,37 +232,54 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(res))
         return 0
-    print(f"frames/s 1 sender -> 1 receiver: {ours:,.0f} vs python-can virtual {ref:,.0f}: "
-          f"{res['vs_python_can_virtual']:.2f}x (target >= 3)")
-    print(f"10 nodes @ 1 Mbit/s, 100 % load: {fps10:,.0f} frames/s, real-time factor "
-          f"{rtf10:.1f}x the wire (target >= 50)")
-    print(f"1000 nodes: {fps1000:,.0f} frames/s = {res['scale_1000_vs_10_nodes']:.2f} of the 10-node "
-          f"figure (target >= 0.5)")
-    print(f"reliability campaign, {n_campaign:,} frames, 5 nodes @ 500 kbit/s, BER 1e-4: real-time "
-          f"factor {rtf_faulty:.1f}x ({errors:,} error frames) vs {rtf_clean:.1f}x fault-free: "
-          f"{res['campaign_vs_fault_free']:.2f}")
+    print(
+        f"frames/s 1 sender -> 1 receiver: {ours:,.0f} vs python-can virtual {ref:,.0f}: "
+        f"{res['vs_python_can_virtual']:.2f}x (target >= 3)"
+    )
+    print(
+        f"10 nodes @ 1 Mbit/s, 100 % load: {fps10:,.0f} frames/s, real-time factor {rtf10:.1f}x the wire (target >= 50)"
+    )
+    print(
+        f"1000 nodes: {fps1000:,.0f} frames/s = {res['scale_1000_vs_10_nodes']:.2f} of the 10-node "
+        f"figure (target >= 0.5)"
+    )
+    print(
+        f"reliability campaign, {n_campaign:,} frames, 5 nodes @ 500 kbit/s, BER 1e-4: real-time "
+        f"factor {rtf_faulty:.1f}x ({errors:,} error frames) vs {rtf_clean:.1f}x fault-free: "
+        f"{res['campaign_vs_fault_free']:.2f}"
+    )
     if res.get("decode_vs_sigrok") is not None:
-        print(f"capture decode vs sigrok-cli ({res['sigrok_s']:.3f} s, a whole process): canstack decode as a "
-              f"process {res['decode_cli_s']:.3f} s: {res['decode_cli_vs_sigrok']:.2f}x (target >= 1); "
-              f"in-process decode_file {res['decode_s']:.3f} s: {res['decode_vs_sigrok']:.2f}x")
+        print(
+            f"capture decode vs sigrok-cli ({res['sigrok_s']:.3f} s, a whole process): canstack decode as a "
+            f"process {res['decode_cli_s']:.3f} s: {res['decode_cli_vs_sigrok']:.2f}x (target >= 1); "
+            f"in-process decode_file {res['decode_s']:.3f} s: {res['decode_vs_sigrok']:.2f}x"
+        )
     elif "decode_s" in res:
         print(f"capture decode: {res['decode_s']:.2f} s (sigrok-cli not installed)")
     if "pycan" in res:
         p = res["pycan"]
         per = p["periodic"]
-        print(f"10 ms periodic, p99 period deviation: canstack {per['canstack']['p99_timestamp_s'] * 1e6:.1f} us "
-              f"(bus timestamps; {per['canstack']['p99_arrival_s'] * 1e6:.0f} us at recv) vs python-can virtual "
-              f"{per['python_can_virtual']['p99_timestamp_s'] * 1e6:.0f} us "
-              f"({per['python_can_virtual']['p99_arrival_s'] * 1e6:.0f} us): {per['ratio_timestamp']:.3f}x / "
-              f"{per['ratio_arrival']:.2f}x (target <= 1; median of {per.get('rounds', 1)} rounds)")
-        print(f"python-can plugin, 2 nodes @ 1 Mbit/s back to back: {p['plugin_throughput']['fps']:,.0f} frames/s = "
-              f"{p['plugin_throughput']['fraction']:.3f} of the wire (target >= 0.9)")
-        print(f"canstack serve, 3 client processes @ 500 kbit/s: {p['serve_throughput']['fps']:,.0f} frames/s = "
-              f"{p['serve_throughput']['fraction']:.3f} of the wire")
+        print(
+            f"10 ms periodic, p99 period deviation: canstack {per['canstack']['p99_timestamp_s'] * 1e6:.1f} us "
+            f"(bus timestamps; {per['canstack']['p99_arrival_s'] * 1e6:.0f} us at recv) vs python-can virtual "
+            f"{per['python_can_virtual']['p99_timestamp_s'] * 1e6:.0f} us "
+            f"({per['python_can_virtual']['p99_arrival_s'] * 1e6:.0f} us): {per['ratio_timestamp']:.3f}x / "
+            f"{per['ratio_arrival']:.2f}x (target <= 1; median of {per.get('rounds', 1)} rounds)"
+        )
+        print(
+            f"python-can plugin, 2 nodes @ 1 Mbit/s back to back: {p['plugin_throughput']['fps']:,.0f} frames/s = "
+            f"{p['plugin_throughput']['fraction']:.3f} of the wire (target >= 0.9)"
+        )
+        print(
+            f"canstack serve, 3 client processes @ 500 kbit/s: {p['serve_throughput']['fps']:,.0f} frames/s = "
+            f"{p['serve_throughput']['fraction']:.3f} of the wire"
+        )
     if "dbc_ecu" in res:
         d = res["dbc_ecu"]
-        print(f"DBC ECU encode + scheduling: {d['ecu_us_per_msg']:.2f} us/message vs cantools encode "
-              f"{d['cantools_us_per_msg']:.2f} us: {d['ratio']:.2f}x (target <= 1.5)")
+        print(
+            f"DBC ECU encode + scheduling: {d['ecu_us_per_msg']:.2f} us/message vs cantools encode "
+            f"{d['cantools_us_per_msg']:.2f} us: {d['ratio']:.2f}x (target <= 1.5)"
+        )
     for name, out in res.items():  # other plug-ins say their figures in lines of their own
         if isinstance(out, dict) and name != "dbc_ecu":
             for line in out.get("lines", ()):

@@ -49,8 +49,11 @@ def _measure_periodic(interface: str, channel: str, seconds: float, **kw: Any) -
     finally:
         tx.shutdown()
         rx.shutdown()
-    return {"p99_timestamp_s": _period_p99(stamps, 0.010), "p99_arrival_s": _period_p99(arrivals, 0.010),
-            "frames": float(len(stamps))}
+    return {
+        "p99_timestamp_s": _period_p99(stamps, 0.010),
+        "p99_arrival_s": _period_p99(arrivals, 0.010),
+        "frames": float(len(stamps)),
+    }
 
 
 def wire_limit_fps(bitrate: int, frame: Frame) -> float:
@@ -112,19 +115,21 @@ def benchmark(seconds: float = 2.0, rounds: int = 3) -> dict[str, Any]:
     ours_r: list[dict[str, float]] = []
     ref_r: list[dict[str, float]] = []
     for _ in range(rounds):
-        ours_r.append(_measure_periodic("canstack", f"bench-periodic-{time.monotonic_ns()}", seconds,
-                                        bitrate=500_000))
+        ours_r.append(_measure_periodic("canstack", f"bench-periodic-{time.monotonic_ns()}", seconds, bitrate=500_000))
         ref_r.append(_measure_periodic("virtual", f"bench-periodic-{time.monotonic_ns()}", seconds))
 
     def median(rs: list[dict[str, float]]) -> dict[str, float]:
         return {k: statistics.median(r[k] for r in rs) for k in rs[0]}
 
     ours, ref = median(ours_r), median(ref_r)
-    res["periodic"] = {"canstack": ours, "python_can_virtual": ref, "rounds": rounds,
-                       "ratio_timestamp": ours["p99_timestamp_s"] / max(ref["p99_timestamp_s"], 1e-9),
-                       "ratio_arrival": ours["p99_arrival_s"] / max(ref["p99_arrival_s"], 1e-9)}
+    res["periodic"] = {
+        "canstack": ours,
+        "python_can_virtual": ref,
+        "rounds": rounds,
+        "ratio_timestamp": ours["p99_timestamp_s"] / max(ref["p99_timestamp_s"], 1e-9),
+        "ratio_arrival": ours["p99_arrival_s"] / max(ref["p99_arrival_s"], 1e-9),
+    }
     res["plugin_throughput"] = _measure_throughput(seconds)
-
 
     res["serve_throughput"] = serve_benchmark(seconds)
     return res
@@ -167,9 +172,16 @@ def serve_benchmark(seconds: float = 2.0, clients: int = 3, bitrate: int = 500_0
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
     ids = [0x100 + i for i in range(clients)]
     with BusServer(bitrate, name="bench", listen=("127.0.0.1", 0)) as server:
-        procs = [subprocess.Popen([sys.executable, "-c", _CLIENT_SCRIPT, server.url, str(i), str(seconds)],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
-                 for i in ids]
+        procs = [
+            subprocess.Popen(
+                [sys.executable, "-c", _CLIENT_SCRIPT, server.url, str(i), str(seconds)],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                env=env,
+            )
+            for i in ids
+        ]
         try:
             for p in procs:
                 assert p.stdout is not None and p.stdout.readline().strip() == "ready"
@@ -190,10 +202,13 @@ def serve_benchmark(seconds: float = 2.0, clients: int = 3, bitrate: int = 500_0
                     p.kill()
     fps = (f1 - f0) / dt
     limit = sum(wire_limit_fps(bitrate, Frame(i, bytes([i & 0xFF]) * 8)) for i in ids) / len(ids)
-    return {"fps": fps, "wire_limit_fps": limit, "fraction": fps / limit,
-            "server_max_lag_ms": server.runner.max_lag_ns / 1e6,
-            "clients": [{"sent": int(r[0]), "received": int(r[1])} for r in results if len(r) == 2]}
-
+    return {
+        "fps": fps,
+        "wire_limit_fps": limit,
+        "fraction": fps / limit,
+        "server_max_lag_ms": server.runner.max_lag_ns / 1e6,
+        "clients": [{"sent": int(r[0]), "received": int(r[1])} for r in results if len(r) == 2],
+    }
 
 
 _CAPTURES = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "captures"
@@ -224,8 +239,12 @@ def decode_benchmark(path: str | Path | None = None) -> dict[str, Any]:
     cli = math.inf
     for _ in range(3):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "stack.cli", "decode", str(p), "--bitrate", "125000",
-                        "--channel", "CAN_RX"], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        subprocess.run(
+            [sys.executable, "-m", "stack.cli", "decode", str(p), "--bitrate", "125000", "--channel", "CAN_RX"],
+            check=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         cli = min(cli, time.perf_counter() - t0)
     sig: float | None = None
     exe = shutil.which("sigrok-cli")
@@ -235,7 +254,9 @@ def decode_benchmark(path: str | Path | None = None) -> dict[str, Any]:
             t0 = time.perf_counter()
             subprocess.run(
                 [exe, "-i", str(p), "-P", "can:can_rx=CAN_RX:nominal_bitrate=125000", "-A", "can=fields"],
-                check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                check=True,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
             )
             sig = min(sig, time.perf_counter() - t0)
     return {

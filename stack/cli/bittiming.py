@@ -8,8 +8,17 @@ import math
 from typing import Any
 
 from stack.cli import SAMPLE_POINT_HELP, parse_sample_point
-from stack.phy.bittiming import (CONTROLLERS, BusDelays, ControllerLimits, format_hz, all_timings, controller_limits,
-                                 format_solution, parse_limits, solve)
+from stack.phy.bittiming import (
+    CONTROLLERS,
+    BusDelays,
+    ControllerLimits,
+    all_timings,
+    controller_limits,
+    format_hz,
+    format_solution,
+    parse_limits,
+    solve,
+)
 
 __all__ = ["register", "add_timing_arguments", "limits_from_args"]
 
@@ -38,8 +47,7 @@ def add_timing_arguments(p: argparse.ArgumentParser) -> None:
     """The options shared by `bittiming` and `sync`: clock, bitrate, sample point, controller, sjw."""
     p.add_argument("--clock", type=_positive_int, required=True, help="controller clock in Hz")
     p.add_argument("--bitrate", type=_positive_int, required=True, help="bitrate in bit/s")
-    p.add_argument("--sample-point", type=parse_sample_point,
-                   help=SAMPLE_POINT_HELP + "; default: CiA 75/80/87.5 %%")
+    p.add_argument("--sample-point", type=parse_sample_point, help=SAMPLE_POINT_HELP + "; default: CiA 75/80/87.5 %%")
     p.add_argument("--controller", default="sja1000", help=f"register limits: {', '.join(CONTROLLERS)}")
     p.add_argument("--limits", help="custom limits 'tseg1=1..16,tseg2=1..8,sjw=4,brp=1..64[,brp_inc=1]'")
     p.add_argument("--sjw", type=_positive_int, help="synchronisation jump width in tq (default: kernel's)")
@@ -53,14 +61,22 @@ def limits_from_args(args: argparse.Namespace) -> ControllerLimits:
 def _run(args: argparse.Namespace) -> int:
     lim = limits_from_args(args)
     delays = BusDelays(args.bus_length, args.cable_delay, args.transceiver_delay, args.comparator_delay)
-    kw = dict(sample_point=args.sample_point, limits=lim, sjw=args.sjw, delays=delays, min_tolerance=args.tolerance,
-              legacy=args.legacy)
+    kw = dict(
+        sample_point=args.sample_point,
+        limits=lim,
+        sjw=args.sjw,
+        delays=delays,
+        min_tolerance=args.tolerance,
+        legacy=args.legacy,
+    )
     if args.all:
         sols = all_timings(args.clock, args.bitrate, **kw)  # type: ignore[arg-type]
         if args.json:
             print(json.dumps([s.as_dict() for s in sols], indent=2))
             return 0
-        print(f"{len(sols)} valid timings for {args.bitrate} bit/s, {format_hz(args.clock)} clock, {lim.name} (best first)")
+        print(
+            f"{len(sols)} valid timings for {args.bitrate} bit/s, {format_hz(args.clock)} clock, {lim.name} (best first)"
+        )
         print("  brp  tq[ns]  nbt prop ps1 ps2 sjw  sample%   bitrate  err%    df%  maxlen[m]")
         for s in sols:
             print(
@@ -91,7 +107,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--comparator-delay", type=_number, default=0.0, help="input comparator delay in ns (0)")
     p.add_argument("--tolerance", type=_number, help="required oscillator tolerance in percent")
     p.add_argument("--all", action="store_true", help="list every valid timing, ranked")
-    p.add_argument("--legacy", action="store_true",
-                   help="on a tie keep the larger prescaler, as Linux < 5.19 and can-utils until 2022 did")
+    p.add_argument(
+        "--legacy",
+        action="store_true",
+        help="on a tie keep the larger prescaler, as Linux < 5.19 and can-utils until 2022 did",
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_run)

@@ -8,12 +8,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from stack.wire.coding import INTERMISSION_BITS, worst_case_length
-from stack.cli import CliError, parse_bitrate, parse_int, plural, seconds_type
-from stack.cli.runs import (MAX_SIM_SECONDS, check_output, check_plot_output, check_trace_output, run_sliced,
-                            trace_note, trc_dropped, writing)
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
+from stack.cli import CliError, parse_bitrate, parse_int, plural, seconds_type
+from stack.cli.runs import (
+    MAX_SIM_SECONDS,
+    check_output,
+    check_plot_output,
+    check_trace_output,
+    run_sliced,
+    trace_note,
+    trc_dropped,
+    writing,
+)
+from stack.wire.coding import INTERMISSION_BITS, worst_case_length
+from stack.wire.frame import Frame
 
 __all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json"]
 
@@ -27,8 +35,13 @@ def build_demo(bus: SimBus) -> None:
     engine = bus.node("engine")
     body = bus.node("body")
     gateway = bus.node("gateway")
-    tester = bus.node("tester", filters=[{"can_id": 0x0C1, "can_mask": 0x7FF, "extended": False},
-                                         {"can_id": 0x700, "can_mask": 0x7FF, "extended": False}])
+    tester = bus.node(
+        "tester",
+        filters=[
+            {"can_id": 0x0C1, "can_mask": 0x7FF, "extended": False},
+            {"can_id": 0x700, "can_mask": 0x7FF, "extended": False},
+        ],
+    )
     # every ECU reads its receive FIFO from an interrupt-like callback, as firmware would
     for ecu in (brake, engine, body, gateway, tester):
         ecu.subscribe(lambda ev: None)
@@ -129,8 +142,10 @@ def format_summary(bus: SimBus) -> str:
         lines.append(f"{label:>14}  {st['count']:>6}  {lat:>27}  {st['arbitration_losses']:>11}")
     lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'arb.lost':>8} {'retx':>5} {'overrun':>7} {'TEC':>4} {'REC':>4}"]
     for name, c in s["nodes"].items():
-        lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['arbitration_lost']:>8} "
-                     f"{c['retransmissions']:>5} {c['rx_overruns']:>7} {c['txerr']:>4} {c['rxerr']:>4}")
+        lines.append(
+            f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['arbitration_lost']:>8} "
+            f"{c['retransmissions']:>5} {c['rx_overruns']:>7} {c['txerr']:>4} {c['rxerr']:>4}"
+        )
     return "\n".join(lines)
 
 
@@ -140,8 +155,10 @@ def _demo(args: argparse.Namespace) -> int:
             raise CliError("--faults needs the simulated bus (fault injection is a simulation feature)")
         for opt, val in (("--trace", args.trace), ("--vcd", args.vcd), ("--json", args.json or None)):
             if val is not None:
-                raise CliError(f"{opt} needs the simulated bus (the trace is the simulation's); "
-                               "on a python-can bus record with python -m can.logger")
+                raise CliError(
+                    f"{opt} needs the simulated bus (the trace is the simulation's); "
+                    "on a python-can bus record with python -m can.logger"
+                )
 
         kw = {} if args.bitrate is None else {"bitrate": args.bitrate}
         print(run_demo_on_bus(args.interface, args.channel or "vcan0", args.duration, **kw))
@@ -180,7 +197,9 @@ def _demo(args: argparse.Namespace) -> int:
         if args.faults:
             print("state changes (fault confinement):")
             for ev in changes:
-                print(f"  {ev.time / 1e6:9.3f} ms  {ev.node:<5} {ev.old:>13} -> {ev.new:<13} TEC {ev.tec:3d} REC {ev.rec:3d}")
+                print(
+                    f"  {ev.time / 1e6:9.3f} ms  {ev.node:<5} {ev.old:>13} -> {ev.new:<13} TEC {ev.tec:3d} REC {ev.rec:3d}"
+                )
             print()
         print(format_summary(bus))
     if args.plot:
@@ -210,12 +229,11 @@ def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
 
     recs = [r for r in bus.trace if r.kind == "frame"]
     lead = IDLE_BITS / bus.bitrate
-    runs, _, _ = render_edges([r.frame for r in recs], bus.bitrate, bus.bitrate * samples_per_bit,
-                              times=[lead + r.start / 1e9 for r in recs])
+    runs, _, _ = render_edges(
+        [r.frame for r in recs], bus.bitrate, bus.bitrate * samples_per_bit, times=[lead + r.start / 1e9 for r in recs]
+    )
     write_vcd(path, runs, bus.bitrate * samples_per_bit, comment=f"canstack demo, bus {bus.name}")
     return len(recs)
-
-
 
 
 def _frame_from_args(args: argparse.Namespace) -> Frame:
@@ -235,8 +253,10 @@ def _frame(args: argparse.Namespace) -> int:
     stuff = set(fb.stuff_positions)
     print(f"frame       {frame!r}")
     print(f"CRC         0x{fb.crc:04X}")
-    print(f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
-          f"worst case {worst_case_length(frame.length, frame.extended)}")
+    print(
+        f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
+        f"worst case {worst_case_length(frame.length, frame.extended)}"
+    )
     print("bits        (stuff bits in [ ])")
     for fld, positions in fb.fields.items():
         if not positions:
@@ -255,35 +275,59 @@ def _frame(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `demo` and `frame`."""
     p = sub.add_parser(
-        "demo", help="run the demo network on the simulated bus and print a summary",
+        "demo",
+        help="run the demo network on the simulated bus and print a summary",
         description="Simulate five ECUs (periodic traffic at several priorities, a J1939-style extended "
         "message, a burst every 50 ms and a remote request answered by a mailbox) and print the bus load, "
         "per-identifier latency and arbitration losses, and each node's counters. With --faults, three "
         "ECUs instead, one of which goes error passive, bus off, and recovers. Ctrl-C stops the run and "
-        "prints the summary so far.")
-    p.add_argument("--duration", type=seconds_type(MAX_SIM_SECONDS), default=1.0, metavar="S",
-                   help=f"simulated seconds, at most {MAX_SIM_SECONDS:g} (default 1)")
-    p.add_argument("--bitrate", type=parse_bitrate, default=None,
-                   help="bit/s (default 500000; on --interface, passed to the bus when given)")
+        "prints the summary so far.",
+    )
+    p.add_argument(
+        "--duration",
+        type=seconds_type(MAX_SIM_SECONDS),
+        default=1.0,
+        metavar="S",
+        help=f"simulated seconds, at most {MAX_SIM_SECONDS:g} (default 1)",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=parse_bitrate,
+        default=None,
+        help="bit/s (default 500000; on --interface, passed to the bus when given)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated bus (the same seed gives the same trace)")
-    p.add_argument("--trace", metavar="FILE", help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4; "
-                   ".mf4 needs the mf4 extra, .trc holds no remote or error frames)")
+    p.add_argument(
+        "--trace",
+        metavar="FILE",
+        help="write the trace (.asc, .blf, .log, .csv, .trc, .mf4; "
+        ".mf4 needs the mf4 extra, .trc holds no remote or error frames)",
+    )
     p.add_argument("--vcd", metavar="FILE", help="write the bus as a CAN_RX waveform (VCD, 16 samples a bit)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (identifiers as integers)")
-    p.add_argument("--faults", action="store_true",
-                   help="the fault demo: a node goes error passive, bus off, and recovers")
+    p.add_argument(
+        "--faults", action="store_true", help="the fault demo: a node goes error passive, bus off, and recovers"
+    )
     p.add_argument("--plot", metavar="PNG", help="with --faults: plot TEC/REC over time (needs the plot extra)")
-    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="progress bar on stderr (default: on a terminal, for runs over 2 s)")
-    p.add_argument("--interface", help="run the same nodes on a python-can bus instead (e.g. socketcan, "
-                                       "virtual, canstack); wall-clock time")
+    p.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: on a terminal, for runs over 2 s)",
+    )
+    p.add_argument(
+        "--interface",
+        help="run the same nodes on a python-can bus instead (e.g. socketcan, virtual, canstack); wall-clock time",
+    )
     p.add_argument("--channel", help="the python-can channel (e.g. vcan0)")
     p.set_defaults(func=_demo, duration_given=False)
 
     p = sub.add_parser(
-        "frame", help="show a frame's bits on the wire: stuffing, CRC, length",
+        "frame",
+        help="show a frame's bits on the wire: stuffing, CRC, length",
         description="Build a CAN 2.0 frame and show its bit stream SOF..EOF field by field with the stuff "
-        "bits marked, its CRC-15, its exact stuffed length and the worst case for its data length.")
+        "bits marked, its CRC-15, its exact stuffed length and the worst case for its data length.",
+    )
     p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")
     p.add_argument("--data", default="", help="data bytes as hex, e.g. 4001087500000000 (spaces allowed)")
     p.add_argument("--extended", action="store_true", help="29-bit identifier")
@@ -333,9 +377,12 @@ def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: A
         drv.close()
         monitor.shutdown()
     total = sum(len(v) for v in seen.values())
-    lines = [f"{interface} {channel}: {duration_s:.2f} s wall clock, {total} frames seen by a monitor"
-             + (f", paced at {pace} bit/s" if pace else ""),
-             "", f"{'ID':>10}  {'frames':>6}  {'mean period (ms)':>16}  {'p99 deviation (ms)':>18}"]
+    lines = [
+        f"{interface} {channel}: {duration_s:.2f} s wall clock, {total} frames seen by a monitor"
+        + (f", paced at {pace} bit/s" if pace else ""),
+        "",
+        f"{'ID':>10}  {'frames':>6}  {'mean period (ms)':>16}  {'p99 deviation (ms)':>18}",
+    ]
     for (cid, ext, rtr), ts in sorted(seen.items()):
         ident = (f"0x{cid:08X}" if ext else f"0x{cid:03X}") + (" RTR" if rtr else "")
         gaps = [b - a for a, b in zip(ts, ts[1:])]
@@ -348,7 +395,9 @@ def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: A
             lines.append(f"{ident:>10}  {len(ts):>6}  {'-':>16}  {'-':>18}")
     lines += ["", f"{'node':<10} {'tx':>6} {'rx':>6} {'retx':>5} {'failed':>6}"]
     for name, c in counters.items():
-        lines.append(f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['retransmissions']:>5} {c['tx_failed']:>6}")
+        lines.append(
+            f"{name:<10} {c['tx_frames']:>6} {c['rx_frames']:>6} {c['retransmissions']:>5} {c['tx_failed']:>6}"
+        )
     if drv.errors:
         lines += ["", f"{len(drv.errors)} callback error(s); first: {drv.errors[0]}"]
     return "\n".join(lines)

@@ -11,13 +11,25 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator, TypeVar
+from typing import Any, TypeVar
 
 from stack.cli import CliError, plural
 
-__all__ = ["check_output", "check_trace_output", "check_plot_output", "check_plot_dir", "writing", "run_sliced", "show_progress",
-           "WRITER_EXTRAS", "MAX_SIM_SECONDS", "trace_note", "trc_dropped"]
+__all__ = [
+    "check_output",
+    "check_trace_output",
+    "check_plot_output",
+    "check_plot_dir",
+    "writing",
+    "run_sliced",
+    "show_progress",
+    "WRITER_EXTRAS",
+    "MAX_SIM_SECONDS",
+    "trace_note",
+    "trc_dropped",
+]
 
 T = TypeVar("T")
 
@@ -63,8 +75,10 @@ def check_trace_output(path: str, option: str = "--trace") -> str:
     need = WRITER_EXTRAS.get(suffix)
     if need is not None and importlib.util.find_spec(need[0]) is None:
         module, extra = need
-        raise CliError(f"{option} {path!r}: python-can writes {suffix} files with {module}, which is not "
-                       f"installed: pip install 'canstack[{extra}]'")
+        raise CliError(
+            f"{option} {path!r}: python-can writes {suffix} files with {module}, which is not "
+            f"installed: pip install 'canstack[{extra}]'"
+        )
     return suffix
 
 
@@ -77,8 +91,9 @@ def check_plot_output(path: str, option: str = "--plot") -> None:
     suffix = Path(path).suffix.lower().lstrip(".")
     known = ("png", "svg", "pdf", "ps", "eps", "jpg", "jpeg", "tif", "tiff", "webp")
     if suffix and suffix not in known:
-        raise CliError(f"{option} {path!r}: unknown image suffix '.{suffix}'; use one of "
-                       + ", ".join("." + k for k in known))
+        raise CliError(
+            f"{option} {path!r}: unknown image suffix '.{suffix}'; use one of " + ", ".join("." + k for k in known)
+        )
 
 
 def check_plot_dir(path: str, option: str = "--plot") -> None:
@@ -138,7 +153,7 @@ class _Interrupt:
         self._old: Any = None
         self._installed = False
 
-    def __enter__(self) -> "_Interrupt":
+    def __enter__(self) -> _Interrupt:
         if threading.current_thread() is threading.main_thread():
             self._old = signal.signal(signal.SIGINT, self._handle)
             self._installed = True
@@ -175,9 +190,15 @@ def run_sliced(bus: Any, until_ns: int, *, progress: bool | None = None, desc: s
     if show:
         from tqdm import tqdm
 
-        bar = tqdm(total=round(until_ns / 1e9, 3), unit="s", desc=desc, file=sys.stderr, leave=False,
-                   delay=0 if progress else 2.0, bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.3f}/{total:.3f} s "
-                   "simulated [{elapsed}<{remaining}]")
+        bar = tqdm(
+            total=round(until_ns / 1e9, 3),
+            unit="s",
+            desc=desc,
+            file=sys.stderr,
+            leave=False,
+            delay=0 if progress else 2.0,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.3f}/{total:.3f} s simulated [{elapsed}<{remaining}]",
+        )
     done = 0.0
     try:
         with _Interrupt() as stop:

@@ -49,8 +49,7 @@ def _serve(args: argparse.Namespace) -> int:
         raise CliError("canstack serve: give --listen or --unix, not both")
     listen = args.listen if args.listen or args.unix else ("127.0.0.1", DEFAULT_PORT)
     try:
-        server = BusServer(args.bitrate, name=args.name, listen=listen, unix=args.unix,
-                           allow_remote=args.allow_remote)
+        server = BusServer(args.bitrate, name=args.name, listen=listen, unix=args.unix, allow_remote=args.allow_remote)
     except (ValueError, OSError) as exc:
         raise CliError(f"canstack serve: {exc}") from None
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
@@ -72,23 +71,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add `serve`."""
     from stack.cli import parse_bitrate
 
-    p = sub.add_parser("serve", help="serve a simulated bus in real time to python-can clients in other processes",
-                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--bitrate", type=parse_bitrate, default=500_000,
-                   help="the bus's bit rate in bit/s, 1000..1000000 (default 500000); a client that asks for "
-                        "another one is refused")
-    p.add_argument("--listen", type=_parse_listen, metavar="HOST:PORT",
-                   help=f"serve over TCP at this address (default 127.0.0.1:{DEFAULT_PORT}; port 0 picks a free "
-                        "one, printed at start); clients use channel tcp://HOST:PORT/NAME")
-    p.add_argument("--unix", metavar="PATH",
-                   help="serve on a unix socket at this absolute path instead; clients use channel "
-                        "unix://PATH/NAME (a stale socket left there is replaced, nothing else is)")
-    p.add_argument("--name", default="bus0",
-                   help="the bus name clients give at the end of the channel (default bus0); 1..64 of "
-                        "A-Z a-z 0-9 _ . -")
-    p.add_argument("--allow-remote", action="store_true",
-                   help="allow a --listen address other than loopback (the bus has no authentication: "
-                        "anyone who reaches the port can join and send)")
-    p.add_argument("--duration", type=_duration, default=None, metavar="SECONDS",
-                   help="stop after this many seconds (default: run until Ctrl-C)")
+    p = sub.add_parser(
+        "serve",
+        help="serve a simulated bus in real time to python-can clients in other processes",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--bitrate",
+        type=parse_bitrate,
+        default=500_000,
+        help="the bus's bit rate in bit/s, 1000..1000000 (default 500000); a client that asks for "
+        "another one is refused",
+    )
+    p.add_argument(
+        "--listen",
+        type=_parse_listen,
+        metavar="HOST:PORT",
+        help=f"serve over TCP at this address (default 127.0.0.1:{DEFAULT_PORT}; port 0 picks a free "
+        "one, printed at start); clients use channel tcp://HOST:PORT/NAME",
+    )
+    p.add_argument(
+        "--unix",
+        metavar="PATH",
+        help="serve on a unix socket at this absolute path instead; clients use channel "
+        "unix://PATH/NAME (a stale socket left there is replaced, nothing else is)",
+    )
+    p.add_argument(
+        "--name",
+        default="bus0",
+        help="the bus name clients give at the end of the channel (default bus0); 1..64 of A-Z a-z 0-9 _ . -",
+    )
+    p.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="allow a --listen address other than loopback (the bus has no authentication: "
+        "anyone who reaches the port can join and send)",
+    )
+    p.add_argument(
+        "--duration",
+        type=_duration,
+        default=None,
+        metavar="SECONDS",
+        help="stop after this many seconds (default: run until Ctrl-C)",
+    )
     p.set_defaults(func=_serve)

@@ -12,11 +12,18 @@ from typing import Any
 from stack.cli import CliError
 from stack.cli.bittiming import add_timing_arguments, limits_from_args
 from stack.phy.bittiming import BusDelays, Solution, solve
-from stack.phy.sync import (BUS_LENGTH_FRAMES, DEFAULT_PHASES, ack_exchange, arbitration_exchange, max_bus_length_simulated,
-                            max_drift, one_way_delay_ns, worst_case_frames)
+from stack.phy.sync import (
+    BUS_LENGTH_FRAMES,
+    DEFAULT_PHASES,
+    ack_exchange,
+    arbitration_exchange,
+    max_bus_length_simulated,
+    max_drift,
+    one_way_delay_ns,
+    worst_case_frames,
+)
 
 __all__ = ["register"]
-
 
 
 def _drift_range(text: str) -> tuple[float, float]:
@@ -66,8 +73,10 @@ def _check_scan(steps: int, resolution: float, lo: float, hi: float) -> None:
         raise CliError(f"--resolution {resolution:g} ppm: must be at least {MIN_RESOLUTION_PPM:g} ppm")
     most = max(1, int((hi - lo) / resolution))
     if steps > most:
-        raise CliError(f"--steps {steps}: a scan step of {(hi - lo) / steps:.3g} ppm is finer than --resolution "
-                       f"{resolution:g} ppm; at most {most} steps over {lo:g}..{hi:g} ppm")
+        raise CliError(
+            f"--steps {steps}: a scan step of {(hi - lo) / steps:.3g} ppm is finer than --resolution "
+            f"{resolution:g} ppm; at most {most} steps over {lo:g}..{hi:g} ppm"
+        )
 
 
 def _run_bus_length(args: argparse.Namespace, sol: Solution) -> int:
@@ -92,13 +101,21 @@ def _run_bus_length(args: argparse.Namespace, sol: Solution) -> int:
         f"sample point {s.sample_point:.1f} %; cable {delays.cable_delay_ns_per_m:g} ns/m, "
         f"node delay {delays.node_delay_ns:g} ns"
     )
-    print(f"at {args.bus_length:g} m (one-way {one_way_delay_ns(at):g} ns): "
-          + ("ACK and arbitration work" if bad is None else bad.describe()))
-    print(f"largest bus length simulated: {res.simulated_m:.1f} m"
-          + (f"; beyond it: {res.first_failure.describe()}" if res.first_failure else ""))
-    print(f"round trip reaching the sample point: {res.sample_point_m:.1f} m (1 tq of round trip = {res.quantum_m:.1f} m)")
-    print(f"formula Prop_Seg >= 2 x (bus + transceiver + comparator): {res.formula_m:.1f} m "
-          f"(keeps Sync_Seg + Phase_Seg1 free for phase errors: {res.reserve_m:.1f} m below the simulation)")
+    print(
+        f"at {args.bus_length:g} m (one-way {one_way_delay_ns(at):g} ns): "
+        + ("ACK and arbitration work" if bad is None else bad.describe())
+    )
+    print(
+        f"largest bus length simulated: {res.simulated_m:.1f} m"
+        + (f"; beyond it: {res.first_failure.describe()}" if res.first_failure else "")
+    )
+    print(
+        f"round trip reaching the sample point: {res.sample_point_m:.1f} m (1 tq of round trip = {res.quantum_m:.1f} m)"
+    )
+    print(
+        f"formula Prop_Seg >= 2 x (bus + transceiver + comparator): {res.formula_m:.1f} m "
+        f"(keeps Sync_Seg + Phase_Seg1 free for phase errors: {res.reserve_m:.1f} m below the simulation)"
+    )
     return 0
 
 
@@ -113,8 +130,13 @@ def _run(args: argparse.Namespace) -> int:
         t = sol.timing
         sol = Solution(
             type(t)(f_clock=t.f_clock, brp=t.brp, tseg1=t.tseg1, tseg2=t.tseg2, sjw=t.sjw, nof_samples=3),
-            sol.prop_seg, sol.phase_seg1, sol.phase_seg2, sol.limits, sol.delays,
-            sol.bitrate_nominal, sol.sample_point_nominal,
+            sol.prop_seg,
+            sol.phase_seg1,
+            sol.phase_seg2,
+            sol.limits,
+            sol.delays,
+            sol.bitrate_nominal,
+            sol.sample_point_nominal,
         )
     lo, hi = args.drift_ppm
     _check_scan(args.steps, args.resolution, lo, hi)
@@ -129,7 +151,9 @@ def _run(args: argparse.Namespace) -> int:
     )
     print("frames: " + ", ".join(f"0x{f.can_id:03x} [{f.data.hex()}]" for f in worst_case_frames()))
     for d, f in res.scan:
-        print(f"  drift +-{d:8.0f} ppm: {'ok' if f is None else f'fails ({f.drift_ppm:+.0f} ppm): ' + f.reception.describe()}")
+        print(
+            f"  drift +-{d:8.0f} ppm: {'ok' if f is None else f'fails ({f.drift_ppm:+.0f} ppm): ' + f.reception.describe()}"
+        )
     if math.isnan(res.max_drift_ppm):
         print(f"reception fails already at {lo:g} ppm")
     elif res.first_failure is None:
@@ -137,9 +161,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         ff = res.first_failure
         print(f"largest drift received: {res.max_drift_ppm:.0f} ppm")
-        print(
-            f"first failure at {ff.drift_ppm:+.0f} ppm, frame 0x{ff.frame.can_id:03x}: {ff.reception.describe()}"
-        )
+        print(f"first failure at {ff.drift_ppm:+.0f} ppm, frame 0x{ff.frame.can_id:03x}: {ff.reception.describe()}")
     print(
         f"formula tolerance: {res.formula_ppm:.0f} ppm (SJW/(20 NBT) {s.tolerance_resync * 1e4:.0f}, "
         f"min(PS1,PS2)/(2(13 NBT-PS2)) {s.tolerance_error_flag * 1e4:.0f}); "
@@ -159,15 +181,30 @@ def register(subparsers: Any) -> None:
     add_timing_arguments(p)
     p.add_argument("--drift-ppm", type=_drift_range, default=(0.0, 20_000.0), help="range LOW..HIGH in ppm (0..20000)")
     p.add_argument("--samples", type=int, choices=(1, 3), default=1, help="samples per bit (1 or 3)")
-    p.add_argument("--steps", type=_count, default=10,
-                   help="scan intervals before bisection (10; at most (HIGH - LOW) / --resolution)")
-    p.add_argument("--resolution", type=float, default=10.0,
-                   help=f"bisection resolution in ppm (10; at least {MIN_RESOLUTION_PPM:g})")
-    p.add_argument("--bus-length", type=_length,
-                   help="instead of the drift scan: simulate the ACK round trip and arbitration at this bus "
-                   "length (m) and report the largest length that works against the Prop_Seg formula")
+    p.add_argument(
+        "--steps",
+        type=_count,
+        default=10,
+        help="scan intervals before bisection (10; at most (HIGH - LOW) / --resolution)",
+    )
+    p.add_argument(
+        "--resolution",
+        type=float,
+        default=10.0,
+        help=f"bisection resolution in ppm (10; at least {MIN_RESOLUTION_PPM:g})",
+    )
+    p.add_argument(
+        "--bus-length",
+        type=_length,
+        help="instead of the drift scan: simulate the ACK round trip and arbitration at this bus "
+        "length (m) and report the largest length that works against the Prop_Seg formula",
+    )
     p.add_argument("--cable-delay", type=_length, default=5.0, help="with --bus-length: cable delay in ns/m (5)")
-    p.add_argument("--transceiver-delay", type=_length, default=0.0, help="with --bus-length: transceiver delay in ns (0)")
-    p.add_argument("--comparator-delay", type=_length, default=0.0, help="with --bus-length: comparator delay in ns (0)")
+    p.add_argument(
+        "--transceiver-delay", type=_length, default=0.0, help="with --bus-length: transceiver delay in ns (0)"
+    )
+    p.add_argument(
+        "--comparator-delay", type=_length, default=0.0, help="with --bus-length: comparator delay in ns (0)"
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_run)

@@ -4,19 +4,30 @@
 from __future__ import annotations
 
 import argparse
-import math
 import json
+import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from stack.cli import SAMPLE_POINT_HELP, format_id, parse_sample_point, plural
 from stack.cli.runs import check_output, writing
-from stack.phy.waveform import (MAX_RENDER_SAMPLES, BitReceiver, missing_input, RxRecord, decode_file, frames_from_jsonl, record_to_json, render_edges,
-                                 runs_to_raw, write_raw, write_vcd)
+from stack.phy.waveform import (
+    MAX_RENDER_SAMPLES,
+    BitReceiver,
+    RxRecord,
+    decode_file,
+    frames_from_jsonl,
+    missing_input,
+    record_to_json,
+    render_edges,
+    runs_to_raw,
+    write_raw,
+    write_vcd,
+)
 
 __all__ = ["register"]
-
 
 
 def _positive_float(text: str) -> float:
@@ -56,8 +67,13 @@ def _cmd_decode(args: argparse.Namespace) -> int:
         # the options' own rules (samples a bit, sample point, SJW) before a large file is read
         BitReceiver(args.bitrate, args.samplerate, sample_point=args.sample_point, sjw=args.sjw)
     recs = decode_file(
-        args.file, args.bitrate, channel=args.channel, samplerate=args.samplerate,
-        sample_point=args.sample_point, sjw=args.sjw, retry=not args.no_retry,
+        args.file,
+        args.bitrate,
+        channel=args.channel,
+        samplerate=args.samplerate,
+        sample_point=args.sample_point,
+        sjw=args.sjw,
+        retry=not args.no_retry,
     )
     out = sys.stdout
     if args.json:
@@ -90,20 +106,31 @@ def _cmd_render(args: argparse.Namespace) -> int:
     # gigabytes); frames without 't' follow each other back to back
     span = max((t for t in times if t is not None), default=0.0) + len(frames) * 200 / args.bitrate
     if span * args.samplerate > MAX_RENDER_SAMPLES:
-        raise ValueError(f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
-                         f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)")
+        raise ValueError(
+            f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
+            f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)"
+        )
     runs, total, _ = render_edges(
         frames, args.bitrate, args.samplerate, times=times, drift=args.drift, jitter=args.jitter, seed=args.seed
     )
     if args.vcd:
-        writing(args.vcd, "--vcd", lambda: write_vcd(
-            args.vcd, runs, args.samplerate, name=args.name,
-            comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s, {args.samplerate:g} samples/s",
-        ))
+        writing(
+            args.vcd,
+            "--vcd",
+            lambda: write_vcd(
+                args.vcd,
+                runs,
+                args.samplerate,
+                name=args.name,
+                comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s, {args.samplerate:g} samples/s",
+            ),
+        )
     else:
         writing(args.raw, "--raw", lambda: write_raw(args.raw, runs_to_raw(runs, args.raw_bit)))
-    print(f"render: {plural(len(frames), 'frame')}, {plural(total, 'sample')} "
-          f"({total / args.samplerate:.6g} s at {args.samplerate:g} samples/s) written to {target}")
+    print(
+        f"render: {plural(len(frames), 'frame')}, {plural(total, 'sample')} "
+        f"({total / args.samplerate:.6g} s at {args.samplerate:g} samples/s) written to {target}"
+    )
     return 0
 
 
@@ -117,13 +144,20 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("file", help="sigrok session (.sr), VCD, or raw file of one byte per sample")
     p.add_argument("--bitrate", type=_positive_float, required=True, help="nominal bit rate, bit/s")
-    p.add_argument("--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)")
+    p.add_argument(
+        "--channel", help="channel name, or 0-based index (#N when names are numbers; default CAN_RX or the only one)"
+    )
     p.add_argument("--sample-point", type=parse_sample_point, default=87.5, help=SAMPLE_POINT_HELP + "; default 87.5")
-    p.add_argument("--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))")
+    p.add_argument(
+        "--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))"
+    )
     p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")
     p.add_argument("--no-retry", action="store_true", help="do not retry failed frames at other sample points")
-    p.add_argument("--json", action="store_true",
-                   help="one JSON object per frame per line (id as an integer; the table shows 0x-hex)")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON object per frame per line (id as an integer; the table shows 0x-hex)",
+    )
     p.set_defaults(func=_cmd_decode)
 
     r = subparsers.add_parser(

@@ -14,7 +14,8 @@ node's local clock in integer ns — the bus time itself unless the node was giv
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol
+from collections.abc import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:  # pragma: no cover
     import can
@@ -35,33 +36,36 @@ class NodeAPI(Protocol):
     name: str
 
     # -- transmit
-    def send(self, frame: "Frame | can.Message", *, one_shot: bool | None = None,
-             not_after: int | None = None) -> "TxRequest":
+    def send(
+        self, frame: Frame | can.Message, *, one_shot: bool | None = None, not_after: int | None = None
+    ) -> TxRequest:
         """Queue a frame; ``one_shot`` overrides the node's retransmission mode for this frame,
         ``not_after`` (local ns) is its latest start time: not started by then, it is withdrawn
         and reported as `TxFailed`."""
         ...
 
-    def send_periodic(self, frame: "Frame | Callable[[], Frame]", period: int, *, offset: int = 0,
-                      count: int | None = None) -> "PeriodicTask":
+    def send_periodic(
+        self, frame: Frame | Callable[[], Frame], period: int, *, offset: int = 0, count: int | None = None
+    ) -> PeriodicTask:
         """Queue ``frame`` every ``period`` ns of the node's clock."""
         ...
 
-    def abort(self, req: "TxRequest") -> bool:
+    def abort(self, req: TxRequest) -> bool:
         """Take back a request that has not started."""
         ...
 
-    def pending(self) -> "list[TxRequest]":
+    def pending(self) -> list[TxRequest]:
         """Requests still queued."""
         ...
 
-    def set_remote_reply(self, frame: "Frame | None", *, can_id: int | None = None, extended: bool = False) -> None:
+    def set_remote_reply(self, frame: Frame | None, *, can_id: int | None = None, extended: bool = False) -> None:
         """A mailbox that answers remote frames for ``frame``'s identifier."""
         ...
 
     # -- receive and events
-    def subscribe(self, callback: "Callable[[Received], Any]",
-                  filters: Iterable[Mapping[str, Any]] | None = None) -> "Subscription":
+    def subscribe(
+        self, callback: Callable[[Received], Any], filters: Iterable[Mapping[str, Any]] | None = None
+    ) -> Subscription:
         """Call ``callback(Received)`` for each frame received (``.time``, ``.frame``, ``.sof``)."""
         ...
 
@@ -73,7 +77,7 @@ class NodeAPI(Protocol):
         """Stop calling ``callback`` for ``event_type``."""
         ...
 
-    def recv(self) -> "tuple[int, Frame] | None":
+    def recv(self) -> tuple[int, Frame] | None:
         """The oldest frame of the receive FIFO (when nothing is subscribed)."""
         ...
 
@@ -82,11 +86,11 @@ class NodeAPI(Protocol):
         """The node's local time, ns."""
         ...
 
-    def call_at(self, time: int, callback: Callable[..., Any], *args: Any) -> "Timer":
+    def call_at(self, time: int, callback: Callable[..., Any], *args: Any) -> Timer:
         """Run ``callback(*args)`` at local time ``time`` ns."""
         ...
 
-    def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> "Timer":
+    def call_later(self, delay: int, callback: Callable[..., Any], *args: Any) -> Timer:
         """Run ``callback(*args)`` ``delay`` local ns from now."""
         ...
 
@@ -102,7 +106,7 @@ class NodeAPI(Protocol):
 
     # -- state
     @property
-    def state(self) -> "ErrorState":
+    def state(self) -> ErrorState:
         """The fault-confinement state."""
         ...
 

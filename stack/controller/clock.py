@@ -31,8 +31,12 @@ class LocalClock:
     def __init__(self, offset_ns: int = 0, drift_ppm: float = 0.0) -> None:
         if isinstance(offset_ns, bool) or not isinstance(offset_ns, int):
             raise ValueError(f"clock offset {offset_ns!r}: an integer number of ns")
-        if isinstance(drift_ppm, bool) or not isinstance(drift_ppm, (int, float)) or not math.isfinite(drift_ppm) \
-                or abs(drift_ppm) > MAX_DRIFT_PPM:
+        if (
+            isinstance(drift_ppm, bool)
+            or not isinstance(drift_ppm, (int, float))
+            or not math.isfinite(drift_ppm)
+            or abs(drift_ppm) > MAX_DRIFT_PPM
+        ):
             raise ValueError(f"clock drift {drift_ppm!r} ppm: a finite number within +-{MAX_DRIFT_PPM:g} ppm")
         self.offset_ns = offset_ns
         self.drift_ppm = float(drift_ppm)

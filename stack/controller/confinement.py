@@ -36,11 +36,27 @@ from __future__ import annotations
 from enum import Enum
 
 __all__ = [
-    "ErrorState", "ACTIVE", "WARNING", "PASSIVE", "BUS_OFF",
-    "WARNING_LIMIT", "PASSIVE_LIMIT", "BUS_OFF_LIMIT",
-    "RULE_1_REC", "RULE_2_REC", "RULE_3_TEC", "RULE_4_TEC", "RULE_5_REC", "RULE_6_STEP",
-    "DOMINANT_BITS_TOLERATED", "RECOVERY_OCCURRENCES", "RECOVERY_RECESSIVE_BITS", "RULE_8_ABOVE_PASSIVE",
-    "state_for", "after_tx_success", "after_rx_success",
+    "ErrorState",
+    "ACTIVE",
+    "WARNING",
+    "PASSIVE",
+    "BUS_OFF",
+    "WARNING_LIMIT",
+    "PASSIVE_LIMIT",
+    "BUS_OFF_LIMIT",
+    "RULE_1_REC",
+    "RULE_2_REC",
+    "RULE_3_TEC",
+    "RULE_4_TEC",
+    "RULE_5_REC",
+    "RULE_6_STEP",
+    "DOMINANT_BITS_TOLERATED",
+    "RECOVERY_OCCURRENCES",
+    "RECOVERY_RECESSIVE_BITS",
+    "RULE_8_ABOVE_PASSIVE",
+    "state_for",
+    "after_tx_success",
+    "after_rx_success",
 ]
 
 

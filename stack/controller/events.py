@@ -35,7 +35,7 @@ class TxDone(NamedTuple):
 
     time: int
     frame: Frame
-    request: "TxRequest"
+    request: TxRequest
     sof: int = -1
 
 
@@ -45,7 +45,7 @@ class TxFailed(NamedTuple):
 
     time: int
     frame: Frame
-    request: "TxRequest"
+    request: TxRequest
     reason: str
     kind: str = ""
     """Why, in one word: 'arbitration' (lost, one-shot), 'bit', 'stuff', 'form', 'crc', 'ack'

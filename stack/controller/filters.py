@@ -9,7 +9,8 @@ and again (a dictionary hit is ~3x cheaper than evaluating three filters).
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 from stack.wire.frame import EXTENDED_ID_MAX, Frame
 
@@ -24,8 +25,9 @@ def validate_filters(filters: Iterable[Mapping[str, Any]] | None) -> list[tuple[
     if isinstance(filters, Mapping):
         raise ValueError("filters must be a list of {'can_id', 'can_mask'[, 'extended']} mappings, got one mapping")
     if isinstance(filters, (str, bytes)) or not isinstance(filters, Iterable):
-        raise ValueError(f"filters {filters!r} must be a list of {{'can_id', 'can_mask'[, 'extended']}} mappings, "
-                         "or None")
+        raise ValueError(
+            f"filters {filters!r} must be a list of {{'can_id', 'can_mask'[, 'extended']}} mappings, or None"
+        )
     for i, f in enumerate(filters):
         if not isinstance(f, Mapping):
             raise ValueError(f"filter {i} ({f!r}) is not a mapping with can_id and can_mask")
@@ -75,7 +77,4 @@ class AcceptanceFilter:
     def _match(self, can_id: int, extended: bool) -> bool:
         if not self._rules:
             return True
-        for fid, mask, ext in self._rules:
-            if can_id & mask == fid and (ext is None or ext == extended):
-                return True
-        return False
+        return any(can_id & mask == fid and (ext is None or ext == extended) for fid, mask, ext in self._rules)

@@ -15,22 +15,22 @@ an optional drifting local clock (`stack.controller.clock`), and the counters a 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable, Iterable, Mapping
 from heapq import heappush
 from operator import itemgetter
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import can
 
 from stack.controller.clock import LocalClock
-from stack.controller.confinement import (ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success,
-                                          state_for)
+from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
 from stack.controller.contract import Driver, Timer
-from stack.controller.exceptions import NodeError
 from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
+from stack.controller.exceptions import NodeError
 from stack.controller.filters import AcceptanceFilter
-from stack.controller.receiver import Receiver, Subscription
 from stack.controller.periodic import PeriodicTask
-from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, SpecialRequest, TxRequest, make_queue  # noqa: F401
+from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, SpecialRequest, TxRequest, make_queue
+from stack.controller.receiver import Receiver, Subscription
 from stack.wire.frame import Frame
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
@@ -59,11 +59,42 @@ class Node(Receiver):
 
     # the fields as slots (and a __dict__ for anything else): the engine reads them once a frame,
     # and CPython 3.11 reads an instance dict of over 30 keys more slowly
-    __slots__ = ("name", "queue", "acceptance", "_fifo", "rx_fifo_size", "receive_own_messages", "_listen_only",
-                 "_one_shot", "_one_shot_pending", "clock", "tx_frames", "_rx_frames", "_rx_overruns",
-                 "retransmissions", "tx_failed", "rounds_lost", "bus_off_count", "tec", "rec", "state",
-                 "auto_recovery", "bus", "offered", "_subs", "listeners", "tx_done_listeners", "remote_replies",
-                 "rx_cursor", "ready_at", "suspended", "on_bus", "connected", "__dict__", "__weakref__")
+    __slots__ = (
+        "name",
+        "queue",
+        "acceptance",
+        "_fifo",
+        "rx_fifo_size",
+        "receive_own_messages",
+        "_listen_only",
+        "_one_shot",
+        "_one_shot_pending",
+        "clock",
+        "tx_frames",
+        "_rx_frames",
+        "_rx_overruns",
+        "retransmissions",
+        "tx_failed",
+        "rounds_lost",
+        "bus_off_count",
+        "tec",
+        "rec",
+        "state",
+        "auto_recovery",
+        "bus",
+        "offered",
+        "_subs",
+        "listeners",
+        "tx_done_listeners",
+        "remote_replies",
+        "rx_cursor",
+        "ready_at",
+        "suspended",
+        "on_bus",
+        "connected",
+        "__dict__",
+        "__weakref__",
+    )
 
     def __init__(
         self,
@@ -85,8 +116,13 @@ class Node(Receiver):
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
         if not isinstance(name, str) or not name or not name.isprintable() or any(c.isspace() for c in name):
             raise ValueError(f"node name {name!r}: a non-empty name without spaces or control characters")
-        for opt, val in (("abort", abort), ("receive_own_messages", receive_own_messages),
-                         ("listen_only", listen_only), ("one_shot", one_shot), ("auto_recovery", auto_recovery)):
+        for opt, val in (
+            ("abort", abort),
+            ("receive_own_messages", receive_own_messages),
+            ("listen_only", listen_only),
+            ("one_shot", one_shot),
+            ("auto_recovery", auto_recovery),
+        ):
             if not isinstance(val, bool):
                 raise ValueError(f"{opt} {val!r} must be True or False")
         if mailboxes is not None and (isinstance(mailboxes, bool) or not isinstance(mailboxes, int) or mailboxes < 1):
@@ -213,8 +249,9 @@ class Node(Receiver):
         return self.bus
 
     # ------------------------------------------------------------------ transmit
-    def send(self, frame: Frame | can.Message, *, one_shot: bool | None = None,
-             not_after: int | None = None) -> TxRequest:
+    def send(
+        self, frame: Frame | can.Message, *, one_shot: bool | None = None, not_after: int | None = None
+    ) -> TxRequest:
         """Queue a frame for transmission; returns its request (state, losses, retries).
 
         ``one_shot`` overrides the node's mode for this frame. ``not_after`` is the latest start
@@ -279,8 +316,9 @@ class Node(Receiver):
             if isinstance(not_after, bool) or not isinstance(not_after, int):
                 raise ValueError(f"not_after {not_after!r}: a time in integer ns on the node's clock")
             nb = self.to_bus(not_after)
-        req = SpecialRequest(self, frame, next(bus.seqs), bus.now(), self._one_shot if one_shot is None else one_shot,
-                             nb)
+        req = SpecialRequest(
+            self, frame, next(bus.seqs), bus.now(), self._one_shot if one_shot is None else one_shot, nb
+        )
         if req.one_shot and not self._one_shot:
             self._one_shot_pending += 1
             if self._one_shot_pending == 1:
@@ -293,8 +331,9 @@ class Node(Receiver):
     def _expire(self, req: TxRequest) -> None:
         if req.state is QUEUED and not req.on_wire:
             bus = self._driver()
-            self.fail(req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns",
-                      "expired")
+            self.fail(
+                req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns", "expired"
+            )
 
     @staticmethod
     def _coerce(frame: Any) -> Frame:
@@ -311,8 +350,9 @@ class Node(Receiver):
             raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
         raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
 
-    def send_periodic(self, frame: "Frame | Callable[[], Frame]", period: int, *, offset: int = 0,
-                      count: int | None = None) -> PeriodicTask:
+    def send_periodic(
+        self, frame: Frame | Callable[[], Frame], period: int, *, offset: int = 0, count: int | None = None
+    ) -> PeriodicTask:
         """Send ``frame`` every ``period`` ns, first ``offset`` ns from now (a cyclic
         transmission on the node's clock; see `PeriodicTask`)."""
         return PeriodicTask(self, frame, period, offset=offset, count=count)

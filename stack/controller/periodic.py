@@ -3,7 +3,8 @@ message does), written against the node API only."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from stack.controller.exceptions import NodeError, QueueFull
 from stack.wire.frame import Frame
@@ -21,8 +22,15 @@ class PeriodicTask:
     signals). ``count`` limits the number of transmissions; `stop()` ends it.
     """
 
-    def __init__(self, node: "NodeAPI", frame: Frame | Callable[[], Frame], period: int, *,
-                 offset: int = 0, count: int | None = None) -> None:
+    def __init__(
+        self,
+        node: NodeAPI,
+        frame: Frame | Callable[[], Frame],
+        period: int,
+        *,
+        offset: int = 0,
+        count: int | None = None,
+    ) -> None:
         if isinstance(period, bool) or not isinstance(period, int) or period <= 0:
             raise ValueError(f"period {period!r} ns must be a positive int")
         self.node = node
@@ -57,4 +65,3 @@ class PeriodicTask:
         """Stop sending."""
         self._stopped = True
         self._timer.cancel()
-

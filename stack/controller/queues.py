@@ -20,13 +20,27 @@ from __future__ import annotations
 import heapq
 from collections import deque
 from enum import Enum
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from stack.controller.exceptions import QueueFull
 from stack.wire.frame import Frame
 
-__all__ = ["TxRequest", "SpecialRequest", "RequestState", "RequestOwner", "TxQueue", "PriorityQueue", "FifoQueue", "MailboxQueue",
-           "make_queue", "QueueFull", "QUEUED", "SENT", "FAILED", "ABORTED"]
+__all__ = [
+    "TxRequest",
+    "SpecialRequest",
+    "RequestState",
+    "RequestOwner",
+    "TxQueue",
+    "PriorityQueue",
+    "FifoQueue",
+    "MailboxQueue",
+    "make_queue",
+    "QueueFull",
+    "QUEUED",
+    "SENT",
+    "FAILED",
+    "ABORTED",
+]
 
 
 class RequestState(str, Enum):
@@ -57,7 +71,7 @@ class RequestOwner(Protocol):
     name: str
     one_shot: bool
 
-    def abort(self, req: "TxRequest") -> bool: ...
+    def abort(self, req: TxRequest) -> bool: ...
 
 
 class TxRequest:
@@ -71,8 +85,21 @@ class TxRequest:
     started by then is withdrawn — TTCAN's transmit-enable window).
     """
 
-    __slots__ = ("node", "frame", "key", "seq", "t_queued", "t_done", "sof", "head_since", "losses",
-                 "retries", "state", "reason", "on_wire")
+    __slots__ = (
+        "node",
+        "frame",
+        "key",
+        "seq",
+        "t_queued",
+        "t_done",
+        "sof",
+        "head_since",
+        "losses",
+        "retries",
+        "state",
+        "reason",
+        "on_wire",
+    )
 
     # a plain request: the node's mode, no latest start; `SpecialRequest` holds its own (a request
     # is made per frame sent: three fewer stores here are 6 % of `python -m stack.bench`'s 1 -> 1)
@@ -110,7 +137,7 @@ class TxRequest:
         """Abort the request if it is still queued and not on the wire; True if aborted."""
         return self.node.abort(self)
 
-    def __lt__(self, other: "TxRequest") -> bool:  # heap order: arbitration key, then age
+    def __lt__(self, other: TxRequest) -> bool:  # heap order: arbitration key, then age
         return (self.key, self.seq) < (other.key, other.seq)
 
     def __repr__(self) -> str:
@@ -124,8 +151,9 @@ class SpecialRequest(TxRequest):
     __slots__ = ("one_shot", "not_after", "expiry")
     special = True
 
-    def __init__(self, node: RequestOwner, frame: Frame, seq: int, t_queued: int, one_shot: bool,
-                 not_after: int | None) -> None:
+    def __init__(
+        self, node: RequestOwner, frame: Frame, seq: int, t_queued: int, one_shot: bool, not_after: int | None
+    ) -> None:
         super().__init__(node, frame, seq, t_queued)
         self.one_shot = one_shot
         self.not_after = not_after
@@ -138,11 +166,11 @@ class TxQueue:
     capacity: int
     # set by PriorityQueue, whose push and pop the node inlines on its hot path (Node.send,
     # Node.confirm): a FIFO per arbitration key, the heap of those keys, the number queued
-    fifos: "dict[int, deque[TxRequest]] | None" = None
+    fifos: dict[int, deque[TxRequest]] | None = None
     keys: list[int]
     size: int
 
-    moved: list[TxRequest] = []
+    moved: ClassVar[list[TxRequest]] = []  # each subclass that moves requests sets its own list
 
     def push(self, req: TxRequest) -> bool:
         """Queue a request; True if it moved other requests out of hardware (mailbox abort),
@@ -330,8 +358,9 @@ class MailboxQueue(TxQueue):
         return list(self.boxes) + list(self.backlog)
 
 
-def make_queue(policy: str = "priority", *, capacity: int = 1024, mailboxes: int | None = None,
-               abort: bool = False) -> TxQueue:
+def make_queue(
+    policy: str = "priority", *, capacity: int = 1024, mailboxes: int | None = None, abort: bool = False
+) -> TxQueue:
     """Build a queue policy by name: 'priority', 'fifo' or 'mailbox' (needs ``mailboxes``)."""
     if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
         raise ValueError(f"transmit queue capacity {capacity!r} must be a positive int")

@@ -6,8 +6,9 @@ delivers lazily in batches). A mixin of `stack.controller.node.Node`."""
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable, Iterable, Mapping
 from operator import itemgetter
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any
 
 from stack.controller.clock import LocalClock
 from stack.controller.events import Received
@@ -28,7 +29,7 @@ class Subscription:
 
     __slots__ = ("node", "callback", "filter")
 
-    def __init__(self, node: "Receiver", callback: Callable[[Received], Any], flt: AcceptanceFilter | None) -> None:
+    def __init__(self, node: Receiver, callback: Callable[[Received], Any], flt: AcceptanceFilter | None) -> None:
         self.node = node
         self.callback = callback
         self.filter = flt
@@ -43,7 +44,7 @@ class Receiver:
 
     __slots__ = ()  # Node declares the fields
 
-    bus: "Driver | Any | None"
+    bus: Driver | Any | None
     clock: LocalClock | None
     acceptance: AcceptanceFilter
     receive_own_messages: bool
@@ -51,7 +52,7 @@ class Receiver:
     rx_cursor: int
     remote_replies: dict[tuple[int, bool], Frame]
     _fifo: deque[tuple[int, Frame, Any]]
-    _subs: list["Subscription"]
+    _subs: list[Subscription]
     _rx_frames: int
     _rx_overruns: int
     _listen_only: bool
@@ -165,8 +166,9 @@ class Receiver:
             return None
         return self.remote_replies.get((frame.can_id, frame.extended))
 
-    def subscribe(self, callback: Callable[[Received], Any],
-                  filters: Iterable[Mapping[str, Any]] | None = None) -> Subscription:
+    def subscribe(
+        self, callback: Callable[[Received], Any], filters: Iterable[Mapping[str, Any]] | None = None
+    ) -> Subscription:
         """Call ``callback(Received)`` for every received frame passing ``filters``.
 
         With at least one subscription the node works like a controller with a receive

@@ -38,7 +38,8 @@ import itertools
 import threading
 import time
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import can
 
@@ -71,12 +72,20 @@ class PyCanDriver:
     `add`/`node` for each node.
     """
 
-    def __init__(self, bus_factory: Callable[[str], can.BusABC] | None = None, *,
-                 interface: str | None = None, channel: Any = None, pace_bitrate: int | None = None,
-                 **bus_kwargs: Any) -> None:
+    def __init__(
+        self,
+        bus_factory: Callable[[str], can.BusABC] | None = None,
+        *,
+        interface: str | None = None,
+        channel: Any = None,
+        pace_bitrate: int | None = None,
+        **bus_kwargs: Any,
+    ) -> None:
         if bus_factory is None and interface is not None:
+
             def bus_factory(name: str) -> can.BusABC:
                 return can.Bus(interface=interface, channel=channel, **bus_kwargs)
+
         if pace_bitrate is not None and not 1_000 <= pace_bitrate <= 1_000_000:
             raise ValueError(f"pace_bitrate {pace_bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
         bitrate = bus_kwargs.get("bitrate")
@@ -84,8 +93,9 @@ class PyCanDriver:
         self._factory = bus_factory
         self.pace_bitrate = pace_bitrate
         self.bit_ns: float | None = 1e9 / rate if rate else None
-        self.capabilities = frozenset({"bus-time", "one-shot", "latest-start", "error-frames"}
-                                      | ({"sof-estimate"} if rate else set()))
+        self.capabilities = frozenset(
+            {"bus-time", "one-shot", "latest-start", "error-frames"} | ({"sof-estimate"} if rate else set())
+        )
         self.nodes: list[Node] = []
         self.buses: dict[Node, can.BusABC] = {}
         self._owned: set[can.BusABC] = set()
@@ -196,7 +206,7 @@ class PyCanDriver:
             node.recovered(self.now())
 
     # ------------------------------------------------------------------ running
-    def start(self) -> "PyCanDriver":
+    def start(self) -> PyCanDriver:
         """Start the scheduler thread and one reader thread per node."""
         if self._threads:
             return self
@@ -229,15 +239,16 @@ class PyCanDriver:
             b.shutdown()
         self._owned.clear()
 
-    def __enter__(self) -> "PyCanDriver":
+    def __enter__(self) -> PyCanDriver:
         return self.start()
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
     def _start_reader(self, node: Node) -> None:
-        th = threading.Thread(target=self._read, args=(node, self.buses[node]), name=f"canstack-rx-{node.name}",
-                              daemon=True)
+        th = threading.Thread(
+            target=self._read, args=(node, self.buses[node]), name=f"canstack-rx-{node.name}", daemon=True
+        )
         self._threads.append(th)
         th.start()
 
@@ -338,7 +349,7 @@ class PyCanDriver:
         ready = self._ready
         sent = 0
         while ready and sent < _BATCH:
-            nodes = {n: None for n in ready}  # dedupe, keep order
+            nodes = dict.fromkeys(ready)  # dedupe, keep order
             ready.clear()
             heads = sorted((n.head.key, n.head.seq, n) for n in nodes if n.head is not None)
             for i, (_, _, node) in enumerate(heads):
@@ -376,7 +387,10 @@ class PyCanDriver:
                     self.errors.append(f"{node.name}: send keeps failing ({req.retries} tries): {exc}")
             return
         if self.pace_bitrate is not None:
-            self._busy_until = max(now, self._busy_until) + (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // self.pace_bitrate
+            self._busy_until = (
+                max(now, self._busy_until)
+                + (frame.bits.length + INTERMISSION_BITS) * 1_000_000_000 // self.pace_bitrate
+            )
         self._retry.pop(req, None)
         done = self.now()  # bus.send returned: the earliest the driver knows the frame left
         nxt = node.confirm(req, done, self._sof(done, frame))
@@ -394,8 +408,12 @@ def decode_error_frame(msg: can.Message) -> dict[str, Any] | None:
     cls = msg.arbitration_id
     data = bytes(msg.data or b"")
     counters = (data[6], data[7]) if cls & CAN_ERR_CNT and len(data) >= 8 else None
-    info = {"counters": counters, "bus_off": bool(cls & CAN_ERR_BUSOFF), "restarted": bool(cls & CAN_ERR_RESTARTED),
-            "active": bool(cls & CAN_ERR_CRTL and len(data) >= 2 and data[1] & CAN_ERR_CRTL_ACTIVE)}
+    info = {
+        "counters": counters,
+        "bus_off": bool(cls & CAN_ERR_BUSOFF),
+        "restarted": bool(cls & CAN_ERR_RESTARTED),
+        "active": bool(cls & CAN_ERR_CRTL and len(data) >= 2 and data[1] & CAN_ERR_CRTL_ACTIVE),
+    }
     if counters is None and not (info["bus_off"] or info["restarted"] or info["active"]):
         return None
     return info

@@ -14,8 +14,8 @@ thread; every `Port` method may be called from any other thread.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from typing import Any, Callable, Protocol
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, Protocol
 
 from stack.controller.confinement import BUS_OFF, ErrorState
 from stack.controller.events import TxDone, TxFailed
@@ -30,6 +30,7 @@ NODE_OPTIONS = ("queue", "mailboxes", "abort", "tx_queue_size", "listen_only", "
 
 
 _WIRE_FAILURES = frozenset({"arbitration", "bit", "stuff", "form", "crc", "ack"})
+
 
 class PortOwner(Protocol):
     """What a `Port` reports to (on the runner thread)."""
@@ -58,8 +59,10 @@ def check_filters(filters: Any) -> list[Mapping[str, Any]] | None:
     if filters is None:
         return None
     if isinstance(filters, (str, bytes, bytearray, Mapping)) or not isinstance(filters, Iterable):
-        raise ValueError(f"filters {filters!r} must be a list of {{'can_id', 'can_mask'[, 'extended']}} "
-                         "mappings, or None for no filtering")
+        raise ValueError(
+            f"filters {filters!r} must be a list of {{'can_id', 'can_mask'[, 'extended']}} "
+            "mappings, or None for no filtering"
+        )
     flist = list(filters)
     validate_filters(flist)
     return flist or None
@@ -73,8 +76,16 @@ class Port:
     ``receive_own_messages`` echoes the node's successful frames that pass its filters.
     """
 
-    def __init__(self, runner: Any, owner: PortOwner, *, node_name: str | None = None, prefix: str = "node",
-                 config: Mapping[str, Any] | None = None, receive_own_messages: bool = False) -> None:
+    def __init__(
+        self,
+        runner: Any,
+        owner: PortOwner,
+        *,
+        node_name: str | None = None,
+        prefix: str = "node",
+        config: Mapping[str, Any] | None = None,
+        receive_own_messages: bool = False,
+    ) -> None:
         self.runner = runner
         self.owner = owner
         self.own = bool(receive_own_messages)
@@ -160,9 +171,11 @@ class Port:
     def set_filters(self, filters: list[Mapping[str, Any]] | None, wait: bool = True) -> None:
         """Replace the node's acceptance filters (checked by `check_filters` first). With
         ``wait`` the call returns once they apply; frames queued after it see them either way."""
+
         def apply() -> None:
             if not self.closed:
                 self.node.set_filters(filters)
+
         if wait:
             self.runner.call(apply)
         else:
@@ -195,6 +208,7 @@ class Port:
             node.listen_only = on  # the node tells the bus, which re-reads who acknowledges
             if on:  # a frame on the wire that fails is not retransmitted: aborted at its end
                 abort_queued()
+
         if wait:
             self.runner.call(switch)
         else:
@@ -203,12 +217,16 @@ class Port:
     def can_drain(self) -> bool:
         """True while the node's queued frames can still go out: it is on the bus and another
         node there acknowledges (a lone transmitter retransmits for ever)."""
+
         def check() -> bool:
             node = self.node
             if self.closed or not node.connected or node.listen_only:
                 return False
-            return any(n is not node and n.connected and not n.listen_only and n.state is not BUS_OFF
-                       for n in self.runner.sim.nodes)
+            return any(
+                n is not node and n.connected and not n.listen_only and n.state is not BUS_OFF
+                for n in self.runner.sim.nodes
+            )
+
         try:
             return bool(self.runner.call(check, timeout=1.0))
         except Exception:  # the runner is gone: nothing drains any more
@@ -216,17 +234,21 @@ class Port:
 
     def start_periodic(self, make: Callable[[], Frame], period_ns: int, count: int | None) -> Any:
         """Start a cyclic transmission on the simulation clock; returns its engine task."""
+
         def start() -> Any:
             t = self.node.send_periodic(make, period_ns, count=count)
             self._tasks.add(t)
             return t
+
         return self.runner.call(start)
 
     def stop_periodic(self, task: Any) -> None:
         """Stop a cyclic transmission."""
+
         def stop() -> None:
             task.stop()
             self._tasks.discard(task)
+
         self.runner.post(stop)
 
     def close(self, wait: bool = True, timeout: float = 2.0) -> None:
@@ -234,6 +256,7 @@ class Port:
         frame already on the wire finishes, the node leaves the bus's list and its name is free
         again (`SimBus.remove`). Idempotent; with ``wait`` it returns once that is done (or the
         runner did not answer within ``timeout`` s)."""
+
         def leave() -> None:
             if self.closed:
                 return
@@ -245,6 +268,7 @@ class Port:
             node = self.node
             if node.bus is self.runner.sim:
                 self.runner.sim.remove(node)
+
         if not wait:
             self.runner.post(leave)
             return

@@ -34,7 +34,8 @@ import re
 import threading
 import time
 import warnings
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import can
 from can.broadcastmanager import (
@@ -46,8 +47,7 @@ from can.broadcastmanager import (
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
 from stack.io.discovery import local_servers
 from stack.io.port import NODE_OPTIONS, Port, check_filters
-from stack.io.runner import (BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner,
-                             running_buses)
+from stack.io.runner import BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
 from stack.io.serve.client import RemotePort
 from stack.wire.frame import Frame
 
@@ -92,7 +92,7 @@ def register_interface() -> None:
     for mod in (can.interfaces, can.util, can):
         valid = getattr(mod, "VALID_INTERFACES", None)
         if valid is not None and "canstack" not in valid:
-            setattr(mod, "VALID_INTERFACES", frozenset(valid | {"canstack"}))
+            mod.VALID_INTERFACES = frozenset(valid | {"canstack"})
 
 
 # ---------------------------------------------------------------------------------- frames
@@ -131,8 +131,12 @@ def frame_of(msg: can.Message) -> Frame:
 CAN_ERR_LOSTARB, CAN_ERR_PROT, CAN_ERR_ACK, CAN_ERR_BUSERROR, CAN_ERR_CNT = 0x002, 0x008, 0x020, 0x080, 0x200
 CAN_ERR_PROT_BIT, CAN_ERR_PROT_FORM, CAN_ERR_PROT_STUFF, CAN_ERR_PROT_TX = 0x01, 0x02, 0x04, 0x80
 CAN_ERR_PROT_LOC_CRC_SEQ, CAN_ERR_PROT_LOC_ACK = 0x08, 0x19
-_PROT_TYPE = {"bit": CAN_ERR_PROT_BIT, "form": CAN_ERR_PROT_FORM, "stuff": CAN_ERR_PROT_STUFF,
-              "stuff-arbitration": CAN_ERR_PROT_STUFF}
+_PROT_TYPE = {
+    "bit": CAN_ERR_PROT_BIT,
+    "form": CAN_ERR_PROT_FORM,
+    "stuff": CAN_ERR_PROT_STUFF,
+    "stuff-arbitration": CAN_ERR_PROT_STUFF,
+}
 
 
 def error_frame_of(reason: str, tec: int, rec: int, timestamp: float, channel: Any = None) -> can.Message:
@@ -160,8 +164,16 @@ def error_frame_of(reason: str, tec: int, rec: int, timestamp: float, channel: A
             data[3] = CAN_ERR_PROT_LOC_CRC_SEQ
     data[6] = min(tec, 255)
     data[7] = min(rec, 255)
-    return can.Message(timestamp=timestamp, arbitration_id=classes | CAN_ERR_CNT, is_extended_id=False,
-                       is_error_frame=True, dlc=8, data=bytes(data), channel=channel, check=False)
+    return can.Message(
+        timestamp=timestamp,
+        arbitration_id=classes | CAN_ERR_CNT,
+        is_extended_id=False,
+        is_error_frame=True,
+        dlc=8,
+        data=bytes(data),
+        channel=channel,
+        check=False,
+    )
 
 
 # ---------------------------------------------------------------------------------- channels
@@ -179,12 +191,14 @@ def _parse_channel(channel: Any) -> tuple[str, str, Any]:
     if not isinstance(channel, str) or not channel:
         raise can.CanInitializationError(
             f"canstack channel {channel!r}: give a bus name like 'bus0', 'tcp://127.0.0.1:PORT/bus0' "
-            "or 'unix:///path/to/socket/bus0'")
+            "or 'unix:///path/to/socket/bus0'"
+        )
     if "://" not in channel:
         if not BUS_NAME_RE.match(channel):
             raise can.CanInitializationError(
                 f"canstack channel {channel!r}: a bus name is 1..64 of A-Z a-z 0-9 _ . - ; "
-                "or use tcp://HOST:PORT/NAME or unix:///PATH/NAME")
+                "or use tcp://HOST:PORT/NAME or unix:///PATH/NAME"
+            )
         return "local", channel, None
     scheme, rest = channel.split("://", 1)
     if scheme == "tcp":
@@ -199,15 +213,17 @@ def _parse_channel(channel: Any) -> tuple[str, str, Any]:
     if scheme == "unix":
         if _is_socket(rest):
             raise can.CanInitializationError(
-                f"canstack channel {channel!r}: {rest} is the socket itself; add the bus name: "
-                f"unix://{rest}/NAME")
+                f"canstack channel {channel!r}: {rest} is the socket itself; add the bus name: unix://{rest}/NAME"
+            )
         path, _, name = rest.rpartition("/")
         if not path.startswith("/") or not BUS_NAME_RE.match(name):
             raise can.CanInitializationError(
-                f"canstack channel {channel!r}: expected unix:///ABSOLUTE/SOCKET/PATH/NAME")
+                f"canstack channel {channel!r}: expected unix:///ABSOLUTE/SOCKET/PATH/NAME"
+            )
         return "unix", name, path
     raise can.CanInitializationError(
-        f"canstack channel {channel!r}: unknown form {scheme + '://'!r}; use a bus name, tcp:// or unix://")
+        f"canstack channel {channel!r}: unknown form {scheme + '://'!r}; use a bus name, tcp:// or unix://"
+    )
 
 
 _warned_private = False
@@ -232,7 +248,9 @@ def _warn_if_served(name: str) -> None:
     warnings.warn(
         f"canstack channel {name!r} is a bus private to this process (other processes do not see it); "
         f"canstack serve is running on this machine: to share its bus use channel={url!r}",
-        PrivateBusWarning, stacklevel=4)
+        PrivateBusWarning,
+        stacklevel=4,
+    )
 
 
 # ---------------------------------------------------------------------------------- the inbox
@@ -372,13 +390,30 @@ class CanstackBus(can.BusABC):
     :param node_name: the node's name on the bus (default ``nodeN``, or ``clientN`` served).
     """
 
-    def __init__(self, channel: Any = "bus0", can_filters: Any = None, *, bitrate: int | None = None,
-                 receive_own_messages: bool = False, rx_fifo_size: int = 65536,
-                 node_name: str | None = None, timing: Any = None, flush_timeout: float = 1.0,
-                 ignore_rx_error_frames: bool = False, **kwargs: Any) -> None:
-        opts = {k: _config_value(k, v) for k, v in dict(
-            kwargs, receive_own_messages=receive_own_messages, rx_fifo_size=rx_fifo_size,
-            flush_timeout=flush_timeout, ignore_rx_error_frames=ignore_rx_error_frames).items()}
+    def __init__(
+        self,
+        channel: Any = "bus0",
+        can_filters: Any = None,
+        *,
+        bitrate: int | None = None,
+        receive_own_messages: bool = False,
+        rx_fifo_size: int = 65536,
+        node_name: str | None = None,
+        timing: Any = None,
+        flush_timeout: float = 1.0,
+        ignore_rx_error_frames: bool = False,
+        **kwargs: Any,
+    ) -> None:
+        opts = {
+            k: _config_value(k, v)
+            for k, v in dict(
+                kwargs,
+                receive_own_messages=receive_own_messages,
+                rx_fifo_size=rx_fifo_size,
+                flush_timeout=flush_timeout,
+                ignore_rx_error_frames=ignore_rx_error_frames,
+            ).items()
+        }
         bitrate = self._check_bitrate(bitrate, timing)
         config = self._check_options(opts)
         try:
@@ -392,8 +427,9 @@ class CanstackBus(can.BusABC):
         self.rx_fifo_size: int = opts["rx_fifo_size"]
         self.flush_timeout: float = opts["flush_timeout"]
         self._listen_only = bool(config.get("listen_only", False))
-        self._inbox = _Inbox(self.rx_fifo_size, config.get("tx_queue_size", 1024),
-                             error_frames=not opts["ignore_rx_error_frames"])
+        self._inbox = _Inbox(
+            self.rx_fifo_size, config.get("tx_queue_size", 1024), error_frames=not opts["ignore_rx_error_frames"]
+        )
         self._runner: RealTimeRunner | None = None
         self._port: Any = self._open_port(kind, name, addr, bitrate, node_name, config)
         self.bitrate = self._port.bitrate
@@ -424,7 +460,8 @@ class CanstackBus(can.BusABC):
             raise can.CanInitializationError("fd=True: a canstack bus is CAN 2.0 (classic) only")
         if opts.get("data_bitrate") is not None:
             raise can.CanInitializationError(
-                f"data_bitrate {opts['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase")
+                f"data_bitrate {opts['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase"
+            )
         for k in _PASSED_TO_EVERY_INTERFACE:  # options python-can's config files pass to every interface
             opts.pop(k, None)
         config = {k: opts.pop(k) for k in NODE_OPTIONS if k in opts}
@@ -433,7 +470,8 @@ class CanstackBus(can.BusABC):
         if unknown:
             raise can.CanInitializationError(
                 f"unknown canstack option(s) {unknown}: allowed are bitrate, timing, node_name, "
-                f"{', '.join(sorted(known))}, {', '.join(NODE_OPTIONS)}")
+                f"{', '.join(sorted(known))}, {', '.join(NODE_OPTIONS)}"
+            )
         fifo = opts["rx_fifo_size"]
         if isinstance(fifo, bool) or not isinstance(fifo, int) or fifo < 1:
             raise can.CanInitializationError(f"rx_fifo_size {fifo!r} must be a positive int")
@@ -448,20 +486,37 @@ class CanstackBus(can.BusABC):
                 raise can.CanInitializationError(f"{k} {opts[k]!r} must be True or False")
         return config
 
-    def _open_port(self, kind: str, name: str, addr: Any, bitrate: int | None, node_name: str | None,
-                   config: dict[str, Any]) -> Any:
+    def _open_port(
+        self, kind: str, name: str, addr: Any, bitrate: int | None, node_name: str | None, config: dict[str, Any]
+    ) -> Any:
         if kind != "local":
-            return RemotePort(self._inbox, kind, addr, name, bitrate, node_name, config, channel=self.channel,
-                              receive_own_messages=self.receive_own_messages)
+            return RemotePort(
+                self._inbox,
+                kind,
+                addr,
+                name,
+                bitrate,
+                node_name,
+                config,
+                channel=self.channel,
+                receive_own_messages=self.receive_own_messages,
+            )
         _warn_if_served(name)
         runner = acquire_runner(name, bitrate)
         try:
-            port = Port(runner, self._inbox, node_name=node_name, prefix="node", config=config,
-                        receive_own_messages=self.receive_own_messages)
+            port = Port(
+                runner,
+                self._inbox,
+                node_name=node_name,
+                prefix="node",
+                config=config,
+                receive_own_messages=self.receive_own_messages,
+            )
         except ValueError as exc:
             release_runner(runner)
-            raise can.CanInitializationError(f"canstack {exc}" if str(exc).startswith("node options")
-                                             else str(exc)) from None
+            raise can.CanInitializationError(
+                f"canstack {exc}" if str(exc).startswith("node options") else str(exc)
+            ) from None
         except BaseException:
             release_runner(runner)
             raise
@@ -514,12 +569,12 @@ class CanstackBus(can.BusABC):
         if self._listen_only:
             raise can.CanOperationError("the node is listen-only (BusState.PASSIVE): it cannot transmit")
         if inbox.state is BUS_OFF:
-            raise can.CanOperationError(
-                f"the node is bus off (TEC {inbox.tec}): it cannot transmit until it recovers")
+            raise can.CanOperationError(f"the node is bus off (TEC {inbox.tec}): it cannot transmit until it recovers")
         if not inbox.take(timeout):
             raise can.CanOperationError(
                 f"transmit queue full ({inbox.size} frames) for {timeout} s: the bus is busier than "
-                "this node's traffic allows")
+                "this node's traffic allows"
+            )
         self._port.send(frame)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -567,17 +622,22 @@ class CanstackBus(can.BusABC):
         if new_state not in (can.BusState.ACTIVE, can.BusState.PASSIVE):
             raise can.CanOperationError(
                 f"bus state {new_state!r} cannot be set: use BusState.ACTIVE (normal) or BusState.PASSIVE "
-                "(listen-only); bus off is reached by fault confinement only")
+                "(listen-only); bus off is reached by fault confinement only"
+            )
         if self._is_shutdown:
             raise can.CanOperationError(f"canstack bus {self.channel!r} is shut down")
         on = new_state is can.BusState.PASSIVE
         self._port.set_listen_only(on)
         self._listen_only = on
 
-    def _send_periodic_internal(self, msgs: Sequence[can.Message] | can.Message, period: float,
-                                duration: float | None = None, autostart: bool = True,
-                                modifier_callback: Callable[[can.Message], None] | None = None,
-                                ) -> can.broadcastmanager.CyclicSendTaskABC:
+    def _send_periodic_internal(
+        self,
+        msgs: Sequence[can.Message] | can.Message,
+        period: float,
+        duration: float | None = None,
+        autostart: bool = True,
+        modifier_callback: Callable[[can.Message], None] | None = None,
+    ) -> can.broadcastmanager.CyclicSendTaskABC:
         if not getattr(self._port, "native_periodic", True):
             return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
         return CanstackCyclicTask(self, msgs, period, duration, autostart, modifier_callback)
@@ -593,15 +653,21 @@ class CanstackBus(can.BusABC):
         if left and inbox.lost_reason is None and self.flush_timeout > 0:
             left = inbox.drain(self._port.can_drain, self.flush_timeout)
         if left:
-            LOG.warning("canstack bus %r: %d queued frame(s) dropped at shutdown (%s)", self.channel, left,
-                        "not acknowledged or not sent in time" if self.flush_timeout > 0 else "flush_timeout=0")
+            LOG.warning(
+                "canstack bus %r: %d queued frame(s) dropped at shutdown (%s)",
+                self.channel,
+                left,
+                "not acknowledged or not sent in time" if self.flush_timeout > 0 else "flush_timeout=0",
+            )
         self._leave()
 
     @staticmethod
     def _detect_available_configs() -> list[can.typechecking.AutoDetectedConfig]:
         buses = running_buses() or {"bus0": DEFAULT_BITRATE}
-        return [{"interface": "canstack", "channel": name, "bitrate": br}  # type: ignore[typeddict-item]
-                for name, br in sorted(buses.items())]
+        return [
+            {"interface": "canstack", "channel": name, "bitrate": br}  # type: ignore[typeddict-item]
+            for name, br in sorted(buses.items())
+        ]
 
 
 class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, LimitedDurationCyclicSendTaskABC):
@@ -611,9 +677,15 @@ class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, Limi
     wire deviates only by arbitration, not by a Python thread's sleep jitter.
     """
 
-    def __init__(self, bus: CanstackBus, msgs: Sequence[can.Message] | can.Message, period: float,
-                 duration: float | None, autostart: bool,
-                 modifier_callback: Callable[[can.Message], None] | None) -> None:
+    def __init__(
+        self,
+        bus: CanstackBus,
+        msgs: Sequence[can.Message] | can.Message,
+        period: float,
+        duration: float | None,
+        autostart: bool,
+        modifier_callback: Callable[[can.Message], None] | None,
+    ) -> None:
         super().__init__(msgs, period, duration)
         self.bus = bus
         self._frames = tuple(frame_of(m) for m in self.messages)
@@ -643,7 +715,7 @@ class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, Limi
         """Start (or restart) the transmission."""
         if self._task is not None:
             return
-        count = None if self.duration is None else max(1, int(round(self.duration / self.period)))
+        count = None if self.duration is None else max(1, round(self.duration / self.period))
         self._task = self.bus._port.start_periodic(self._next, self.period_ns, count)
 
     def stop(self) -> None:

@@ -8,14 +8,22 @@ import re
 import threading
 import time
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import can
 
 from stack.bus.sim import SimBus
 
-__all__ = ["RealTimeRunner", "acquire_runner", "release_runner", "running_buses", "get_runner", "BUS_NAME_RE",
-           "DEFAULT_BITRATE"]
+__all__ = [
+    "RealTimeRunner",
+    "acquire_runner",
+    "release_runner",
+    "running_buses",
+    "get_runner",
+    "BUS_NAME_RE",
+    "DEFAULT_BITRATE",
+]
 
 LOG = logging.getLogger("stack.io.runner")
 
@@ -165,7 +173,8 @@ def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
             if bitrate is not None and bitrate != runner.bitrate:
                 raise can.CanInitializationError(
                     f"canstack bus {name!r} runs at {runner.bitrate} bit/s; a node cannot join it at "
-                    f"{bitrate} bit/s (every node on a CAN bus uses the same bitrate)")
+                    f"{bitrate} bit/s (every node on a CAN bus uses the same bitrate)"
+                )
             _REGISTRY[name] = (runner, refs + 1)
             return runner
         try:

@@ -155,7 +155,9 @@ def parse_limits(text: str) -> ControllerLimits:
         key, sep, val = part.partition("=")
         key = key.strip().lower()
         if not sep or key not in ("tseg1", "tseg2", "sjw", "brp", "brp_inc"):
-            raise ValueError(f"limits item {part!r}: expected tseg1=MIN..MAX, tseg2=MIN..MAX, sjw=MAX, brp=MIN..MAX, brp_inc=N")
+            raise ValueError(
+                f"limits item {part!r}: expected tseg1=MIN..MAX, tseg2=MIN..MAX, sjw=MAX, brp=MIN..MAX, brp_inc=N"
+            )
         try:
             if key in ("sjw", "brp_inc"):
                 values[key if key == "brp_inc" else "sjw_max"] = int(val)
@@ -165,7 +167,9 @@ def parse_limits(text: str) -> ControllerLimits:
                     raise ValueError
                 values[f"{key}_min"], values[f"{key}_max"] = int(lo), int(hi)
         except ValueError:
-            raise ValueError(f"limits item {part!r}: {key} needs {'N' if key in ('sjw', 'brp_inc') else 'MIN..MAX'} integers") from None
+            raise ValueError(
+                f"limits item {part!r}: {key} needs {'N' if key in ('sjw', 'brp_inc') else 'MIN..MAX'} integers"
+            ) from None
     missing = [k for k in ("tseg1_min", "tseg2_min", "sjw_max", "brp_min") if k not in values]
     if missing:
         raise ValueError(f"limits {text!r}: missing {', '.join(m.rsplit('_', 1)[0] for m in missing)}")
@@ -435,7 +439,9 @@ def check_timing(
     if brp % lim.brp_inc:
         raise BitTimingError(RULE_LIMITS, f"brp={brp} is not a multiple of {lim.name}'s step {lim.brp_inc}")
     if not NBT_MIN <= nbt <= NBT_MAX:
-        raise BitTimingError(RULE_NBT, f"bit time {nbt} tq (1 + tseg1 {tseg1} + tseg2 {tseg2}) outside {NBT_MIN}..{NBT_MAX}")
+        raise BitTimingError(
+            RULE_NBT, f"bit time {nbt} tq (1 + tseg1 {tseg1} + tseg2 {tseg2}) outside {NBT_MIN}..{NBT_MAX}"
+        )
     if not 1 <= sjw <= min(SJW_MAX, lim.sjw_max):
         raise BitTimingError(RULE_SJW_RANGE, f"sjw={sjw} outside 1..{min(SJW_MAX, lim.sjw_max)}")
     phase_seg2 = tseg2
@@ -464,9 +470,13 @@ def check_timing(
     sol = Solution(timing, prop_seg, phase_seg1, phase_seg2, lim, delays, bitrate_nominal, sample_point_nominal)
     if min_tolerance is not None:
         if sol.tolerance_resync < min_tolerance:
-            raise BitTimingError(RULE_TOLERANCE_RESYNC, f"df={sol.tolerance_resync:.4f} % < required {min_tolerance:g} %")
+            raise BitTimingError(
+                RULE_TOLERANCE_RESYNC, f"df={sol.tolerance_resync:.4f} % < required {min_tolerance:g} %"
+            )
         if sol.tolerance_error_flag < min_tolerance:
-            raise BitTimingError(RULE_TOLERANCE_ERROR_FLAG, f"df={sol.tolerance_error_flag:.4f} % < required {min_tolerance:g} %")
+            raise BitTimingError(
+                RULE_TOLERANCE_ERROR_FLAG, f"df={sol.tolerance_error_flag:.4f} % < required {min_tolerance:g} %"
+            )
     return sol
 
 
@@ -503,21 +513,31 @@ def _sjw_for(sjw: int | None, lim: ControllerLimits, tseg1: int, tseg2: int) -> 
     return max(1, min(phase_seg1, tseg2 // 2, SJW_MAX, lim.sjw_max))
 
 
-def _checked(clock: int, brp: int, tseg1: int, tseg2: int, sjw: int | None, lim: ControllerLimits,
-             delays: BusDelays | None, min_tolerance: float | None, bitrate: int, sp: float) -> Solution:
+def _checked(
+    clock: int,
+    brp: int,
+    tseg1: int,
+    tseg2: int,
+    sjw: int | None,
+    lim: ControllerLimits,
+    delays: BusDelays | None,
+    min_tolerance: float | None,
+    bitrate: int,
+    sp: float,
+) -> Solution:
     """`check_timing` of one split. With the default SJW, a Prop_Seg lengthened for the bus
     length can leave Phase_Seg1 shorter than that SJW: the SJW is lowered to that Phase_Seg1
     (the kernel's default min(Phase_Seg1, Phase_Seg2 / 2) on the real Phase_Seg1) rather than
     the timing refused."""
     width = _sjw_for(sjw, lim, tseg1, tseg2)
     try:
-        return check_timing(make_timing(clock, brp, tseg1, tseg2, width), lim, delays, None, min_tolerance,
-                            bitrate, sp)
+        return check_timing(make_timing(clock, brp, tseg1, tseg2, width), lim, delays, None, min_tolerance, bitrate, sp)
     except BitTimingError as exc:
         if sjw is not None or exc.phase_seg1 is None or exc.phase_seg1 >= width:
             raise
-        return check_timing(make_timing(clock, brp, tseg1, tseg2, exc.phase_seg1), lim, delays, None,
-                            min_tolerance, bitrate, sp)
+        return check_timing(
+            make_timing(clock, brp, tseg1, tseg2, exc.phase_seg1), lim, delays, None, min_tolerance, bitrate, sp
+        )
 
 
 @dataclass
@@ -589,8 +609,11 @@ def _candidates(
             for tseg2 in range(lim.tseg2_min, lim.tseg2_max + 1):
                 tseg1 = tseg - tseg2
                 sp_p = 1000 * (nbt - tseg2) // nbt
-                if not lim.tseg1_min <= tseg1 <= lim.tseg1_max or not 500 <= sp_p <= sp_nominal \
-                        or (split is not None and (tseg1, tseg2) == split[:2]):
+                if (
+                    not lim.tseg1_min <= tseg1 <= lim.tseg1_max
+                    or not 500 <= sp_p <= sp_nominal
+                    or (split is not None and (tseg1, tseg2) == split[:2])
+                ):
                     continue
                 try:
                     sol = _checked(clock, brp, tseg1, tseg2, sjw, lim, delays, min_tolerance, bitrate, sp)
@@ -620,9 +643,14 @@ def _candidates(
         # equal error won too, so the last, larger prescaler was kept (legacy=True)
         if best is not None and br_err > best.bitrate_error:
             continue
-        if best is not None and br_err == best.bitrate_error and (
+        if (
+            best is not None
+            and br_err == best.bitrate_error
+            and (
                 cand.sample_point_error > best.sample_point_error
-                or (cand.sample_point_error == best.sample_point_error and not legacy)):
+                or (cand.sample_point_error == best.sample_point_error and not legacy)
+            )
+        ):
             continue
         best = cand
         exact = br_err == 0 and cand.sample_point_error == 0
@@ -633,8 +661,17 @@ def _no_timing(clock: int, bitrate: int, rejected: dict[str, str]) -> BitTimingE
     if not rejected:
         return BitTimingError(RULE_LIMITS, f"no bit timing for {bitrate} bit/s with a {clock} Hz clock")
     # name the rule that stopped the most promising candidates: the last one in rule order
-    for rule in (RULE_TOLERANCE_ERROR_FLAG, RULE_TOLERANCE_RESYNC, RULE_PROP_SEG, RULE_SJW_PHASE_SEG1,
-                 RULE_SJW_PHASE_SEG2, RULE_SJW_RANGE, RULE_SAMPLE_POINT, RULE_BITRATE, RULE_LIMITS):
+    for rule in (
+        RULE_TOLERANCE_ERROR_FLAG,
+        RULE_TOLERANCE_RESYNC,
+        RULE_PROP_SEG,
+        RULE_SJW_PHASE_SEG1,
+        RULE_SJW_PHASE_SEG2,
+        RULE_SJW_RANGE,
+        RULE_SAMPLE_POINT,
+        RULE_BITRATE,
+        RULE_LIMITS,
+    ):
         if rule in rejected:
             example = rejected[rule].split(" (rule:")[0]
             return BitTimingError(rule, f"no bit timing for {bitrate} bit/s with a {clock} Hz clock: {example}")
@@ -661,8 +698,9 @@ def longest_bus(
     base = delays or BusDelays()
 
     def at(length: float) -> Solution | None:
-        _, best, _ = _candidates(clock, bitrate, sample_point, limits, sjw, replace(base, bus_length_m=length),
-                                 min_tolerance, legacy)
+        _, best, _ = _candidates(
+            clock, bitrate, sample_point, limits, sjw, replace(base, bus_length_m=length), min_tolerance, legacy
+        )
         return best
 
     best = at(0.0)
@@ -680,8 +718,9 @@ def longest_bus(
     return at(lo)
 
 
-def _no_timing_for_bus(clock: int, bitrate: int, delays: BusDelays | None, error: BitTimingError,
-                       **kw: Any) -> BitTimingError:
+def _no_timing_for_bus(
+    clock: int, bitrate: int, delays: BusDelays | None, error: BitTimingError, **kw: Any
+) -> BitTimingError:
     """When the bus length is what stops every timing, the message states the longest bus a
     timing covers, instead of one candidate's negative Phase_Seg1."""
     if error.rule != RULE_PROP_SEG or delays is None or delays.round_trip_ns <= 0:
@@ -695,12 +734,14 @@ def _no_timing_for_bus(clock: int, bitrate: int, delays: BusDelays | None, error
             RULE_PROP_SEG,
             f"no bit timing for {bitrate} bit/s with a {format_hz(clock)} clock: the node delays alone "
             f"({d.node_delay_ns:g} ns one way, {2 * d.node_delay_ns:g} ns round trip) need a longer Prop_Seg "
-            "than any timing leaves, whatever the bus length")
+            "than any timing leaves, whatever the bus length",
+        )
     return BitTimingError(
         RULE_PROP_SEG,
         f"no bit timing for {bitrate} bit/s with a {format_hz(clock)} clock covers a {d.bus_length_m:g} m bus: "
         f"the longest is {sol.max_bus_length:.1f} m (brp {sol.brp}, prop_seg {sol.prop_seg} of tseg1 {sol.tseg1} tq "
-        f"of {sol.tq_ns:g} ns; cable {d.cable_delay_ns_per_m:g} ns/m, node delay {d.node_delay_ns:g} ns)")
+        f"of {sol.tq_ns:g} ns; cable {d.cable_delay_ns_per_m:g} ns/m, node delay {d.node_delay_ns:g} ns)",
+    )
 
 
 def solve(
@@ -722,9 +763,17 @@ def solve(
     Raises `BitTimingError` naming the rule when no timing passes."""
     _, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy)
     if best is None:
-        raise _no_timing_for_bus(clock, bitrate, delays, _no_timing(clock, bitrate, rejected),
-                                 sample_point=sample_point, limits=limits, sjw=sjw,
-                                 min_tolerance=min_tolerance, legacy=legacy)
+        raise _no_timing_for_bus(
+            clock,
+            bitrate,
+            delays,
+            _no_timing(clock, bitrate, rejected),
+            sample_point=sample_point,
+            limits=limits,
+            sjw=sjw,
+            min_tolerance=min_tolerance,
+            legacy=legacy,
+        )
     return best
 
 
@@ -742,15 +791,26 @@ def all_timings(
     split of TSEG1/TSEG2 within the controller's limits with the sample point from 50 % up to the
     requested one that passes every rule, ranked as the kernel ranks them: `solve`'s pick
     first, then by bitrate error, sample point error and longer bit time."""
-    cands, best, rejected = _candidates(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy,
-                                        every_split=True)
+    cands, best, rejected = _candidates(
+        clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, every_split=True
+    )
     if best is None:
-        raise _no_timing_for_bus(clock, bitrate, delays, _no_timing(clock, bitrate, rejected),
-                                 sample_point=sample_point, limits=limits, sjw=sjw,
-                                 min_tolerance=min_tolerance, legacy=legacy)
+        raise _no_timing_for_bus(
+            clock,
+            bitrate,
+            delays,
+            _no_timing(clock, bitrate, rejected),
+            sample_point=sample_point,
+            limits=limits,
+            sjw=sjw,
+            min_tolerance=min_tolerance,
+            legacy=legacy,
+        )
     seen: set[tuple[int, int, int]] = set()
     ranked: list[Solution] = []
-    for c in sorted(cands, key=lambda c: (c.solution is not best, c.bitrate_error, c.sample_point_error, -c.solution.nbt)):
+    for c in sorted(
+        cands, key=lambda c: (c.solution is not best, c.bitrate_error, c.sample_point_error, -c.solution.nbt)
+    ):
         key = (c.solution.brp, c.solution.tseg1, c.solution.tseg2)
         if key not in seen:
             seen.add(key)

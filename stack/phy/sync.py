@@ -28,15 +28,16 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any, Sequence
+from typing import Any
 
 import can
 
+from stack.phy.bittiming import BusDelays, Solution, max_bus_length
 from stack.wire.coding import Field
 from stack.wire.decoder import BitDecoder, BitError, DecodedFrame
-from stack.phy.bittiming import BusDelays, Solution, max_bus_length
 from stack.wire.frame import Frame
 
 __all__ = [
@@ -96,7 +97,7 @@ class SyncReceiver:
         self._new_bit()
 
     @classmethod
-    def from_timing(cls, timing: can.BitTiming) -> "SyncReceiver":
+    def from_timing(cls, timing: can.BitTiming) -> SyncReceiver:
         """A receiver for a `can.BitTiming` (its tseg1, tseg2, sjw and nof_samples)."""
         return cls(timing.tseg1, timing.tseg2, timing.sjw, timing.nof_samples)
 
@@ -520,8 +521,15 @@ class _BusNode:
     dominant when the CRC it received matched.
     """
 
-    def __init__(self, name: str, timing: can.BitTiming, tq_ns: float, first_tick_ns: float,
-                 frame: Frame | None, start_ns: float | None) -> None:
+    def __init__(
+        self,
+        name: str,
+        timing: can.BitTiming,
+        tq_ns: float,
+        first_tick_ns: float,
+        frame: Frame | None,
+        start_ns: float | None,
+    ) -> None:
         self.name = name
         self.rx = SyncReceiver.from_timing(timing)
         self.tq_ns = tq_ns
@@ -567,9 +575,17 @@ class _BusNode:
             self.drive(t, 0 if ack else 1)
 
 
-def _exchange(timing: can.BitTiming, delay_ns: float, frame_a: Frame, frame_b: Frame | None,
-              drift_a_ppm: float, drift_b_ppm: float, phase: float, b_start_ns: float | None,
-              expected: tuple[str, int] | None) -> Exchange:
+def _exchange(
+    timing: can.BitTiming,
+    delay_ns: float,
+    frame_a: Frame,
+    frame_b: Frame | None,
+    drift_a_ppm: float,
+    drift_b_ppm: float,
+    phase: float,
+    b_start_ns: float | None,
+    expected: tuple[str, int] | None,
+) -> Exchange:
     """Run nodes A (transmits ``frame_a`` from t = 0) and B (receives, or transmits ``frame_b``)
     until both have finished the frame or the first error; see `ack_exchange`."""
     if not 0.0 <= phase < 1.0:
@@ -596,8 +612,17 @@ def _exchange(timing: can.BitTiming, delay_ns: float, frame_a: Frame, frame_b: F
         t = min(a.next_tick_ns, b.next_tick_ns)
         if t > t_end:
             busy = [n.name for n in (a, b) if not n.done]
-            return Exchange(False, "lost", None, None, None, None, delay_ns, None,
-                            f"node(s) {', '.join(busy)} did not finish the frame")
+            return Exchange(
+                False,
+                "lost",
+                None,
+                None,
+                None,
+                None,
+                delay_ns,
+                None,
+                f"node(s) {', '.join(busy)} did not finish the frame",
+            )
         nodes = [n for n in (a, b) if n.next_tick_ns == t]
         started: dict[_BusNode, bool] = {}
         for n in nodes:  # outputs first, then reads: a node sees its own new bit in its Sync_Seg
@@ -638,33 +663,62 @@ def _exchange(timing: can.BitTiming, delay_ns: float, frame_a: Frame, frame_b: F
                         n.drive(t, 1)
                         if expected is None or expected != (n.name, i):
                             want = "none" if expected is None else f"node {expected[0]} at bit {expected[1]} from SOF"
-                            return fail("arbitration", n, i, n.frame,
-                                        f"node {n.name} lost arbitration here; expected {want}")
+                            return fail(
+                                "arbitration", n, i, n.frame, f"node {n.name} lost arbitration here; expected {want}"
+                            )
                     else:
-                        return fail("bit", n, i, n.frame, f"sent {'recessive' if sent else 'dominant'}, "
-                                    f"sampled {'recessive' if bit else 'dominant'}")
+                        return fail(
+                            "bit",
+                            n,
+                            i,
+                            n.frame,
+                            f"sent {'recessive' if sent else 'dominant'}, sampled {'recessive' if bit else 'dominant'}",
+                        )
             if res is not None:
                 n.result = res
                 n.done = True
                 n.drive(t, 1)
                 if res.error is not None:
                     e = res.error
-                    return Exchange(False, e.kind, n.name, e.field, e.index, e.position, delay_ns, None,
-                                    "receiver error" if not n.transmitting else "transmitter's own frame")
+                    return Exchange(
+                        False,
+                        e.kind,
+                        n.name,
+                        e.field,
+                        e.index,
+                        e.position,
+                        delay_ns,
+                        None,
+                        "receiver error" if not n.transmitting else "transmitter's own frame",
+                    )
         if a.done and b.done:
             break
     # both frames ended: check who won and what each node received
     if expected is not None:
         loser = a if expected[0] == "A" else b
         if loser.lost_at is None:
-            return fail("arbitration", loser, expected[1], loser.frame,
-                        f"node {loser.name} should have lost arbitration here and did not")
+            return fail(
+                "arbitration",
+                loser,
+                expected[1],
+                loser.frame,
+                f"node {loser.name} should have lost arbitration here and did not",
+            )
     winner = next(n for n in (a, b) if n.frame is not None and n.lost_at is None)
     for n in (a, b):
         if n is not winner and (n.result is None or n.result.frame != winner.frame):
-            return Exchange(False, "mismatch", n.name, None, None, None, delay_ns, None,
-                            f"node {n.name} received {n.result.frame if n.result else None}, "
-                            f"node {winner.name} sent {winner.frame}")
+            return Exchange(
+                False,
+                "mismatch",
+                n.name,
+                None,
+                None,
+                None,
+                delay_ns,
+                None,
+                f"node {n.name} received {n.result.frame if n.result else None}, "
+                f"node {winner.name} sent {winner.frame}",
+            )
     return Exchange(True, "ok", None, None, None, None, delay_ns, winner.name if frame_b is not None else None)
 
 
@@ -723,8 +777,9 @@ def arbitration_exchange(
     if first is None or frame_a.bits.field_at(first)[0] not in ARBITRATION_FIELDS:
         raise ValueError(f"{frame_a!r} and {frame_b!r}: arbitration needs frames whose arbitration fields differ")
     expected = ("A" if fa[first] == "1" else "B", first)
-    r = _exchange(timing, one_way_delay_ns(delays), frame_a, frame_b, drift_a_ppm, drift_b_ppm, phase,
-                  b_start_ns, expected)
+    r = _exchange(
+        timing, one_way_delay_ns(delays), frame_a, frame_b, drift_a_ppm, drift_b_ppm, phase, b_start_ns, expected
+    )
     return replace(r, exchange="arbitration")
 
 
@@ -823,8 +878,10 @@ def max_bus_length_simulated(
         d = replace(delays, bus_length_m=length)
         for drift in (drift_ppm, -drift_ppm) if drift_ppm else (0.0,):
             for ph in phases:
-                for r in (ack_exchange(fa, timing, d, 0.0, drift, ph),
-                          arbitration_exchange(fa, fb, timing, d, 0.0, drift, ph)):
+                for r in (
+                    ack_exchange(fa, timing, d, 0.0, drift, ph),
+                    arbitration_exchange(fa, fb, timing, d, 0.0, drift, ph),
+                ):
                     if not r.ok:
                         return r
         return None

@@ -40,10 +40,11 @@ import random
 import re
 import zipfile
 import zlib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 from stack.wire.coding import INTERMISSION_BITS, Field
 from stack.wire.decoder import BitDecoder, BitError, DecodedFrame
@@ -149,9 +150,11 @@ def _select_channel(names: list[str], channel: str | int | None, what: str) -> i
     if text in names:
         by_name = names.index(text)
         if by_index is not None and by_index != by_name:
-            raise ValueError(f"channel {text!r} is ambiguous in {what}: the channel named {text!r} is index "
-                             f"{by_name}, index {idx} is {names[idx]!r}; say --channel {names[idx]} or "
-                             f"--channel '#{idx}' (channels: {listing})")
+            raise ValueError(
+                f"channel {text!r} is ambiguous in {what}: the channel named {text!r} is index "
+                f"{by_name}, index {idx} is {names[idx]!r}; say --channel {names[idx]} or "
+                f"--channel '#{idx}' (channels: {listing})"
+            )
         return by_name
     if by_index is not None:
         return by_index
@@ -207,7 +210,8 @@ def read_sigrok(path: str | Path, channel: str | int | None = None) -> Capture:
                 if not 1 <= num <= width:
                     raise ValueError(
                         f"{path}: sigrok metadata names {key!r}, but a sample of unitsize {unitsize} "
-                        f"holds {width} channels (probe1..probe{width})")
+                        f"holds {width} channels (probe1..probe{width})"
+                    )
                 probes[num - 1] = value
         chan_names: list[Any] = [probes.get(i) for i in range(width)]
         bit = _select_channel(chan_names, channel, str(path))
@@ -328,7 +332,8 @@ def read_vcd(
                     if tok.data < now:
                         raise _ChannelError(
                             f"{path} line {tok.span.start.line}: time {_vcd_time(tok.data)} is earlier than {_vcd_time(now)} "
-                            f"(line {now_line}): VCD times must not decrease")
+                            f"(line {now_line}): VCD times must not decrease"
+                        )
                     now = tok.data
                     now_line = tok.span.start.line
                 elif kind is TokenKind.CHANGE_SCALAR:
@@ -400,12 +405,14 @@ def read_vcd(
     if total > 400_000_000:
         raise ValueError(
             f"{path}: the signal runs to time {_vcd_time(end)} ({_approx(end * timescale)} s): {_approx(total)} samples at "
-            f"{_approx(rate_q)} Hz, more than 400,000,000 (cut the recording, or give a lower --samplerate)")
+            f"{_approx(rate_q)} Hz, more than 400,000,000 (cut the recording, or give a lower --samplerate)"
+        )
     rate = float(rate_q)
     if not 0 < rate < math.inf:
         raise ValueError(
             f"{path}: the change times give a sample period of {_approx(step * timescale)} s, "
-            f"{_approx(rate_q)} samples/s, which is no usable rate: give --samplerate")
+            f"{_approx(rate_q)} samples/s, which is no usable rate: give --samplerate"
+        )
     if not samplerate:
         native = float(native_q)
     parts: list[bytes] = []
@@ -535,9 +542,7 @@ def render_edges(
             start = round(t * samplerate)
             if start < first:
                 what = "the end of the previous frame's intermission" if i else f"{idle_bits} bit times of bus idle"
-                raise ValueError(
-                    f"frame {i} at t={t:g} s starts before {what} (earliest t={first / samplerate:.9g} s)"
-                )
+                raise ValueError(f"frame {i} at t={t:g} s starts before {what} (earliest t={first / samplerate:.9g} s)")
         emit(1, start)
         sofs.append(start)
         bits = frame.bits.bits
@@ -636,15 +641,17 @@ def write_vcd(
     else:
         runs = samples_or_runs
     timescale, step = _vcd_timescale(samplerate)
-    with open(path, "w", encoding="ascii") as fh:
-        with VCDWriter(fh, timescale=timescale, date="", comment=comment, version="canstack") as w:
-            var = w.register_var("canstack", name, "wire", size=1, init=runs[0][0] if runs else 1)
-            t = 0
-            for lvl, n in runs:
-                if t:
-                    w.change(var, t * step, lvl)
-                t += n
-            w.close(t * step)
+    with (
+        open(path, "w", encoding="ascii") as fh,
+        VCDWriter(fh, timescale=timescale, date="", comment=comment, version="canstack") as w,
+    ):
+        var = w.register_var("canstack", name, "wire", size=1, init=runs[0][0] if runs else 1)
+        t = 0
+        for lvl, n in runs:
+            if t:
+                w.change(var, t * step, lvl)
+            t += n
+        w.close(t * step)
 
 
 def _runs(samples: bytes) -> list[tuple[int, int]]:
@@ -822,9 +829,7 @@ def _next_fall(line: bytes, after: int) -> int:
     return -1 if r < 0 else line.find(_DOMINANT, r + 1)
 
 
-def _receive(
-    line: bytes, sof: int, rx: BitReceiver, dec: BitDecoder
-) -> tuple[DecodedFrame | None, float, int]:
+def _receive(line: bytes, sof: int, rx: BitReceiver, dec: BitDecoder) -> tuple[DecodedFrame | None, float, int]:
     """Receive one frame whose SOF edge is at sample ``sof`` (hard synchronisation).
 
     Returns (the decoder's result or None if the capture ended, end of the last bit in samples,
@@ -963,7 +968,7 @@ def _run_length_retry(
             for i, (lvl, rstart, _) in enumerate(runs):
                 opt = options[i]
                 count = opt[1] if i in flip else opt[0]
-                for k in range(count):
+                for k in range(count):  # noqa: B007 - read after the loop
                     res = dec.feed(lvl)
                     if res is not None:
                         break
@@ -1009,8 +1014,10 @@ def decode_samples(
         for spv in (75.0, 62.5, 50.0, 81.25, 68.75, 56.25):
             spo = math.floor(T * spv / 100)
             # at low oversampling several sample points read the same sample: try each once
-            if spv != sample_point and spo != math.floor(rx.sp_offset) and all(
-                math.floor(a.sp_offset) != spo for a in alternates
+            if (
+                spv != sample_point
+                and spo != math.floor(rx.sp_offset)
+                and all(math.floor(a.sp_offset) != spo for a in alternates)
             ):
                 ps2 = tq_per_bit * (100 - spv) / 100
                 alternates.append(
@@ -1046,7 +1053,7 @@ def decode_samples(
         t = sof / samplerate
         if res is None:
             # the capture ended inside the frame
-            err = BitError("truncated", dec.field, dec._field_index, dec.position)  # noqa: SLF001
+            err = BitError("truncated", dec.field, dec._field_index, dec.position)
             out.append(_record(t, sof, None, err, dec))
             break
         if not res.ok and retry:
@@ -1092,10 +1099,22 @@ def _record(
     if res is None:
         # truncated: what the decoder had collected when the samples ran out
         assert dec is not None
-        can_id = dec._id if Field.RTR in dec._done else None  # noqa: SLF001 - same package
-        dlc = dec._dlc if Field.DLC in dec._done else None  # noqa: SLF001
-        return RxRecord(t, sof, can_id, dec._ext, bool(dec._rtr), dlc, dec.received_data,  # noqa: SLF001
-                        dec.received_crc, False, False, error, False)
+        can_id = dec._id if Field.RTR in dec._done else None
+        dlc = dec._dlc if Field.DLC in dec._done else None
+        return RxRecord(
+            t,
+            sof,
+            can_id,
+            dec._ext,
+            bool(dec._rtr),
+            dlc,
+            dec.received_data,
+            dec.received_crc,
+            False,
+            False,
+            error,
+            False,
+        )
     return RxRecord(
         t=t,
         sample=sof,
@@ -1126,8 +1145,15 @@ def decode_file(
 ) -> list[RxRecord]:
     """Read a capture (`read_capture`) and decode it (`decode_samples`)."""
     cap = read_capture(path, channel, samplerate, bitrate)
-    return decode_samples(cap.samples, cap.samplerate, bitrate, sample_point=sample_point, sjw=sjw, retry=retry,
-                          native_rate=cap.native_rate)
+    return decode_samples(
+        cap.samples,
+        cap.samplerate,
+        bitrate,
+        sample_point=sample_point,
+        sjw=sjw,
+        retry=retry,
+        native_rate=cap.native_rate,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1164,8 +1190,11 @@ def frames_from_jsonl(lines: Iterable[str], source: str = "input") -> list[tuple
         remote = bool(obj.get("remote", False))
         try:
             frame = Frame(
-                obj["id"], b"" if remote else data, extended=bool(obj.get("extended", False)),
-                remote=remote, dlc=obj.get("dlc"),
+                obj["id"],
+                b"" if remote else data,
+                extended=bool(obj.get("extended", False)),
+                remote=remote,
+                dlc=obj.get("dlc"),
             )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{where}: {exc}") from None

@@ -13,8 +13,9 @@ Bit level convention: 0 = dominant, 1 = recessive.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from enum import Enum
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # pragma: no cover - the frame imports this module to encode itself
     from stack.wire.frame import Frame
@@ -157,8 +158,9 @@ class FrameBits:
 
     __slots__ = ("bits", "crc", "stuff_positions", "crc_delim", "_layout", "_fields")
 
-    def __init__(self, bits: str, crc: int, stuff_positions: tuple[int, ...], crc_delim: int,
-                 layout: list[tuple[Field, int]]) -> None:
+    def __init__(
+        self, bits: str, crc: int, stuff_positions: tuple[int, ...], crc_delim: int, layout: list[tuple[Field, int]]
+    ) -> None:
         self.bits = bits
         self.crc = crc
         self.stuff_positions = stuff_positions
@@ -212,9 +214,7 @@ class FrameBits:
         try:
             f = Field(fld) if not isinstance(fld, Field) else fld
         except ValueError:
-            raise ValueError(
-                f"unknown field {fld!r}: one of {', '.join(x.value for x in Field)}"
-            ) from None
+            raise ValueError(f"unknown field {fld!r}: one of {', '.join(x.value for x in Field)}") from None
         pos = self.fields.get(f)
         if not pos:
             raise ValueError(f"this frame has no {f.value} field")
@@ -292,7 +292,7 @@ def _stuff_string(raw: str) -> tuple[str, list[int]]:
         positions.append(n_out)
         out.append(stuffbit)
         n_out += 1
-        rest = stuffbit + rest[j + 5:]
+        rest = stuffbit + rest[j + 5 :]
         carried = True
     return "".join(out), positions
 
@@ -300,11 +300,29 @@ def _stuff_string(raw: str) -> tuple[str, list[int]]:
 def _layout(frame: Frame) -> list[tuple[Field, int]]:
     n = 0 if frame.remote else len(frame.data)
     if frame.extended:
-        return [(Field.SOF, 1), (Field.ID, 11), (Field.SRR, 1), (Field.IDE, 1), (Field.ID_EXT, 18),
-                (Field.RTR, 1), (Field.R1, 1), (Field.R0, 1), (Field.DLC, 4), (Field.DATA, 8 * n),
-                (Field.CRC, 15)]
-    return [(Field.SOF, 1), (Field.ID, 11), (Field.RTR, 1), (Field.IDE, 1), (Field.R0, 1),
-            (Field.DLC, 4), (Field.DATA, 8 * n), (Field.CRC, 15)]
+        return [
+            (Field.SOF, 1),
+            (Field.ID, 11),
+            (Field.SRR, 1),
+            (Field.IDE, 1),
+            (Field.ID_EXT, 18),
+            (Field.RTR, 1),
+            (Field.R1, 1),
+            (Field.R0, 1),
+            (Field.DLC, 4),
+            (Field.DATA, 8 * n),
+            (Field.CRC, 15),
+        ]
+    return [
+        (Field.SOF, 1),
+        (Field.ID, 11),
+        (Field.RTR, 1),
+        (Field.IDE, 1),
+        (Field.R0, 1),
+        (Field.DLC, 4),
+        (Field.DATA, 8 * n),
+        (Field.CRC, 15),
+    ]
 
 
 def encode(frame: Frame) -> FrameBits:

@@ -7,11 +7,12 @@ detects it; `decode` runs it over a whole bit string.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Iterator, Sequence
+
+from stack.wire.frame import Frame, data_length
 
 from .coding import CRC15_POLY, Field
-from stack.wire.frame import Frame, data_length
 
 __all__ = ["BitError", "DecodedFrame", "BitDecoder", "decode"]
 
@@ -99,7 +100,7 @@ class BitDecoder:
         self._li = 0
         self._done: set[Field] = set()
 
-    def clone(self) -> "BitDecoder":
+    def clone(self) -> BitDecoder:
         """An independent copy in the same state (receivers that saw the same bits so far)."""
         new = BitDecoder.__new__(BitDecoder)
         new.__dict__ = self.__dict__.copy()

@@ -89,9 +89,7 @@ class Frame:
         limit = EXTENDED_ID_MAX if extended else STANDARD_ID_MAX
         if not 0 <= can_id <= limit:
             fmt = "an extended (29-bit)" if extended else "a standard (11-bit)"
-            raise ValueError(
-                f"identifier {_hex(can_id)} out of range for {fmt} frame: must be 0..0x{limit:X}"
-            )
+            raise ValueError(f"identifier {_hex(can_id)} out of range for {fmt} frame: must be 0..0x{limit:X}")
         try:
             payload = bytes(data)
         except (TypeError, ValueError) as exc:
@@ -108,9 +106,7 @@ class Frame:
         if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
             raise ValueError(f"DLC {dlc!r} out of range: must be 0..15")
         if not remote and len(payload) != data_length(dlc):
-            raise ValueError(
-                f"DLC {dlc} means {data_length(dlc)} data bytes, but {len(payload)} were given"
-            )
+            raise ValueError(f"DLC {dlc} means {data_length(dlc)} data bytes, but {len(payload)} were given")
         sa = object.__setattr__
         sa(self, "can_id", can_id)
         sa(self, "extended", bool(extended))
@@ -164,7 +160,7 @@ class Frame:
         return len(self.data)
 
     @property
-    def bits(self) -> "FrameBits":
+    def bits(self) -> FrameBits:
         """The frame's exact bit sequence on the wire, computed once (see `stack.bits`)."""
         b = self._bits
         if b is None:
@@ -196,7 +192,7 @@ class Frame:
         return msg
 
     @classmethod
-    def from_message(cls, msg: can.Message) -> "Frame":
+    def from_message(cls, msg: can.Message) -> Frame:
         """The frame a `can.Message` describes; CAN FD, error frames and dlc > 8 are refused.
 
         python-can's `Message` cannot carry a classic DLC 9..15 (its dlc is the byte count), so
@@ -207,9 +203,7 @@ class Frame:
         if msg.is_error_frame:
             raise ValueError("an error frame is not a data or remote frame")
         if not 0 <= msg.dlc <= 8:
-            raise ValueError(
-                f"can.Message with dlc {msg.dlc}: only dlc 0..8 convert to a CAN 2.0 frame"
-            )
+            raise ValueError(f"can.Message with dlc {msg.dlc}: only dlc 0..8 convert to a CAN 2.0 frame")
         if msg.is_remote_frame:
             return cls(msg.arbitration_id, extended=msg.is_extended_id, remote=True, dlc=msg.dlc)
         data = bytes(msg.data)
@@ -220,4 +214,3 @@ class Frame:
 
 def _rebuild(can_id: int, data: bytes, extended: bool, remote: bool, dlc: int) -> Frame:
     return Frame(can_id, data, extended=extended, remote=remote, dlc=dlc)
-

@@ -5,13 +5,14 @@ from pathlib import Path
 import cantools
 import pytest
 from crccheck.crc import Crc8Autosar, Crc8SaeJ1850
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from dbc.checks import E2E, AliveCounter, Checksum, crc8_autosar, crc8_sae_j1850, sum8, xor8
 from dbc.ecu import Ecu
 from dbc.errors import UnknownNameError, load_database
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
+from stack.wire.frame import Frame
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000
@@ -70,8 +71,18 @@ def test_failures_reported_not_ignored():
     msg = db.get_message_by_name("EngineData")
 
     def good(counter):
-        data = bytearray(msg.encode({"EngineSpeed": 1000, "EngineTemp": 20, "ThrottlePosition": 0,
-                                     "EngineTorque": 0, "EngineCounter": counter, "EngineChecksum": 0}))
+        data = bytearray(
+            msg.encode(
+                {
+                    "EngineSpeed": 1000,
+                    "EngineTemp": 20,
+                    "ThrottlePosition": 0,
+                    "EngineTorque": 0,
+                    "EngineCounter": counter,
+                    "EngineChecksum": 0,
+                }
+            )
+        )
         data[7] = Crc8SaeJ1850.calc(bytes(data[:7]))
         return bytes(data)
 
@@ -83,23 +94,31 @@ def test_failures_reported_not_ignored():
     rogue.send(Frame(0x100, bytes(bad)))  # wrong CRC (counter 5 is fine)
     bus.run(duration=5 * MS)
     reasons = [f.reason for f in fails]
-    assert reasons == ["alive counter EngineCounter = 4, expected 5 (repeated)",
-                       f"checksum EngineChecksum = 0x{bad[7]:02X}, expected 0x{bad[7] ^ 0xFF:02X}"]
-    assert ipc.check_failures == {("EngineData", "counter EngineCounter"): 1,
-                                  ("EngineData", "checksum EngineChecksum (crc8_sae_j1850)"): 1}
+    assert reasons == [
+        "alive counter EngineCounter = 4, expected 5 (repeated)",
+        f"checksum EngineChecksum = 0x{bad[7]:02X}, expected 0x{bad[7] ^ 0xFF:02X}",
+    ]
+    assert ipc.check_failures == {
+        ("EngineData", "counter EngineCounter"): 1,
+        ("EngineData", "checksum EngineChecksum (crc8_sae_j1850)"): 1,
+    }
     # a failed frame's values are not applied
     assert ipc.get("EngineCounter") == 4
 
 
 def test_counter_wraps_in_dbc_range_and_custom_checksum():
-    text = ('VERSION ""\nBS_:\nBU_: A B\nBO_ 5 M: 3 A\n SG_ Cnt : 0|4@1+ (1,0) [2|5] "" B\n'
-            ' SG_ Val : 8|8@1+ (1,0) [0|255] "" B\n SG_ Cs : 16|8@1+ (1,0) [0|255] "" B\n')
+    text = (
+        'VERSION ""\nBS_:\nBU_: A B\nBO_ 5 M: 3 A\n SG_ Cnt : 0|4@1+ (1,0) [2|5] "" B\n'
+        ' SG_ Val : 8|8@1+ (1,0) [0|255] "" B\n SG_ Cs : 16|8@1+ (1,0) [0|255] "" B\n'
+    )
     db = cantools.database.load_string(text)
     bus = SimBus(500_000)
-    a = Ecu(db, "A", bus.node("A"), checks=[AliveCounter("M", "Cnt"),
-                                           Checksum("M", "Cs", lambda b: (sum(b) + 7) & 0xFF)])
-    b = Ecu(db, "B", bus.node("B"), checks=[AliveCounter("M", "Cnt"),
-                                           Checksum("M", "Cs", lambda b: (sum(b) + 7) & 0xFF)])
+    a = Ecu(
+        db, "A", bus.node("A"), checks=[AliveCounter("M", "Cnt"), Checksum("M", "Cs", lambda b: (sum(b) + 7) & 0xFF)]
+    )
+    b = Ecu(
+        db, "B", bus.node("B"), checks=[AliveCounter("M", "Cnt"), Checksum("M", "Cs", lambda b: (sum(b) + 7) & 0xFF)]
+    )
     a.set("Val", 9)
     for _ in range(6):
         a.send("M")
@@ -115,8 +134,10 @@ def test_counter_wraps_in_dbc_range_and_custom_checksum():
 def test_e2e_profile2_through_cantools():
     from cantools.autosar import check_profile2_crc
 
-    text = ('VERSION ""\nBS_:\nBU_: A B\nBO_ 9 P: 8 A\n SG_ Crc : 0|8@1+ (1,0) [0|255] "" B\n'
-            ' SG_ Ctr : 8|4@1+ (1,0) [0|15] "" B\n SG_ Val : 16|16@1+ (1,0) [0|65535] "" B\n')
+    text = (
+        'VERSION ""\nBS_:\nBU_: A B\nBO_ 9 P: 8 A\n SG_ Crc : 0|8@1+ (1,0) [0|255] "" B\n'
+        ' SG_ Ctr : 8|4@1+ (1,0) [0|15] "" B\n SG_ Val : 16|16@1+ (1,0) [0|65535] "" B\n'
+    )
     db = cantools.database.load_string(text)
     bus = SimBus(500_000)
     hooks = [AliveCounter("P", "Ctr"), E2E("P", profile=2, data_id=0x42)]

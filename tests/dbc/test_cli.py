@@ -44,12 +44,15 @@ def test_text_summary_and_trace(capsys, tmp_path):
     assert sum(1 for m in msgs if m.arbitration_id == 0x100) == 20
 
 
-@pytest.mark.parametrize("argv, fragment", [
-    (["--dut", "IPX"], "did you mean 'IPC'"),
-    (["--duration", "0"], "--duration"),
-    (["--interface", "socketcan", "--channel", "vcan0", "--bus", "sim"], "not both"),
-    (["--trace", "x.xyz"], "unknown suffix"),
-])
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["--dut", "IPX"], "did you mean 'IPC'"),
+        (["--duration", "0"], "--duration"),
+        (["--interface", "socketcan", "--channel", "vcan0", "--bus", "sim"], "not both"),
+        (["--trace", "x.xyz"], "unknown suffix"),
+    ],
+)
 def test_bad_arguments_one_line_exit_2(capsys, argv, fragment):
     code, out, err = run(capsys, "restbus", SAMPLE, *argv)
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
@@ -65,15 +68,28 @@ def test_malformed_and_missing_dbc(capsys, tmp_path):
 
 
 def test_unknown_interface_is_one_line_exit_2(capsys):
-    code, out, err = run(capsys, "restbus", SAMPLE, "--interface", "nosuchinterface", "--channel", "x",
-                         "--duration", "0.1")
+    code, out, err = run(
+        capsys, "restbus", SAMPLE, "--interface", "nosuchinterface", "--channel", "x", "--duration", "0.1"
+    )
     assert code == 2 and "nosuchinterface" in err and len(err.strip().splitlines()) == 1
 
 
 def test_same_restbus_on_a_python_can_bus(capsys):
     """The ECUs run unchanged on python-can's virtual bus through stack.io.driver (wall clock)."""
-    code, out, err = run(capsys, "restbus", SAMPLE, "--dut", "IPC", "--duration", "0.25",
-                         "--interface", "virtual", "--channel", "dbc-test-restbus", "--json")
+    code, out, err = run(
+        capsys,
+        "restbus",
+        SAMPLE,
+        "--dut",
+        "IPC",
+        "--duration",
+        "0.25",
+        "--interface",
+        "virtual",
+        "--channel",
+        "dbc-test-restbus",
+        "--json",
+    )
     assert code == 0
     rows = [json.loads(line) for line in out.splitlines()]
     eng = [r for r in rows if r["name"] == "EngineData"]
@@ -89,11 +105,34 @@ def test_bitrate_is_passed_to_the_python_can_bus(capsys):
 
     keeper = can.Bus(interface="canstack", channel="dbc-cli-bitrate", bitrate=250_000)
     try:
-        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "0.1", "--interface", "canstack",
-                             "--channel", "dbc-cli-bitrate", "--bitrate", "125000")
+        code, out, err = run(
+            capsys,
+            "restbus",
+            SAMPLE,
+            "--duration",
+            "0.1",
+            "--interface",
+            "canstack",
+            "--channel",
+            "dbc-cli-bitrate",
+            "--bitrate",
+            "125000",
+        )
         assert code == 2 and "250000" in err and "125000" in err and len(err.strip().splitlines()) == 1
-        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "0.1", "--interface", "canstack",
-                             "--channel", "dbc-cli-bitrate", "--bitrate", "250000", "--json")
+        code, out, err = run(
+            capsys,
+            "restbus",
+            SAMPLE,
+            "--duration",
+            "0.1",
+            "--interface",
+            "canstack",
+            "--channel",
+            "dbc-cli-bitrate",
+            "--bitrate",
+            "250000",
+            "--json",
+        )
         assert code == 0 and out
     finally:
         keeper.shutdown()
@@ -113,8 +152,9 @@ def test_lost_bus_connection_exits_2_with_one_line(capsys):
     timer.start()
     try:
         t0 = time.monotonic()
-        code, out, err = run(capsys, "restbus", SAMPLE, "--duration", "5", "--interface", "canstack",
-                             "--channel", server.url)
+        code, out, err = run(
+            capsys, "restbus", SAMPLE, "--duration", "5", "--interface", "canstack", "--channel", server.url
+        )
         took = time.monotonic() - t0
     finally:
         timer.join()
@@ -125,8 +165,10 @@ def test_lost_bus_connection_exits_2_with_one_line(capsys):
 
 
 def test_malformed_dbc_without_line_from_cantools_is_one_line(capsys, tmp_path):
-    text = ('VERSION ""\nBS_:\nBU_: A\nBO_ 100 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" A\n'
-            'BA_ "GenMsgCycleTime" BO_ 100 10;\n')
+    text = (
+        'VERSION ""\nBS_:\nBU_: A\nBO_ 100 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" A\n'
+        'BA_ "GenMsgCycleTime" BO_ 100 10;\n'
+    )
     bad = tmp_path / "undefattr.dbc"
     bad.write_text(text)
     code, out, err = run(capsys, "restbus", str(bad), "--duration", "0.1")

@@ -86,8 +86,11 @@ def test_ecu_path_matches_cantools(corpus):
     checked = skipped = 0
     for path, db in ok:
         senders = {n: Ecu(db, n, _Stub(), start=False, checks=[]) for n in node_names(db)}
-        viewer = Ecu(db, senders and next(iter(senders)) or node_names(db)[0], _Stub(), start=False,
-                     checks=[]) if senders else None
+        viewer = (
+            Ecu(db, (senders and next(iter(senders))) or node_names(db)[0], _Stub(), start=False, checks=[])
+            if senders
+            else None
+        )
         messages = db.messages if len(db.messages) <= 10 else rng.sample(db.messages, 10)
         for msg in messages:
             ecu = next((senders[s] for s in msg.senders if s in senders), None)
@@ -123,7 +126,7 @@ def test_ecu_path_matches_cantools(corpus):
 
 def test_out_of_range_rejected_on_real_data(corpus):
     ok, _ = corpus
-    db = dict((p.name, d) for p, d in ok)["motohawk.dbc"]
+    db = {p.name: d for p, d in ok}["motohawk.dbc"]
     msg = db.get_message_by_name("ExampleMessage")
     ecu = Ecu(db, "PCM1", _Stub(), start=False, checks=[])
     # SG_ Temperature ... [229.52|270.47] "degK" in motohawk.dbc
@@ -211,10 +214,18 @@ def test_restbus_runs_every_loadable_file(corpus):
             assert rec.signals == m.decode(rec.frame.data), (path.name, rec.name)
         # every periodic message (a cantools cycle time of at most 100 ms, a periodic send type or
         # none, no start delay; CAN 2.0, not FD) of a simulated node goes out in the first 100 ms
-        periodic = {m.name for m in db.messages if set(m.senders) & expected and m.length <= 8 and not m.is_fd
-                    and not m.is_container and m.cycle_time and m.cycle_time <= 100
-                    and m.send_type in (None, "Cyclic", "FixedPeriodic", "EventPeriodic", "CyclicAndSpontaneous")
-                    and not attribute(db, m, "GenMsgStartDelayTime")}
+        periodic = {
+            m.name
+            for m in db.messages
+            if set(m.senders) & expected
+            and m.length <= 8
+            and not m.is_fd
+            and not m.is_container
+            and m.cycle_time
+            and m.cycle_time <= 100
+            and m.send_type in (None, "Cyclic", "FixedPeriodic", "EventPeriodic", "CyclicAndSpontaneous")
+            and not attribute(db, m, "GenMsgStartDelayTime")
+        }
         assert periodic <= {r.name for r in rb.records}, (path.name, periodic - {r.name for r in rb.records})
         checked += len(periodic)
         ran += 1

@@ -7,8 +7,8 @@ import pytest
 
 from dbc.ecu import CheckFailed, Ecu, SignalChanged, initial_values
 from dbc.errors import ChoiceError, DbcError, DbcLoadError, SignalRangeError, UnknownNameError, load_database
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
+from stack.wire.frame import Frame
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
 MS = 1_000_000
@@ -81,7 +81,7 @@ def test_range_strict_and_clamp(net):
 
 
 def test_raw_range_applies_without_dbc_range():
-    text = ('VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 1 A\n SG_ S : 0|4@1+ (2,10) [0|0] "" B\n')
+    text = 'VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 1 A\n SG_ S : 0|4@1+ (2,10) [0|0] "" B\n'
     db = cantools.database.load_string(text)
     bus = SimBus(500_000)
     ecu = Ecu(db, "A", bus.node("A"))
@@ -151,8 +151,10 @@ def test_decode_error_is_reported(net):
 
 def test_malformed_dbc_names_line(tmp_path):
     p = tmp_path / "bad.dbc"
-    p.write_text('VERSION ""\n\nBU_: A B\n\nBO_ 100 Msg: 8 A\n SG_ Ok : 0|8@1+ (1,0) [0|255] "" B\n'
-                 ' SG_ Bad 8|8@1+ (1,0) [0|255] "" B\n')
+    p.write_text(
+        'VERSION ""\n\nBU_: A B\n\nBO_ 100 Msg: 8 A\n SG_ Ok : 0|8@1+ (1,0) [0|255] "" B\n'
+        ' SG_ Bad 8|8@1+ (1,0) [0|255] "" B\n'
+    )
     with pytest.raises(DbcLoadError) as e:
         load_database(p)
     assert e.value.line == 7 and "Invalid syntax" in e.value.reason
@@ -168,8 +170,10 @@ def test_initial_values_select_defined_mux_branch():
     db = cantools.database.load_file(str(SAMPLE))
     v = initial_values(db, db.get_message_by_name("GatewayInfo"))
     assert v["InfoPage"] == 0
-    text = ('VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 2 A\n SG_ Mux M : 0|8@1+ (1,0) [0|255] "" B\n'
-            ' SG_ X m3 : 8|8@1+ (1,0) [0|255] "" B\n SG_ Y m5 : 8|8@1+ (1,0) [0|255] "" B\n')
+    text = (
+        'VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 2 A\n SG_ Mux M : 0|8@1+ (1,0) [0|255] "" B\n'
+        ' SG_ X m3 : 8|8@1+ (1,0) [0|255] "" B\n SG_ Y m5 : 8|8@1+ (1,0) [0|255] "" B\n'
+    )
     db2 = cantools.database.load_string(text)
     m = db2.messages[0]
     v2 = initial_values(db2, m)
@@ -235,7 +239,7 @@ def test_encode_frame_changes_nothing(net):
     assert msg.decode(other.data)["EngineCounter"] == (last_counter + 1) % 16
     assert ecm.get("EngineSpeed") == msg.decode(wire[-1].data)["EngineSpeed"]  # values untouched
     bus.run(until=60 * MS)
-    after = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id][len(wire):]
+    after = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id][len(wire) :]
     assert after[0].data == peek.data  # the next transmission is the frame encode_frame showed
     counters = [msg.decode(f.data)["EngineCounter"] for f in after]
     assert counters == [(last_counter + 1 + k) % 16 for k in range(len(counters))]

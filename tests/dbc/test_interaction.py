@@ -50,9 +50,11 @@ def test_cyclic_period_and_start_delay(db):
 
 
 def test_cycle_time_alone_means_cyclic():
-    text = ('VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 1 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" B\n'
-            'BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;\nBA_DEF_DEF_ "GenMsgCycleTime" 0;\n'
-            'BA_ "GenMsgCycleTime" BO_ 1 15;\n')
+    text = (
+        'VERSION ""\nBS_:\nBU_: A B\nBO_ 1 M: 1 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" B\n'
+        'BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;\nBA_DEF_DEF_ "GenMsgCycleTime" 0;\n'
+        'BA_ "GenMsgCycleTime" BO_ 1 15;\n'
+    )
     db = cantools.database.load_string(text)
     bus, ecu = one(db, "A")
     bus.run(until=100 * MS)
@@ -127,13 +129,15 @@ _SEND_TYPES = ["Cyclic", "CyclicIfActiveAndSpontaneous", "CyclicIfActiveAndSpont
 def _cias_db(send_type: str, fast: int, delay: int = 0):
     """One CyclicIfActiveAndSpontaneous message (id 267) whose only signal L (inactive value 0,
     the default) makes it active; the timing attributes as given."""
-    text = ('VERSION ""\nNS_ :\nBS_:\nBU_: TX RX\nBO_ 267 M: 1 TX\n SG_ L : 0|8@1+ (1,0) [0|255] "" RX\n'
-            'BA_DEF_ BO_ "GenMsgSendType" ENUM ' + ",".join(f'"{t}"' for t in _SEND_TYPES) + ';\n'
-            'BA_DEF_ BO_ "GenMsgCycleTimeFast" INT 0 65535;\nBA_DEF_ BO_ "GenMsgDelayTime" INT 0 65535;\n'
-            'BA_DEF_DEF_ "GenMsgSendType" "Cyclic";\nBA_DEF_DEF_ "GenMsgCycleTimeFast" 0;\n'
-            'BA_DEF_DEF_ "GenMsgDelayTime" 0;\n'
-            f'BA_ "GenMsgSendType" BO_ 267 {_SEND_TYPES.index(send_type)};\n'
-            f'BA_ "GenMsgCycleTimeFast" BO_ 267 {fast};\nBA_ "GenMsgDelayTime" BO_ 267 {delay};\n')
+    text = (
+        'VERSION ""\nNS_ :\nBS_:\nBU_: TX RX\nBO_ 267 M: 1 TX\n SG_ L : 0|8@1+ (1,0) [0|255] "" RX\n'
+        'BA_DEF_ BO_ "GenMsgSendType" ENUM ' + ",".join(f'"{t}"' for t in _SEND_TYPES) + ";\n"
+        'BA_DEF_ BO_ "GenMsgCycleTimeFast" INT 0 65535;\nBA_DEF_ BO_ "GenMsgDelayTime" INT 0 65535;\n'
+        'BA_DEF_DEF_ "GenMsgSendType" "Cyclic";\nBA_DEF_DEF_ "GenMsgCycleTimeFast" 0;\n'
+        'BA_DEF_DEF_ "GenMsgDelayTime" 0;\n'
+        f'BA_ "GenMsgSendType" BO_ 267 {_SEND_TYPES.index(send_type)};\n'
+        f'BA_ "GenMsgCycleTimeFast" BO_ 267 {fast};\nBA_ "GenMsgDelayTime" BO_ 267 {delay};\n'
+    )
     db = cantools.database.load_string(text)
     assert db.get_message_by_name("M").send_type == send_type  # as cantools reads the DBC
     return db

@@ -9,6 +9,7 @@ import os
 import re
 import signal
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -17,7 +18,7 @@ import stack.cli as cli
 
 DATA = Path(__file__).resolve().parent / "data"
 FD_ONLY = str(DATA / "fd_only.dbc")  # RadarObjects (12 bytes, FD), RadarStatus (8 bytes, FD)
-MIXED = str(DATA / "mixed.dbc")      # RadarObjects (FD), RadarStatus (classical, 100 ms), BodyLong (12 bytes, classical)
+MIXED = str(DATA / "mixed.dbc")  # RadarObjects (FD), RadarStatus (classical, 100 ms), BodyLong (12 bytes, classical)
 SAMPLE = str(Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc")
 FORD = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "dbc" / "opendbc" / "ford_lincoln_base_pt.dbc"
 
@@ -31,24 +32,30 @@ def run(capsys, *argv):
 def test_database_of_fd_messages_only_is_refused_with_the_reason(capsys):
     code, out, err = run(capsys, "restbus", FD_ONLY, "--duration", "1")
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert err == (f"canstack: error: {FD_ONLY}: nothing to simulate: 2 of 2 messages skipped: 2 CAN FD "
-                   "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n")
+    assert err == (
+        f"canstack: error: {FD_ONLY}: nothing to simulate: 2 of 2 messages skipped: 2 CAN FD "
+        "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n"
+    )
 
 
 @pytest.mark.parametrize("json_mode", [False, True])
 def test_skipped_messages_are_counted_by_reason(capsys, json_mode):
     code, out, err = run(capsys, "restbus", MIXED, "--duration", "1", *(["--json"] if json_mode else []))
     assert code == 0
-    assert err == (f"canstack: warning: {MIXED}: 2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes "
-                   "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n")
+    assert err == (
+        f"canstack: warning: {MIXED}: 2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes "
+        "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n"
+    )
     if json_mode:
         rows = [json.loads(line) for line in out.splitlines()]
         assert {r["name"] for r in rows} == {"RadarStatus"} and len(rows) == 10  # 100 ms for 1 s
     else:
         assert re.search(r"Radar +RadarStatus +10 +100\.00", out)
         # the text summary says it too
-        assert ("simulated: Radar, Fusion, Body; 10 frames on the bus in 1 s; "
-                "2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes\n") in out
+        assert (
+            "simulated: Radar, Fusion, Body; 10 frames on the bus in 1 s; "
+            "2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes\n"
+        ) in out
 
 
 @pytest.mark.skipif(not FORD.is_file(), reason="../shared/corpus not present")
@@ -104,7 +111,7 @@ def test_ctrl_c_keeps_the_summary_so_far(capsys, monkeypatch, tmp_path):
 
 def test_python_can_run_stops_cleanly_on_ctrl_c(monkeypatch):
     class Driver:
-        errors: list = []
+        errors: ClassVar[list] = []
         stopped = False
 
         def start(self):

@@ -15,8 +15,10 @@ MS = 1_000_000
 
 
 def _set(periods_ms, bitrate=500_000):
-    msgs = tuple(StudyMessage(f"m{i}", f"n{i % 3}", 0x100 + 0x20 * i, 8, round(p * MS), round(p * MS))
-                 for i, p in enumerate(periods_ms))
+    msgs = tuple(
+        StudyMessage(f"m{i}", f"n{i % 3}", 0x100 + 0x20 * i, 8, round(p * MS), round(p * MS))
+        for i, p in enumerate(periods_ms)
+    )
     return MessageSet(bitrate, msgs, 0.2, seed=1)
 
 

@@ -17,8 +17,7 @@ def canstack(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess
     import os
 
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "stack.cli", *args], capture_output=True, text=True, env=env,
-                          cwd=cwd)
+    return subprocess.run([sys.executable, "-m", "stack.cli", *args], capture_output=True, text=True, env=env, cwd=cwd)
 
 
 def test_experiment_prints_the_table_worst_offenders_first():
@@ -41,26 +40,36 @@ def test_experiment_json_is_one_object(tmp_path):
 
 def test_experiment_plots(tmp_path):
     pytest.importorskip("matplotlib")
-    out = canstack("experiment", str(EXAMPLES / "powertrain_90.toml"), "--plot", str(tmp_path / "plots"),
-                   "--duration", "0.1")
+    out = canstack(
+        "experiment", str(EXAMPLES / "powertrain_90.toml"), "--plot", str(tmp_path / "plots"), "--duration", "0.1"
+    )
     assert out.returncode == 0, out.stderr
     for name in ("timeline.png", "response_times.png", "bus_load.png"):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("args,message", [
-    (["experiment", "nowhere.toml"], "canstack: error: nowhere.toml: no such scenario file"),
-    (["experiment", "EXAMPLES/body_network.toml", "--interface", "virtual"],
-     "canstack: error: --interface and --channel go together"),
-    (["experiment", "EXAMPLES/body_network.toml", "--duration", "-1"], "a duration is > 0"),
-    (["experiment", "EXAMPLES/body_network.toml", "--plot", "EXAMPLES/body_network.toml"],
-     "is a file; give a directory for the plots"),
-    (["experiment", "BAD"], "BAD.toml: [[nodes]] #1 'a' > [[nodes.messages]] #1 'm': dlc: 12 is outside 0..8"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["experiment", "nowhere.toml"], "canstack: error: nowhere.toml: no such scenario file"),
+        (
+            ["experiment", "EXAMPLES/body_network.toml", "--interface", "virtual"],
+            "canstack: error: --interface and --channel go together",
+        ),
+        (["experiment", "EXAMPLES/body_network.toml", "--duration", "-1"], "a duration is > 0"),
+        (
+            ["experiment", "EXAMPLES/body_network.toml", "--plot", "EXAMPLES/body_network.toml"],
+            "is a file; give a directory for the plots",
+        ),
+        (["experiment", "BAD"], "BAD.toml: [[nodes]] #1 'a' > [[nodes.messages]] #1 'm': dlc: 12 is outside 0..8"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
     bad = tmp_path / "BAD.toml"
-    bad.write_text('[bus]\nbitrate = 500000\nduration = 1.0\n[[nodes]]\nname = "a"\n'
-                   '[[nodes.messages]]\nname = "m"\nid = 1\ndlc = 12\nperiod_ms = 10\n')
+    bad.write_text(
+        '[bus]\nbitrate = 500000\nduration = 1.0\n[[nodes]]\nname = "a"\n'
+        '[[nodes.messages]]\nname = "m"\nid = 1\ndlc = 12\nperiod_ms = 10\n'
+    )
     args = [str(bad) if a == "BAD" else a.replace("EXAMPLES", str(EXAMPLES)) for a in args]
     out = canstack(*args)
     assert out.returncode == 2

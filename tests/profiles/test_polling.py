@@ -28,17 +28,44 @@ def network(duration: float = 0.02, **over) -> dict:
     raw = {
         "bus": {"bitrate": 500000, "duration": duration, "seed": 1},
         "nodes": [
-            {"name": "m", "profile": "master", "cycle_ms": 2, "timeout_ms": 1,
-             "poll": [{"slave": "s1", "data": "0102"}, {"style": "remote", "slave": "s2"},
-                      {"style": "bit_strobe", "slaves": ["s3", "s4"]}]},
-            {"name": "s1", "profile": "slave", "mac_id": 1, "processing_ms": 0.02,
-             "messages": [{"name": "s1_in", "id": 0x3C1, "dlc": 4, "data": "00a01234"}]},
-            {"name": "s2", "profile": "slave", "mac_id": 2,
-             "messages": [{"name": "s2_in", "id": 0x3C2, "dlc": 2, "data": "0190"}]},
-            {"name": "s3", "profile": "slave", "mac_id": 3, "processing_ms": 0.01,
-             "messages": [{"name": "s3_in", "id": 0x383, "dlc": 1, "data": "01"}]},
-            {"name": "s4", "profile": "slave", "mac_id": 4, "processing_ms": 0.01,
-             "messages": [{"name": "s4_in", "id": 0x384, "dlc": 1, "data": "00"}]},
+            {
+                "name": "m",
+                "profile": "master",
+                "cycle_ms": 2,
+                "timeout_ms": 1,
+                "poll": [
+                    {"slave": "s1", "data": "0102"},
+                    {"style": "remote", "slave": "s2"},
+                    {"style": "bit_strobe", "slaves": ["s3", "s4"]},
+                ],
+            },
+            {
+                "name": "s1",
+                "profile": "slave",
+                "mac_id": 1,
+                "processing_ms": 0.02,
+                "messages": [{"name": "s1_in", "id": 0x3C1, "dlc": 4, "data": "00a01234"}],
+            },
+            {
+                "name": "s2",
+                "profile": "slave",
+                "mac_id": 2,
+                "messages": [{"name": "s2_in", "id": 0x3C2, "dlc": 2, "data": "0190"}],
+            },
+            {
+                "name": "s3",
+                "profile": "slave",
+                "mac_id": 3,
+                "processing_ms": 0.01,
+                "messages": [{"name": "s3_in", "id": 0x383, "dlc": 1, "data": "01"}],
+            },
+            {
+                "name": "s4",
+                "profile": "slave",
+                "mac_id": 4,
+                "processing_ms": 0.01,
+                "messages": [{"name": "s4_in", "id": 0x384, "dlc": 1, "data": "00"}],
+            },
         ],
     }
     raw.update(over)
@@ -116,10 +143,23 @@ def random_network(rng: random.Random, *, shared: bool = False) -> dict:
         hi = rng.choice([0.0, 0.002, 0.02, 0.1])
         dlc = rng.randint(0, 8)
         rid = plan.bit_strobe_response(i) if style == "bit_strobe" else plan.poll_response(i)
-        nodes.append({"name": f"s{i}", "profile": "slave", "mac_id": i, "processing_ms": hi,
-                      "processing_min_ms": rng.choice([0.0, hi / 2, hi]),
-                      "messages": [{"name": f"s{i}_in", "id": rid, "dlc": dlc,
-                                    "data": bytes(rng.randrange(256) for _ in range(dlc)).hex()}]})
+        nodes.append(
+            {
+                "name": f"s{i}",
+                "profile": "slave",
+                "mac_id": i,
+                "processing_ms": hi,
+                "processing_min_ms": rng.choice([0.0, hi / 2, hi]),
+                "messages": [
+                    {
+                        "name": f"s{i}_in",
+                        "id": rid,
+                        "dlc": dlc,
+                        "data": bytes(rng.randrange(256) for _ in range(dlc)).hex(),
+                    }
+                ],
+            }
+        )
         if style == "bit_strobe":
             strobed.append(f"s{i}")
         else:
@@ -131,8 +171,16 @@ def random_network(rng: random.Random, *, shared: bool = False) -> dict:
     if strobed:
         poll.insert(rng.randrange(len(poll) + 1), {"style": "bit_strobe", "slaves": strobed})
     if shared and rng.random() < 0.5:  # a slave that reports changes of state, acknowledged or not
-        nodes.append({"name": "cos", "profile": "slave", "mac_id": 40, "messages": [
-            {"name": "cos_out", "id": plan.cos_message(40), "dlc": 2, "sporadic_ms": rng.choice([5, 10])}]})
+        nodes.append(
+            {
+                "name": "cos",
+                "profile": "slave",
+                "mac_id": 40,
+                "messages": [
+                    {"name": "cos_out", "id": plan.cos_message(40), "dlc": 2, "sporadic_ms": rng.choice([5, 10])}
+                ],
+            }
+        )
         poll.append({"style": "cos", "slave": "cos", "ack": rng.random() < 0.5})
     cycle = 20.0 if bitrate < 500_000 else 10.0
     nodes.insert(0, {"name": "m", "profile": "master", "cycle_ms": cycle, "timeout_ms": cycle, "poll": poll})
@@ -141,16 +189,24 @@ def random_network(rng: random.Random, *, shared: bool = False) -> dict:
             msgs = []
             for j in range(rng.randint(1, 3)):
                 dlc = rng.randint(0, 8)
-                msgs.append({"name": f"e{k}{j}", "id": rng.choice([rng.randrange(0x001, 0x300),
-                                                                    rng.randrange(0x600, 0x7F0)]),
-                             "dlc": dlc, "period_ms": rng.choice([5, 10, 20]) * 1_000_000 / bitrate,
-                             "offset_ms": rng.uniform(0, 3), "jitter_ms": rng.choice([0, 0.5])})
+                msgs.append(
+                    {
+                        "name": f"e{k}{j}",
+                        "id": rng.choice([rng.randrange(0x001, 0x300), rng.randrange(0x600, 0x7F0)]),
+                        "dlc": dlc,
+                        "period_ms": rng.choice([5, 10, 20]) * 1_000_000 / bitrate,
+                        "offset_ms": rng.uniform(0, 3),
+                        "jitter_ms": rng.choice([0, 0.5]),
+                    }
+                )
             nodes.append({"name": f"ecu{k}", "messages": msgs})
         ids = set()
         for nd in nodes:  # drop random identifiers that collide
             nd["messages"] = [m for m in nd.get("messages", []) if not (m["id"] in ids or ids.add(m["id"]))]
-    return {"bus": {"bitrate": bitrate, "duration": 0.25 if bitrate >= 500_000 else 0.5, "seed": rng.randrange(99)},
-            "nodes": nodes}
+    return {
+        "bus": {"bitrate": bitrate, "duration": 0.25 if bitrate >= 500_000 else 0.5, "seed": rng.randrange(99)},
+        "nodes": nodes,
+    }
 
 
 def test_the_simulated_cycle_never_exceeds_the_worst_case_alone_on_the_bus():
@@ -210,10 +266,12 @@ def test_the_mixed_example_is_bounded_by_the_analysis_not_by_frame_lengths():
         assert row["response_ms"]["max"] <= row["rta_ms"]
     worst = max(m["transactions"], key=lambda t: t["response_ms_max"])
     readme = (EXAMPLES.parent / "README.md").read_text(encoding="utf-8")
-    assert (f"the frame-length bound ({m['chain_bound_ms']:.3f} ms) no longer applies and `master_slave` says so; the\n"
-            f"measured cycle reaches {m['cycle_ms']['max']:.3f} ms against the analysis' {m['cycle_bound_ms']:.3f} ms, "
-            f"the slowest transaction {worst['response_ms_max']:.3f} ms\n"
-            f"against {worst['rta_bound_ms']:.3f} ms") in readme
+    assert (
+        f"the frame-length bound ({m['chain_bound_ms']:.3f} ms) no longer applies and `master_slave` says so; the\n"
+        f"measured cycle reaches {m['cycle_ms']['max']:.3f} ms against the analysis' {m['cycle_bound_ms']:.3f} ms, "
+        f"the slowest transaction {worst['response_ms_max']:.3f} ms\n"
+        f"against {worst['rta_bound_ms']:.3f} ms"
+    ) in readme
 
 
 def test_an_overrun_is_reported_and_the_next_cycle_starts_at_once():
@@ -319,8 +377,14 @@ def test_a_master_restarts_after_its_controller_recovers_and_the_slaves_see_it_b
 
 def test_change_of_state_without_acknowledgement():
     raw = network()
-    raw["nodes"].append({"name": "door", "profile": "slave", "mac_id": 9,
-                         "messages": [{"name": "door_cos", "id": 0x349, "dlc": 1, "period_ms": 1}]})
+    raw["nodes"].append(
+        {
+            "name": "door",
+            "profile": "slave",
+            "mac_id": 9,
+            "messages": [{"name": "door_cos", "id": 0x349, "dlc": 1, "period_ms": 1}],
+        }
+    )
     raw["nodes"][0]["poll"].append({"style": "cos", "slave": "door", "ack": False})
     res, ms = run(raw)
     assert "ack_door" not in {r["name"] for r in res.to_json()["messages"]}
@@ -348,15 +412,16 @@ def test_the_wall_clock_example_runs_on_python_cans_virtual_bus():
     assert res.driver.startswith("virtual") and ms["masters"]["scanner"]["cycles"] >= 10
     for s in ms["slaves"].values():
         assert s["polls"] >= 10 and s["responses"] >= s["polls"] - 1 and not s["lost"]
-        assert 0 < s["response_ms"]["min"]
+        assert s["response_ms"]["min"] > 0
 
 
 def test_plot_of_the_poll_cycle(tmp_path):
     pytest.importorskip("matplotlib")
     from tests.profiles.test_experiment_cli import canstack
 
-    out = canstack("experiment", str(EXAMPLES / "master_slave.toml"), "--plot", str(tmp_path), "--duration", "0.32",
-                   "--json")
+    out = canstack(
+        "experiment", str(EXAMPLES / "master_slave.toml"), "--plot", str(tmp_path), "--duration", "0.32", "--json"
+    )
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "poll_cycle.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the cycles of the plot window ([plot] window_ms = [290, 320]): valve2 unplugged at 300 ms
@@ -381,15 +446,19 @@ def test_the_readmes_comparison_table_is_what_the_two_examples_measure():
     for i in range(1, 9):
         t, s = tx[f"io{i}"], ms["master_slave"]["slaves"][f"io{i}"]
         out, inp = rows[f"out{i}"], rows[f"in{i}"]
-        want = (f"| io{i} | {t['request_end_ms_max']:.3f} ({t['request_end_bound_ms']:.3f}) | "
-                f"{t['response_ms_max']:.3f} ({t['bound_ms']:.3f}) | {s['jitter_ms']:.3f} | "
-                f"{out['response_ms']['max']:.3f} ({out['rta_ms']:.3f}) | "
-                f"{inp['response_ms']['max']:.3f} ({inp['rta_ms']:.3f}) | {inp['jitter_ms']:.3f} |")
+        want = (
+            f"| io{i} | {t['request_end_ms_max']:.3f} ({t['request_end_bound_ms']:.3f}) | "
+            f"{t['response_ms_max']:.3f} ({t['bound_ms']:.3f}) | {s['jitter_ms']:.3f} | "
+            f"{out['response_ms']['max']:.3f} ({out['rta_ms']:.3f}) | "
+            f"{inp['response_ms']['max']:.3f} ({inp['rta_ms']:.3f}) | {inp['jitter_ms']:.3f} |"
+        )
         assert want in readme
     m = ms["master_slave"]["masters"]["plc"]
     last = max(r["response_ms"]["max"] for r in cs["messages"])
     bound = max(r["rta_ms"] for r in cs["messages"])
-    assert (f"| **all 16 frames of a period** | **{m['cycle_ms']['max']:.3f} ({m['cycle_bound_ms']:.3f})** | | | "
-            f"**{last:.3f} ({bound:.3f})** | | |") in readme
+    assert (
+        f"| **all 16 frames of a period** | **{m['cycle_ms']['max']:.3f} ({m['cycle_bound_ms']:.3f})** | | | "
+        f"**{last:.3f} ({bound:.3f})** | | |"
+    ) in readme
     assert ms["frames"] == cs["frames"] == 6400
     assert f"**{100 * ms['bus_load']:.1f} %, 6400**" in readme and round(ms["bus_load"], 4) == round(cs["bus_load"], 4)

@@ -9,23 +9,41 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from profiles.analysis.rta import (ErrorModel, MessageSpec, RtaResult, analyse, analyse_1994,
-                                   frame_bits_worst, utilisation)
+from profiles.analysis.rta import (
+    ErrorModel,
+    MessageSpec,
+    RtaResult,
+    analyse,
+    analyse_1994,
+    frame_bits_worst,
+    utilisation,
+)
 from stack import Frame
 
 MS = 1_000_000  # ns
 US = 1_000
 
 
-def msg(name: str, can_id: int, dlc: int, period_ns: int, deadline_ns: int | None = None, *,
-        extended: bool = False, jitter_ns: int = 0) -> MessageSpec:
-    return MessageSpec(name, can_id, extended, dlc, period_ns,
-                       period_ns if deadline_ns is None else deadline_ns, jitter_ns)
+def msg(
+    name: str,
+    can_id: int,
+    dlc: int,
+    period_ns: int,
+    deadline_ns: int | None = None,
+    *,
+    extended: bool = False,
+    jitter_ns: int = 0,
+) -> MessageSpec:
+    return MessageSpec(
+        name, can_id, extended, dlc, period_ns, period_ns if deadline_ns is None else deadline_ns, jitter_ns
+    )
 
 
 # --- C: the worst-case frame length -------------------------------------------------------------
+
 
 def _stack_worst_case_length():
     """`stack`'s worst-case stuffed length SOF..EOF, wherever the restructuring put it."""
@@ -98,10 +116,13 @@ def test_no_real_frame_is_longer_than_the_worst_case(std_id, ext_id, extended, d
 #   2 + ceil(3.008/2.5) = 4 -> 4, R(1) = 4 - 3.5 + 1 = 1.5 ms. R_B = 3 ms.
 # Message A (B_A = 1 ms, no hp): w = 1, R = 2 ms; busy period 1 -> 1 + 1 = 2 -> 2, Q = 1.
 
+
 def paper_example(deadline_bc: int = 3_250 * US) -> list[MessageSpec]:
-    return [msg("A", 0x001, 7, 2_500 * US),
-            msg("B", 0x002, 7, 3_500 * US, deadline_bc),
-            msg("C", 0x003, 7, 3_500 * US, deadline_bc)]
+    return [
+        msg("A", 0x001, 7, 2_500 * US),
+        msg("B", 0x002, 7, 3_500 * US, deadline_bc),
+        msg("C", 0x003, 7, 3_500 * US, deadline_bc),
+    ]
 
 
 def test_paper_example_1994_analysis_is_optimistic():
@@ -150,6 +171,7 @@ def test_deadline_beyond_the_period():
 
 # --- small hand-worked cases --------------------------------------------------------------------
 
+
 def test_single_message_alone_responds_in_c():
     # 8 bytes standard at 500 kbit/s: 135 bits x 2 us = 270 us; no blocking, no interference.
     r = analyse([msg("only", 0x100, 8, 10 * MS)], 500_000)["only"]
@@ -181,8 +203,13 @@ def test_jitter_of_higher_priority_and_own_jitter():
     #    -> ceil(1342/1000) = 2 -> 540.  R_L = J_L + w + C_L = 100 + 540 + 320 = 960 us.
     #    busy period t = ceil((t + 800)/1000)·270 + ceil((t + 100)/20000)·320 from 320:
     #    320 -> 2·270 + 320 = 860 -> ceil(1660/1000) = 2 -> 860; Q = ceil((860 + 100)/20000) = 1.
-    res = analyse([msg("H", 0x100, 8, 1 * MS, jitter_ns=800 * US),
-                   msg("L", 0x200 << 18, 8, 20 * MS, extended=True, jitter_ns=100 * US)], 500_000)
+    res = analyse(
+        [
+            msg("H", 0x100, 8, 1 * MS, jitter_ns=800 * US),
+            msg("L", 0x200 << 18, 8, 20 * MS, extended=True, jitter_ns=100 * US),
+        ],
+        500_000,
+    )
     assert res["L"].busy_period_ns == 860 * US
     assert res["L"].instances == 1
     assert res["L"].queuing_delays_ns == (540 * US,)
@@ -200,6 +227,7 @@ def test_standard_beats_extended_with_the_same_base_identifier():
 
 
 # --- the error model ----------------------------------------------------------------------------
+
 
 def test_error_model_overhead_single_message():
     # One message, 8 bytes standard at 500 kbit/s: C = 270 us, tau = 2 us, T = 10 ms,
@@ -243,6 +271,7 @@ def test_error_overhead_saturating_the_bus_is_unbounded():
 
 # --- overload -----------------------------------------------------------------------------------
 
+
 def test_overload_is_unbounded_and_terminates():
     # Three 1 ms frames (7 bytes at 125 kbit/s) every 2 ms: utilisation 1.5.
     spec = [msg(f"m{i}", 0x10 + i, 7, 2 * MS) for i in range(3)]
@@ -279,16 +308,33 @@ def message_sets(draw, min_size: int = 1, max_size: int = 6):
     for i, can_id in enumerate(ids):
         extended = draw(st.booleans())
         period_bits = draw(st.integers(200, 20_000))
-        out.append(dict(name=f"m{i}", can_id=(can_id << 18) if extended else can_id, extended=extended,
-                        dlc=draw(st.integers(0, 8)), period_bits=period_bits,
-                        deadline_bits=draw(st.integers(100, 2 * period_bits)),
-                        jitter_bits=draw(st.integers(0, period_bits // 2))))
+        out.append(
+            dict(
+                name=f"m{i}",
+                can_id=(can_id << 18) if extended else can_id,
+                extended=extended,
+                dlc=draw(st.integers(0, 8)),
+                period_bits=period_bits,
+                deadline_bits=draw(st.integers(100, 2 * period_bits)),
+                jitter_bits=draw(st.integers(0, period_bits // 2)),
+            )
+        )
     return out
 
 
 def specs(raw, tau_ns: int) -> list[MessageSpec]:
-    return [MessageSpec(m["name"], m["can_id"], m["extended"], m["dlc"], m["period_bits"] * tau_ns,
-                        m["deadline_bits"] * tau_ns, m["jitter_bits"] * tau_ns) for m in raw]
+    return [
+        MessageSpec(
+            m["name"],
+            m["can_id"],
+            m["extended"],
+            m["dlc"],
+            m["period_bits"] * tau_ns,
+            m["deadline_bits"] * tau_ns,
+            m["jitter_bits"] * tau_ns,
+        )
+        for m in raw
+    ]
 
 
 def inf_if_none(x: float | None) -> float:
@@ -305,8 +351,9 @@ def test_adding_a_message_never_decreases_any_response(raw, data):
     tau = TAU_NS[500_000]
     used = {m["can_id"] for m in raw if not m["extended"]}
     new_id = data.draw(st.integers(0, 0x7FF).filter(lambda i: i not in used))
-    extra = MessageSpec("new", new_id, False, data.draw(st.integers(0, 8)),
-                        data.draw(st.integers(200, 20_000)) * tau, 10**9)
+    extra = MessageSpec(
+        "new", new_id, False, data.draw(st.integers(0, 8)), data.draw(st.integers(200, 20_000)) * tau, 10**9
+    )
     before = analyse(specs(raw, tau), 500_000)
     after = analyse(specs(raw, tau) + [extra], 500_000)
     for name, r in before.items():
@@ -369,6 +416,7 @@ def test_lowest_priority_message_has_no_blocking_and_order_is_arbitration_order(
     assert results[-1].blocking_ns == 0
     by_name = {m["name"]: m for m in raw}
     from stack import arbitration_key
+
     keys = [arbitration_key(by_name[r.name]["can_id"], by_name[r.name]["extended"], False) for r in results]
     assert keys == sorted(keys)
 
@@ -378,17 +426,20 @@ def test_lowest_priority_message_has_no_blocking_and_order_is_arbitration_order(
 GOOD = msg("good", 0x100, 8, 10 * MS)
 
 
-@pytest.mark.parametrize("change, words", [
-    (dict(period_ns=0), ["'bad'", "period_ns 0"]),
-    (dict(period_ns=-5), ["'bad'", "period_ns -5"]),
-    (dict(deadline_ns=0), ["'bad'", "deadline_ns 0"]),
-    (dict(jitter_ns=-1), ["'bad'", "jitter_ns -1"]),
-    (dict(dlc=16), ["'bad'", "dlc 16"]),
-    (dict(dlc=-1), ["'bad'", "dlc -1"]),
-    (dict(can_id=0x800), ["'bad'", "can_id 2048"]),
-    (dict(can_id=0x20000000, extended=True), ["'bad'", "can_id 536870912"]),
-    (dict(period_ns=1.5), ["'bad'", "period_ns 1.5"]),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (dict(period_ns=0), ["'bad'", "period_ns 0"]),
+        (dict(period_ns=-5), ["'bad'", "period_ns -5"]),
+        (dict(deadline_ns=0), ["'bad'", "deadline_ns 0"]),
+        (dict(jitter_ns=-1), ["'bad'", "jitter_ns -1"]),
+        (dict(dlc=16), ["'bad'", "dlc 16"]),
+        (dict(dlc=-1), ["'bad'", "dlc -1"]),
+        (dict(can_id=0x800), ["'bad'", "can_id 2048"]),
+        (dict(can_id=0x20000000, extended=True), ["'bad'", "can_id 536870912"]),
+        (dict(period_ns=1.5), ["'bad'", "period_ns 1.5"]),
+    ],
+)
 def test_bad_message_is_refused_naming_message_and_value(change, words):
     bad = dataclasses.replace(GOOD, **{"name": "bad", "can_id": 0x200, **change})
     with pytest.raises(ValueError) as exc:

@@ -24,8 +24,10 @@ def _scenario(messages_by_node, *, bitrate=500_000, duration=0.2, seed=1, analys
     node_kw.pop("record", None)
     nodes = dict(messages_by_node)
     nodes.setdefault("rx", [])
-    raw = {"bus": {"bitrate": bitrate, "duration": duration, "seed": seed},
-           "nodes": [dict({"name": n, "messages": ms}, **node_kw.get(n, {})) for n, ms in nodes.items()]}
+    raw = {
+        "bus": {"bitrate": bitrate, "duration": duration, "seed": seed},
+        "nodes": [dict({"name": n, "messages": ms}, **node_kw.get(n, {})) for n, ms in nodes.items()],
+    }
     if analysis:
         raw["analysis"] = analysis
     if faults:
@@ -43,8 +45,10 @@ def test_synchronous_release_meets_the_exact_analysis_for_the_lowest_priority_me
     nanosecond, less the 3-bit intermission the analysis counts in C and the simulation does not
     (it measures to the end of EOF)."""
     periods = [1, 2, 2, 4, 5, 5, 10]
-    msgs = {f"n{i}": [{"name": f"m{i}", "id": 0x100 + 0x10 * i, "dlc": 8, "period_ms": p, "data": "55" * 8}]
-            for i, p in enumerate(periods)}
+    msgs = {
+        f"n{i}": [{"name": f"m{i}", "id": 0x100 + 0x10 * i, "dlc": 8, "period_ms": p, "data": "55" * 8}]
+        for i, p in enumerate(periods)
+    }
     res = run_scenario(_scenario(msgs, analysis={"stuffing": "exact"}))
     rows = _rows(res)
     low = rows["m6"]
@@ -64,13 +68,18 @@ def test_simulated_worst_cases_never_exceed_the_analysis_on_random_networks():
         for i, can_id in enumerate(ids):
             period = rng.choice([2, 2.5, 4, 5, 10, 20])
             dlc = rng.randint(0, 8)
-            nodes.setdefault(f"n{i % rng.randint(2, 5)}", []).append({
-                "name": f"m{i}", "id": can_id, "dlc": dlc, "period_ms": period,
-                "offset_ms": rng.choice([0, 0, rng.uniform(0, period)]),
-                "jitter_ms": rng.choice([0, rng.uniform(0, period / 3)]),
-                "data": bytes(rng.randrange(256) for _ in range(dlc)).hex()})
-        res = run_scenario(_scenario(nodes, bitrate=rng.choice([125_000, 250_000, 500_000]), duration=0.3,
-                                     seed=seed))
+            nodes.setdefault(f"n{i % rng.randint(2, 5)}", []).append(
+                {
+                    "name": f"m{i}",
+                    "id": can_id,
+                    "dlc": dlc,
+                    "period_ms": period,
+                    "offset_ms": rng.choice([0, 0, rng.uniform(0, period)]),
+                    "jitter_ms": rng.choice([0, rng.uniform(0, period / 3)]),
+                    "data": bytes(rng.randrange(256) for _ in range(dlc)).hex(),
+                }
+            )
+        res = run_scenario(_scenario(nodes, bitrate=rng.choice([125_000, 250_000, 500_000]), duration=0.3, seed=seed))
         for r in res.to_json()["messages"]:
             if r["rta_ms"] is None or r["response_ms"] is None:
                 continue
@@ -137,8 +146,10 @@ def test_release_jitter_stays_within_its_bound_and_the_nominal_times_do_not_drif
 def test_a_drifting_node_releases_on_its_own_clock():
     """+1000 ppm: in 1 s of bus time the node's clock counts 1.001 s, so a 10 ms message is
     released 101 times (local 0..1000 ms) instead of 100."""
-    msgs = {"fast": [{"name": "f", "id": 0x100, "dlc": 1, "period_ms": 10}],
-            "exact": [{"name": "e", "id": 0x200, "dlc": 1, "period_ms": 10}]}
+    msgs = {
+        "fast": [{"name": "f", "id": 0x100, "dlc": 1, "period_ms": 10}],
+        "exact": [{"name": "e", "id": 0x200, "dlc": 1, "period_ms": 10}],
+    }
     res = run_scenario(_scenario(msgs, duration=1.0, fast={"drift_ppm": 1000}))
     rows = _rows(res)
     assert (rows["f"]["released"], rows["e"]["released"]) == (101, 100)
@@ -148,8 +159,9 @@ def test_instances_that_cannot_keep_up_are_deadline_misses():
     """A message whose period (0.5 ms) is shorter than its own frame (8 zero bytes at 125 kbit/s:
     about 1 ms) piles up in its queue: every instance ends after its deadline or is still
     waiting past it at the end, and the analysis finds the load above 1."""
-    res = run_scenario(_scenario({"hog": [{"name": "hog", "id": 0x001, "dlc": 8, "period_ms": 0.5}]},
-                                 bitrate=125_000, duration=0.2))
+    res = run_scenario(
+        _scenario({"hog": [{"name": "hog", "id": 0x001, "dlc": 8, "period_ms": 0.5}]}, bitrate=125_000, duration=0.2)
+    )
     row = _rows(res)["hog"]
     assert row["released"] == 400 and row["sent"] < row["released"] / 1.9
     assert row["deadline_misses"] >= row["released"] - 1
@@ -158,8 +170,10 @@ def test_instances_that_cannot_keep_up_are_deadline_misses():
 
 
 def test_faults_are_injected_and_receptions_counted_from_what_receivers_accepted():
-    msgs = {"a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 1}],
-            "b": [{"name": "mb", "id": 0x200, "dlc": 8, "period_ms": 1}]}
+    msgs = {
+        "a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 1}],
+        "b": [{"name": "mb", "id": 0x200, "dlc": 8, "period_ms": 1}],
+    }
     sc = _scenario(msgs, duration=0.5, faults=[{"kind": "bit_errors", "rate": 2e-3}])
     res = run_scenario(sc)
     assert res.error_frames > 0 and res.trace
@@ -170,19 +184,30 @@ def test_faults_are_injected_and_receptions_counted_from_what_receivers_accepted
 
 def test_application_hooks_run_before_the_start(tmp_path, monkeypatch):
     mod = tmp_path / "app_for_test.py"
-    mod.write_text("def setup(node, profile, context):\n"
-                   "    profile.set_data('m', bytes([0xAB]))\n"
-                   "    context.recorder.tracks['m'].decl.options['touched'] = True\n")
+    mod.write_text(
+        "def setup(node, profile, context):\n"
+        "    profile.set_data('m', bytes([0xAB]))\n"
+        "    context.recorder.tracks['m'].decl.options['touched'] = True\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
-    sc = _scenario({"a": [{"name": "m", "id": 0x100, "dlc": 1, "period_ms": 10}]}, duration=0.05,
-                   a={"app": "app_for_test:setup"}, record=None)
+    sc = _scenario(
+        {"a": [{"name": "m", "id": 0x100, "dlc": 1, "period_ms": 10}]},
+        duration=0.05,
+        a={"app": "app_for_test:setup"},
+        record=None,
+    )
     res = run_scenario(sc, record=True)
     assert res.trace[0].frame.data == b"\xab" and res.tracks["m"].decl.options["touched"]
 
 
 def test_the_same_scenario_runs_on_python_cans_virtual_bus():
-    sc = _scenario({"a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 10}],
-                    "b": [{"name": "mb", "id": 0x200, "dlc": 4, "period_ms": 20}]}, bitrate=500_000)
+    sc = _scenario(
+        {
+            "a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 10}],
+            "b": [{"name": "mb", "id": 0x200, "dlc": 4, "period_ms": 20}],
+        },
+        bitrate=500_000,
+    )
     res = run_on_pycan(sc, "virtual", f"runner-test-{random.random()}", duration_s=0.5)
     rows = _rows(res)
     assert res.driver.startswith("virtual")
@@ -198,8 +223,13 @@ def test_the_same_scenario_runs_on_python_cans_virtual_bus():
 def test_the_same_scenario_runs_through_canstack_serve():
     from stack.io.serve import BusServer
 
-    sc = _scenario({"a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 10}],
-                    "b": [{"name": "mb", "id": 0x200, "dlc": 4, "period_ms": 20}]}, bitrate=500_000)
+    sc = _scenario(
+        {
+            "a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 10}],
+            "b": [{"name": "mb", "id": 0x200, "dlc": 4, "period_ms": 20}],
+        },
+        bitrate=500_000,
+    )
     with BusServer(500_000, name="runner", listen=("127.0.0.1", 0)) as server:
         res = run_on_pycan(sc, "canstack", server.url, duration_s=0.6)
     rows = _rows(res)
@@ -215,8 +245,9 @@ def test_the_same_scenario_runs_through_canstack_serve():
 def test_faults_are_refused_on_a_python_can_bus():
     from profiles.scenario import ScenarioError
 
-    sc = _scenario({"a": [{"name": "m", "id": 1, "dlc": 0, "period_ms": 1}]},
-                   faults=[{"kind": "never_ack", "node": "a"}])
+    sc = _scenario(
+        {"a": [{"name": "m", "id": 1, "dlc": 0, "period_ms": 1}]}, faults=[{"kind": "never_ack", "node": "a"}]
+    )
     with pytest.raises(ScenarioError, match="need the simulated bus"):
         run_on_pycan(sc, "virtual", "x")
 
@@ -235,6 +266,21 @@ def test_result_json_has_the_documented_keys():
     data = json.loads(json.dumps(res.to_json()))
     assert {"bus_load", "duration", "frames", "error_frames", "messages"} <= set(data)
     row = data["messages"][0]
-    assert {"name", "node", "id", "extended", "dlc", "period_ms", "deadline_ms", "released", "sent", "received",
-            "response_ms", "jitter_ms", "deadline_misses", "rta_ms", "schedulable"} <= set(row)
+    assert {
+        "name",
+        "node",
+        "id",
+        "extended",
+        "dlc",
+        "period_ms",
+        "deadline_ms",
+        "released",
+        "sent",
+        "received",
+        "response_ms",
+        "jitter_ms",
+        "deadline_misses",
+        "rta_ms",
+        "schedulable",
+    } <= set(row)
     assert set(row["response_ms"]) == {"min", "mean", "p99", "max"}

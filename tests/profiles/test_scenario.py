@@ -12,12 +12,32 @@ from profiles.scenario import ScenarioError, load_scenario, parse_scenario
 BASE = {
     "bus": {"bitrate": 500000, "duration": 1.0, "seed": 3},
     "nodes": [
-        {"name": "engine", "queue": "priority",
-         "messages": [{"name": "EngineData", "id": 0x100, "dlc": 8, "period_ms": 10},
-                      {"name": "EngineTemp", "id": 0x300, "dlc": 4, "period_ms": 100, "offset_ms": 2.5}]},
-        {"name": "body", "queue": "mailboxes-abort:2", "drift_ppm": 150,
-         "messages": [{"name": "Doors", "id": 0x18FEF100, "extended": True, "dlc": 2, "sporadic_ms": 20,
-                       "mean_ms": 50, "jitter_ms": 1, "deadline_ms": 5, "data": "0102"}]},
+        {
+            "name": "engine",
+            "queue": "priority",
+            "messages": [
+                {"name": "EngineData", "id": 0x100, "dlc": 8, "period_ms": 10},
+                {"name": "EngineTemp", "id": 0x300, "dlc": 4, "period_ms": 100, "offset_ms": 2.5},
+            ],
+        },
+        {
+            "name": "body",
+            "queue": "mailboxes-abort:2",
+            "drift_ppm": 150,
+            "messages": [
+                {
+                    "name": "Doors",
+                    "id": 0x18FEF100,
+                    "extended": True,
+                    "dlc": 2,
+                    "sporadic_ms": 20,
+                    "mean_ms": 50,
+                    "jitter_ms": 1,
+                    "deadline_ms": 5,
+                    "data": "0102",
+                }
+            ],
+        },
     ],
 }
 
@@ -54,35 +74,48 @@ def test_a_good_scenario_reads_into_typed_declarations():
     assert doors.id_text == "0x18FEF100"
 
 
-@pytest.mark.parametrize("path,value,expected", [
-    ("bus.bitrate", 2_000_000, "good.toml: [bus]: bitrate: 2000000 is outside 1000..1000000 (a CAN 2.0 bus runs"),
-    ("bus.bitrate", "500k", "good.toml: [bus]: bitrate: '500k' is a string, expected an integer"),
-    ("bus.bitrate", True, "good.toml: [bus]: bitrate: True is a boolean, expected an integer"),
-    ("bus.duration", 0, "good.toml: [bus]: duration: 0 must be > 0"),
-    ("bus.colour", "red", "good.toml: [bus]: unknown key 'colour' (allowed: bitrate, duration, seed)"),
-    ("bus", _DELETE, "good.toml: top level: key 'bus' is required"),
-    ("nodes.0.queue", "lifo", "good.toml: [[nodes]] #1 'engine': queue: 'lifo' is not one of 'priority', 'fifo'"),
-    ("nodes.0.queue", "mailboxes:0", "'mailboxes:N', 'mailboxes-abort:N' (N >= 1 transmit mailboxes)"),
-    ("nodes.0.profile", "token-ring", "[[nodes]] #1 'engine': profile: 'token-ring' is not one of "),
-    ("nodes.1.name", "engine", "[[nodes]] #2 'engine': name: 'engine' is already the name of node #1"),
-    ("nodes.0.name", "my engine", "name: 'my engine': a node name is non-empty, without spaces"),
-    ("nodes.1.drift_ppm", 2e6, "drift_ppm: 2000000.0 is outside -100000..100000"),
-    ("nodes.0.messages.0.dlc", 9,
-     "good.toml: [[nodes]] #1 'engine' > [[nodes.messages]] #1 'EngineData': dlc: 9 is outside 0..8"),
-    ("nodes.0.messages.0.id", 0x800, "[[nodes.messages]] #1 'EngineData': id: 0x800 is not a standard (11-bit) "
-                                     "identifier 0..0x7FF"),
-    ("nodes.0.messages.0.period_ms", 0, "[[nodes.messages]] #1 'EngineData': period_ms: 0 must be > 0 (a period)"),
-    ("nodes.0.messages.0.period_ms", _DELETE, "key 'period_ms' or 'sporadic_ms' is required"),
-    ("nodes.0.messages.0.sporadic_ms", 5, "give period_ms (periodic) or sporadic_ms (sporadic), not both"),
-    ("nodes.0.messages.0.jitter_ms", 10, "jitter_ms: 10 must be below the period 10 ms"),
-    ("nodes.0.messages.0.data", "0102", "data: 2 bytes given for dlc 8"),
-    ("nodes.0.messages.0.data", "zz", "data: 'zz' is not hex bytes"),
-    ("nodes.0.messages.0.prio", 1, "unknown key 'prio'"),
-    ("nodes.0.messages.1.id", 0x100, "[[nodes.messages]] 'EngineTemp': id: 0x100 is already used by message "
-                                     "'EngineData': two senders of one identifier collide"),
-    ("nodes.0.messages.1.name", "EngineData", "name: 'EngineData' is already a message of node 'engine'"),
-    ("nodes.1.messages.0.mean_ms", 10, "mean_ms: 10 is below the minimum inter-arrival sporadic_ms 20"),
-])
+@pytest.mark.parametrize(
+    "path,value,expected",
+    [
+        ("bus.bitrate", 2_000_000, "good.toml: [bus]: bitrate: 2000000 is outside 1000..1000000 (a CAN 2.0 bus runs"),
+        ("bus.bitrate", "500k", "good.toml: [bus]: bitrate: '500k' is a string, expected an integer"),
+        ("bus.bitrate", True, "good.toml: [bus]: bitrate: True is a boolean, expected an integer"),
+        ("bus.duration", 0, "good.toml: [bus]: duration: 0 must be > 0"),
+        ("bus.colour", "red", "good.toml: [bus]: unknown key 'colour' (allowed: bitrate, duration, seed)"),
+        ("bus", _DELETE, "good.toml: top level: key 'bus' is required"),
+        ("nodes.0.queue", "lifo", "good.toml: [[nodes]] #1 'engine': queue: 'lifo' is not one of 'priority', 'fifo'"),
+        ("nodes.0.queue", "mailboxes:0", "'mailboxes:N', 'mailboxes-abort:N' (N >= 1 transmit mailboxes)"),
+        ("nodes.0.profile", "token-ring", "[[nodes]] #1 'engine': profile: 'token-ring' is not one of "),
+        ("nodes.1.name", "engine", "[[nodes]] #2 'engine': name: 'engine' is already the name of node #1"),
+        ("nodes.0.name", "my engine", "name: 'my engine': a node name is non-empty, without spaces"),
+        ("nodes.1.drift_ppm", 2e6, "drift_ppm: 2000000.0 is outside -100000..100000"),
+        (
+            "nodes.0.messages.0.dlc",
+            9,
+            "good.toml: [[nodes]] #1 'engine' > [[nodes.messages]] #1 'EngineData': dlc: 9 is outside 0..8",
+        ),
+        (
+            "nodes.0.messages.0.id",
+            0x800,
+            "[[nodes.messages]] #1 'EngineData': id: 0x800 is not a standard (11-bit) identifier 0..0x7FF",
+        ),
+        ("nodes.0.messages.0.period_ms", 0, "[[nodes.messages]] #1 'EngineData': period_ms: 0 must be > 0 (a period)"),
+        ("nodes.0.messages.0.period_ms", _DELETE, "key 'period_ms' or 'sporadic_ms' is required"),
+        ("nodes.0.messages.0.sporadic_ms", 5, "give period_ms (periodic) or sporadic_ms (sporadic), not both"),
+        ("nodes.0.messages.0.jitter_ms", 10, "jitter_ms: 10 must be below the period 10 ms"),
+        ("nodes.0.messages.0.data", "0102", "data: 2 bytes given for dlc 8"),
+        ("nodes.0.messages.0.data", "zz", "data: 'zz' is not hex bytes"),
+        ("nodes.0.messages.0.prio", 1, "unknown key 'prio'"),
+        (
+            "nodes.0.messages.1.id",
+            0x100,
+            "[[nodes.messages]] 'EngineTemp': id: 0x100 is already used by message "
+            "'EngineData': two senders of one identifier collide",
+        ),
+        ("nodes.0.messages.1.name", "EngineData", "name: 'EngineData' is already a message of node 'engine'"),
+        ("nodes.1.messages.0.mean_ms", 10, "mean_ms: 10 is below the minimum inter-arrival sporadic_ms 20"),
+    ],
+)
 def test_each_broken_rule_is_named(path, value, expected):
     with pytest.raises(ScenarioError) as err:
         parse_scenario(_with(path, value), "good.toml")
@@ -90,16 +123,25 @@ def test_each_broken_rule_is_named(path, value, expected):
     assert str(err.value).startswith("good.toml: ")
 
 
-@pytest.mark.parametrize("fault,expected", [
-    ({"kind": "lightning"}, "[[faults]] #1: kind: 'lightning' is not one of 'bit_errors', 'flip'"),
-    ({"kind": "bit_errors", "rate": 0.9}, "[[faults]] #1: rate: 0.9 is outside 0..0.5 (a bit-error rate)"),
-    ({"kind": "bit_errors"}, "[[faults]] #1: key 'rate' is required"),
-    ({"kind": "disconnect", "node": "gateway", "at_ms": 5}, "node: 'gateway' is not a node of this scenario"),
-    ({"kind": "disconnect", "node": "body", "at_ms": 5, "reconnect_ms": 5}, "reconnect_ms: 5 must be after at_ms 5"),
-    ({"kind": "stuck", "node": "body", "level": "high"}, "level: 'high' is not one of 'dominant', 'recessive'"),
-    ({"kind": "bit_errors", "rate": 1e-4, "nodes": ["ghost"]}, "nodes: 'ghost' is not a node of this scenario"),
-    ({"kind": "babbling_idiot", "node": "body", "data": "00" * 9}, "data: 9 bytes: a CAN 2.0 frame carries at most 8"),
-])
+@pytest.mark.parametrize(
+    "fault,expected",
+    [
+        ({"kind": "lightning"}, "[[faults]] #1: kind: 'lightning' is not one of 'bit_errors', 'flip'"),
+        ({"kind": "bit_errors", "rate": 0.9}, "[[faults]] #1: rate: 0.9 is outside 0..0.5 (a bit-error rate)"),
+        ({"kind": "bit_errors"}, "[[faults]] #1: key 'rate' is required"),
+        ({"kind": "disconnect", "node": "gateway", "at_ms": 5}, "node: 'gateway' is not a node of this scenario"),
+        (
+            {"kind": "disconnect", "node": "body", "at_ms": 5, "reconnect_ms": 5},
+            "reconnect_ms: 5 must be after at_ms 5",
+        ),
+        ({"kind": "stuck", "node": "body", "level": "high"}, "level: 'high' is not one of 'dominant', 'recessive'"),
+        ({"kind": "bit_errors", "rate": 1e-4, "nodes": ["ghost"]}, "nodes: 'ghost' is not a node of this scenario"),
+        (
+            {"kind": "babbling_idiot", "node": "body", "data": "00" * 9},
+            "data: 9 bytes: a CAN 2.0 frame carries at most 8",
+        ),
+    ],
+)
 def test_fault_tables_are_checked(fault, expected):
     raw = copy.deepcopy(BASE)
     raw["faults"] = [fault]

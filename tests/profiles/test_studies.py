@@ -17,12 +17,23 @@ from profiles import registry
 from profiles.analysis.rta import frame_bits_worst, utilisation
 from profiles.runner import run_scenario
 from profiles.scenario import parse_scenario
-from profiles.studies import (PERIOD_RANGES_MS, MessageSet, StudyMessage, breakdown, converter_for, csma_scenario,
-                              generate_set, message_set_from_scenario, profiles_study, register_converter,
-                              schedulability_study, uunifast)
-
+from profiles.studies import (
+    PERIOD_RANGES_MS,
+    MessageSet,
+    StudyMessage,
+    breakdown,
+    converter_for,
+    csma_scenario,
+    generate_set,
+    message_set_from_scenario,
+    profiles_study,
+    register_converter,
+    schedulability_study,
+    uunifast,
+)
 
 # --- UUniFast and the generators ------------------------------------------------------------------
+
 
 def test_uunifast_sums_to_the_total_and_is_uniform_on_the_simplex():
     rng = random.Random(3)
@@ -42,10 +53,10 @@ def test_a_uunifast_set_meets_its_definition():
     s = generate_set(random.Random(11), messages=12, utilisation=0.7, per_node=3)
     msgs = s.messages
     assert len(msgs) == 12 and s.bitrate == 500_000
-    assert all(m.deadline_ns == m.period_ns for m in msgs)                            # deadlines = periods
+    assert all(m.deadline_ns == m.period_ns for m in msgs)  # deadlines = periods
     assert len({m.can_id for m in msgs}) == 12 and all(0 <= m.can_id <= 0x7FF for m in msgs)
     assert all(0 <= m.dlc <= 8 for m in msgs)
-    assert max(list(map(lambda n: sum(1 for m in msgs if m.node == n), s.nodes))) == 3
+    assert max([sum(1 for m in msgs if m.node == n) for n in s.nodes]) == 3
     lo, hi = PERIOD_RANGES_MS["uunifast"]
     assert all(lo * 1e6 <= m.period_ns <= hi * 1e6 for m in msgs)
     # the utilisation with worst-case frames (the analysis' own function): the target, never below it
@@ -68,8 +79,11 @@ def test_the_same_set_number_is_the_same_set_scaled():
 
 def test_random_priorities_keep_the_identifiers_as_drawn():
     sets = [generate_set(random.Random(k), messages=8, utilisation=0.5, priorities="random") for k in range(20)]
-    dm = sum(1 for s in sets if [m.can_id for m in sorted(s.messages, key=lambda m: m.period_ns)]
-             == sorted(m.can_id for m in s.messages))
+    dm = sum(
+        1
+        for s in sets
+        if [m.can_id for m in sorted(s.messages, key=lambda m: m.period_ns)] == sorted(m.can_id for m in s.messages)
+    )
     assert dm <= 1  # 8! orders: deadline-monotonic by chance is rare
 
 
@@ -77,8 +91,9 @@ def test_a_loguniform_set_has_log_uniform_periods_and_the_bit_rate_for_its_utili
     lo, hi = 10.0, 1000.0
     periods = []
     for k in range(60):
-        s = generate_set(random.Random(k), messages=10, utilisation=0.6, generator="loguniform",
-                         period_range_ms=(lo, hi))
+        s = generate_set(
+            random.Random(k), messages=10, utilisation=0.6, generator="loguniform", period_range_ms=(lo, hi)
+        )
         assert 1_000 <= s.bitrate <= 1_000_000
         u = utilisation(s.specs(), s.bitrate)
         assert 0.6 <= u < 0.6 * (1 + 1e-3)
@@ -93,15 +108,16 @@ def test_generator_errors_name_the_rule():
     with pytest.raises(ValueError, match="widen the range"):
         generate_set(random.Random(1), messages=10, utilisation=0.9, period_range_ms=(100.0, 101.0))
     with pytest.raises(ValueError, match="outside 1 kbit/s"):
-        generate_set(random.Random(1), messages=10, utilisation=0.1, generator="loguniform",
-                     period_range_ms=(0.01, 0.02))
+        generate_set(
+            random.Random(1), messages=10, utilisation=0.1, generator="loguniform", period_range_ms=(0.01, 0.02)
+        )
     with pytest.raises(ValueError, match="generator 'x'"):
         generate_set(random.Random(1), messages=3, utilisation=0.5, generator="x")
 
 
 def test_breakdown_is_the_fifty_percent_crossing():
-    assert breakdown([(0.5, 1.0), (0.7, 0.8), (0.9, 0.2)]) == pytest.approx(0.8)   # 0.7 + 0.2 * 0.3 / 0.6
-    assert breakdown([(0.5, 1.0), (0.7, 0.5), (0.9, 0.4)]) == pytest.approx(0.7)   # at 50 % exactly there
+    assert breakdown([(0.5, 1.0), (0.7, 0.8), (0.9, 0.2)]) == pytest.approx(0.8)  # 0.7 + 0.2 * 0.3 / 0.6
+    assert breakdown([(0.5, 1.0), (0.7, 0.5), (0.9, 0.4)]) == pytest.approx(0.7)  # at 50 % exactly there
     assert breakdown([(0.5, 1.0), (1.0, 0.9)]) is None
     assert breakdown([(0.5, 0.4), (1.0, 0.0)]) is None
 
@@ -138,7 +154,7 @@ def test_nothing_is_guaranteed_at_full_utilisation(study):
 def test_the_analysis_is_sufficient_set_by_set_and_point_by_point(study):
     for r in study.rows:
         if r["rta_schedulable"]:
-            assert r["sim_priority_ok"], r                     # a guaranteed set shows no miss in simulation
+            assert r["sim_priority_ok"], r  # a guaranteed set shows no miss in simulation
     for p in study.points:
         assert p["simulation"] >= p["analysis"]
 
@@ -151,9 +167,10 @@ def test_fifo_queues_lose_sets_that_priority_queues_keep(study):
 
 
 def test_the_study_is_the_same_on_a_process_pool(study):
-    again = schedulability_study(UTILISATIONS[-2:], sets=SETS, messages=6, per_node=2, seed=4, workers=2,
-                                 engine="processes")
-    tail = [dict(r, run=r["run"] - len(UTILISATIONS[:-2]) * SETS) for r in study.rows[-2 * SETS:]]
+    again = schedulability_study(
+        UTILISATIONS[-2:], sets=SETS, messages=6, per_node=2, seed=4, workers=2, engine="processes"
+    )
+    tail = [dict(r, run=r["run"] - len(UTILISATIONS[:-2]) * SETS) for r in study.rows[-2 * SETS :]]
     assert again.rows == tail
 
 
@@ -178,9 +195,16 @@ def test_schedulability_campaign():
 
 # --- profiles -----------------------------------------------------------------------------------------
 
-SMALL_SET = MessageSet(500_000, (StudyMessage("fast", "a", 0x10, 8, 2_000_000, 2_000_000),
-                                 StudyMessage("mid", "b", 0x20, 4, 5_000_000, 5_000_000),
-                                 StudyMessage("slow", "a", 0x30, 8, 10_000_000, 10_000_000)), duration_s=0.2, seed=3)
+SMALL_SET = MessageSet(
+    500_000,
+    (
+        StudyMessage("fast", "a", 0x10, 8, 2_000_000, 2_000_000),
+        StudyMessage("mid", "b", 0x20, 4, 5_000_000, 5_000_000),
+        StudyMessage("slow", "a", 0x30, 8, 10_000_000, 10_000_000),
+    ),
+    duration_s=0.2,
+    seed=3,
+)
 
 
 def test_csma_expresses_the_set_as_a_scenario():
@@ -188,7 +212,10 @@ def test_csma_expresses_the_set_as_a_scenario():
     sc = parse_scenario(raw, "set")
     assert [(n.name, n.profile, n.queue) for n in sc.nodes] == [("a", "csma", "priority"), ("b", "csma", "priority")]
     assert [(m.name, m.can_id, m.dlc, m.period_ns, m.offset_ns) for m in sc.messages] == [
-        ("fast", 0x10, 8, 2_000_000, 0), ("slow", 0x30, 8, 10_000_000, 0), ("mid", 0x20, 4, 5_000_000, 0)]
+        ("fast", 0x10, 8, 2_000_000, 0),
+        ("slow", 0x30, 8, 10_000_000, 0),
+        ("mid", 0x20, 4, 5_000_000, 0),
+    ]
     assert (sc.bitrate, sc.duration_ns, sc.seed) == (500_000, 200_000_000, 3)
     assert message_set_from_scenario(sc).messages == tuple(sorted(SMALL_SET.messages, key=lambda m: m.node))
 
@@ -264,6 +291,7 @@ def test_a_registered_converter_wins_and_a_failing_one_is_a_row(second_profile):
 
 def test_profiles_of_one_module_share_one_run(second_profile):
     """master and slave live in one module: its converter runs once, labelled with both names."""
+
     def build_peer(node, decl, context):
         return second_profile.build(node, decl, context)
 

@@ -29,8 +29,10 @@ def commands_of_this_checkout(monkeypatch):
     """The installed distribution's entry points may be an older checkout's: add (or replace) the
     ``canstack.commands`` of this pyproject.toml, as `pip install -e .` would."""
     real = importlib.metadata.entry_points
-    ours = [importlib.metadata.EntryPoint(name, value, "canstack.commands")
-            for name, value in PYPROJECT["project"]["entry-points"]["canstack.commands"].items()]
+    ours = [
+        importlib.metadata.EntryPoint(name, value, "canstack.commands")
+        for name, value in PYPROJECT["project"]["entry-points"]["canstack.commands"].items()
+    ]
 
     def entry_points(**kw):
         eps = list(real(**kw))
@@ -59,25 +61,54 @@ def test_pyproject_registers_the_commands_and_the_extras():
 
 def test_sweep_writes_the_csv_in_canonical_order(tmp_path, capsys):
     out = tmp_path / "r.csv"
-    code, stdout, err = run(capsys, "sweep", EXAMPLE, "--vary", "nodes.engine.queue=priority,fifo",
-                            "--vary", "nodes.gateway.messages.Diagnostics.deadline_ms=3,10", "--duration", "0.1",
-                            "--out", str(out))
+    code, stdout, err = run(
+        capsys,
+        "sweep",
+        EXAMPLE,
+        "--vary",
+        "nodes.engine.queue=priority,fifo",
+        "--vary",
+        "nodes.gateway.messages.Diagnostics.deadline_ms=3,10",
+        "--duration",
+        "0.1",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     with open(out, newline="") as f:
         rows = list(csv.DictReader(f))
     assert [(r["run"], r["nodes.engine.queue"], r["nodes.gateway.messages.Diagnostics.deadline_ms"]) for r in rows] == [
-        ("0", "priority", "3"), ("1", "priority", "10"), ("2", "fifo", "3"), ("3", "fifo", "10")]
+        ("0", "priority", "3"),
+        ("1", "priority", "10"),
+        ("2", "fifo", "3"),
+        ("3", "fifo", "10"),
+    ]
     # the README's figure: with a 3 ms deadline every Diagnostics instance misses; with 10 ms none does
     assert [int(r["Diagnostics.misses"]) for r in rows[:2]] == [10, 0]
     assert {"EngineSpeed.max_ms", "EngineSpeed.misses", "EngineSpeed.rta_ms", "bus_load", "error"} <= set(rows[0])
-    assert stdout.splitlines()[0].split()[:3] == ["run", "nodes.engine.queue", "nodes.gateway.messages.Diagnostics."
-                                                  "deadline_ms"]
+    assert stdout.splitlines()[0].split()[:3] == [
+        "run",
+        "nodes.engine.queue",
+        "nodes.gateway.messages.Diagnostics.deadline_ms",
+    ]
     assert "4 runs; sequential" in err and f"written to {out}" in err
 
 
 def test_sweep_json_is_one_object(capsys):
-    code, stdout, err = run(capsys, "sweep", EXAMPLE, "--vary", "bus.bitrate=250000,500000", "--seeds", "2",
-                            "--duration", "0.05", "--seed", "3", "--json")
+    code, stdout, err = run(
+        capsys,
+        "sweep",
+        EXAMPLE,
+        "--vary",
+        "bus.bitrate=250000,500000",
+        "--seeds",
+        "2",
+        "--duration",
+        "0.05",
+        "--seed",
+        "3",
+        "--json",
+    )
     assert code == 0, err
     data = json.loads(stdout)
     assert data["runs"] == data["done"] == 4 and data["failed"] == 0 and data["seed"] == 3
@@ -88,46 +119,80 @@ def test_sweep_json_is_one_object(capsys):
 
 def test_sweep_plots(tmp_path, capsys):
     pytest.importorskip("matplotlib")
-    code, _, err = run(capsys, "sweep", EXAMPLE, "--vary", "nodes.engine.messages.EngineSpeed.period_ms=1:2:0.5",
-                       "--vary", "nodes.engine.queue=priority,fifo", "--duration", "0.05", "--plot",
-                       str(tmp_path / "p"), "--metric", "worst_misses", "--metric", "Torque.max_ms")
+    code, _, err = run(
+        capsys,
+        "sweep",
+        EXAMPLE,
+        "--vary",
+        "nodes.engine.messages.EngineSpeed.period_ms=1:2:0.5",
+        "--vary",
+        "nodes.engine.queue=priority,fifo",
+        "--duration",
+        "0.05",
+        "--plot",
+        str(tmp_path / "p"),
+        "--metric",
+        "worst_misses",
+        "--metric",
+        "Torque.max_ms",
+    )
     assert code == 0, err
     for name in ("worst_misses.png", "Torque.max_ms.png"):
         assert (tmp_path / "p" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_ctrl_c_writes_the_rows_done_and_exits_130(tmp_path, monkeypatch, capsys):
-    (tmp_path / "cli_hooks.py").write_text("def hook(node, profile, ctx):\n"
-                                           "    if ctx.scenario.bitrate == 250000:\n        raise KeyboardInterrupt\n")
+    (tmp_path / "cli_hooks.py").write_text(
+        "def hook(node, profile, ctx):\n    if ctx.scenario.bitrate == 250000:\n        raise KeyboardInterrupt\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
-    text = (ROOT / "examples" / "powertrain_90.toml").read_text().replace(
-        'name = "engine"\n', 'name = "engine"\napp = "cli_hooks:hook"\n', 1)
+    text = (
+        (ROOT / "examples" / "powertrain_90.toml")
+        .read_text()
+        .replace('name = "engine"\n', 'name = "engine"\napp = "cli_hooks:hook"\n', 1)
+    )
     scenario = tmp_path / "s.toml"
     scenario.write_text(text)
-    code, stdout, err = run(capsys, "sweep", str(scenario), "--vary", "bus.bitrate=125000,500000,250000,1000000",
-                            "--duration", "0.05", "--out", str(tmp_path / "r.csv"))
+    code, stdout, err = run(
+        capsys,
+        "sweep",
+        str(scenario),
+        "--vary",
+        "bus.bitrate=125000,500000,250000,1000000",
+        "--duration",
+        "0.05",
+        "--out",
+        str(tmp_path / "r.csv"),
+    )
     assert code == 130
     with open(tmp_path / "r.csv", newline="") as f:
         assert [r["bus.bitrate"] for r in csv.DictReader(f)] == ["125000", "500000"]
     assert err.startswith("interrupted: 2 of 4 runs done")
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--vary", "nodes.engin.queue=fifo"], "--vary nodes.engin.queue: nodes has no element 'engin'"),
-    (["--vary", "bus.bitrate=1:10:0"], "the step of a range must not be 0"),
-    (["--vary", "bus.bitrate"], "expected KEY=V1,V2"),
-    (["--vary", "bus.bitrate=1", "--vary", "bus.bitrate=2"], "given twice"),
-    (["--out", "r.txt"], "write .csv or .parquet"),
-    (["--out", "/nonexistent/dir/r.csv"], "does not exist"),
-    (["--plot", "PLOTDIR", "--vary", "bus.bitrate=1", "--vary", "bus.duration=1", "--vary", "bus.seed=2"],
-     "--plot draws one or two varied keys; this sweep varies 3"),
-    (["--plot", "PLOTDIR", "--vary", "bus.bitrate=250000", "--metric", "Nope.max_ms"],
-     "--metric 'Nope.max_ms': not a column"),
-    (["--metric", "bus_load"], "--metric chooses what --plot draws"),
-    (["--workers", "0"], "at least 1"),
-    (["--seeds", "x"], "is not a whole number"),
-    (["--engine", "sequential", "--workers", "2"], "runs in this process"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--vary", "nodes.engin.queue=fifo"], "--vary nodes.engin.queue: nodes has no element 'engin'"),
+        (["--vary", "bus.bitrate=1:10:0"], "the step of a range must not be 0"),
+        (["--vary", "bus.bitrate"], "expected KEY=V1,V2"),
+        (["--vary", "bus.bitrate=1", "--vary", "bus.bitrate=2"], "given twice"),
+        (["--out", "r.txt"], "write .csv or .parquet"),
+        (["--out", "/nonexistent/dir/r.csv"], "does not exist"),
+        (
+            ["--plot", "PLOTDIR", "--vary", "bus.bitrate=1", "--vary", "bus.duration=1", "--vary", "bus.seed=2"],
+            "--plot draws one or two varied keys; this sweep varies 3",
+        ),
+        (
+            ["--plot", "PLOTDIR", "--vary", "bus.bitrate=250000", "--metric", "Nope.max_ms"],
+            "--metric 'Nope.max_ms': not a column",
+        ),
+        (["--metric", "bus_load"], "--metric chooses what --plot draws"),
+        (["--workers", "0"], "at least 1"),
+        (["--seeds", "x"], "is not a whole number"),
+        (["--engine", "sequential", "--workers", "2"], "runs in this process"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, message):
     args = [a.replace("PLOTDIR", str(tmp_path / "p")) for a in args]
     code, stdout, err = run(capsys, "sweep", EXAMPLE, *args)
@@ -142,53 +207,102 @@ def test_parquet_without_pyarrow_is_refused_before_running(tmp_path, capsys, mon
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a))
     code, stdout, err = run(capsys, "sweep", EXAMPLE, "--vary", "bus.bitrate=1", "--out", str(tmp_path / "r.parquet"))
     assert code == 2 and stdout == "" and not (tmp_path / "r.parquet").exists()
-    assert err.strip().endswith("Parquet needs pyarrow, which is not installed: pip install 'canstack[parquet]' "
-                                "(or write .csv)")
+    assert err.strip().endswith(
+        "Parquet needs pyarrow, which is not installed: pip install 'canstack[parquet]' (or write .csv)"
+    )
 
 
 def test_scheduler_without_dask_names_the_extra(capsys, monkeypatch):
     monkeypatch.setattr("profiles.execute.dask_available", lambda: False)
-    code, stdout, err = run(capsys, "sweep", EXAMPLE, "--vary", "bus.bitrate=250000", "--scheduler",
-                            "tcp://127.0.0.1:8786")
+    code, stdout, err = run(
+        capsys, "sweep", EXAMPLE, "--vary", "bus.bitrate=250000", "--scheduler", "tcp://127.0.0.1:8786"
+    )
     assert code == 2 and stdout == ""
-    assert err.strip() == ("canstack: error: --scheduler needs Dask's distributed, which is not installed: "
-                           "pip install 'canstack[dask]'")
+    assert err.strip() == (
+        "canstack: error: --scheduler needs Dask's distributed, which is not installed: pip install 'canstack[dask]'"
+    )
 
 
 # --- canstack study --------------------------------------------------------------------------------
 
+
 def test_study_schedulability_table_json_csv_and_plots(tmp_path, capsys):
     out = tmp_path / "sets.csv"
-    code, stdout, err = run(capsys, "study", "schedulability", "--sets", "4", "--messages", "5", "--per-node", "2",
-                            "--utilisation", "0.4,1.0", "--out", str(out), "--json")
+    code, stdout, err = run(
+        capsys,
+        "study",
+        "schedulability",
+        "--sets",
+        "4",
+        "--messages",
+        "5",
+        "--per-node",
+        "2",
+        "--utilisation",
+        "0.4,1.0",
+        "--out",
+        str(out),
+        "--json",
+    )
     assert code == 0, err
     data = json.loads(stdout)
     assert [p["utilisation"] for p in data["points"]] == [0.4, 1.0] and data["runs"] == data["done"] == 8
-    assert data["points"][1]["analysis"] == 0.0                       # nothing is guaranteed at 100 %
+    assert data["points"][1]["analysis"] == 0.0  # nothing is guaranteed at 100 %
     assert data["settings"]["release"] == "synchronous (offsets 0)"
     with open(out, newline="") as f:
         rows = list(csv.DictReader(f))
     assert [(r["utilisation"], r["set"]) for r in rows] == [(u, s) for u in ("0.4", "1.0") for s in "0123"]
     assert {"rta_schedulable", "sim_priority_ok", "sim_fifo_ok"} <= set(rows[0])
     if importlib.util.find_spec("matplotlib") is not None:
-        code, stdout, err = run(capsys, "study", "schedulability", "--sets", "2", "--messages", "4",
-                                "--utilisation", "0.5:1.0:0.25", "--plot", str(tmp_path / "p"))
+        code, stdout, err = run(
+            capsys,
+            "study",
+            "schedulability",
+            "--sets",
+            "2",
+            "--messages",
+            "4",
+            "--utilisation",
+            "0.5:1.0:0.25",
+            "--plot",
+            str(tmp_path / "p"),
+        )
         assert code == 0, err
-        assert stdout.splitlines()[0].split() == ["U", "%", "sets", "analysis", "%", "simulated", "%", "FIFO", "sim",
-                                                  "%"]
-        assert len(stdout.splitlines()) == 1 + 3 + 3                     # header, 3 points, 3 breakdown lines
+        assert stdout.splitlines()[0].split() == [
+            "U",
+            "%",
+            "sets",
+            "analysis",
+            "%",
+            "simulated",
+            "%",
+            "FIFO",
+            "sim",
+            "%",
+        ]
+        assert len(stdout.splitlines()) == 1 + 3 + 3  # header, 3 points, 3 breakdown lines
         for name in ("schedulability.png", "fifo_vs_priority.png"):
             assert (tmp_path / "p" / name).read_bytes()[:4] == b"\x89PNG"
 
 
 def test_study_profiles_on_a_scenario(tmp_path, capsys):
-    code, stdout, err = run(capsys, "study", "profiles", "--scenario", EXAMPLE, "--duration", "0.2", "--json",
-                            "--out", str(tmp_path / "p.csv"))
+    code, stdout, err = run(
+        capsys,
+        "study",
+        "profiles",
+        "--scenario",
+        EXAMPLE,
+        "--duration",
+        "0.2",
+        "--json",
+        "--out",
+        str(tmp_path / "p.csv"),
+    )
     assert code == 0, err
     data = json.loads(stdout)
     assert len(data["messages"]) == 17 and data["duration"] == 0.2
     csma = next(r for r in data["rows"] if r["profile"] == "csma")
-    assert csma["Diagnostics.misses"] == 20 and 0.8 < csma["bus_load"] < 0.85   # as the experiment says
+    assert csma["Diagnostics.misses"] == 20 and 0.8 < csma["bus_load"] < 0.85  # as the experiment says
     with open(tmp_path / "p.csv", newline="") as f:
         assert [r["profile"] for r in csv.DictReader(f)] == [r["profile"] for r in data["rows"]]
     code, stdout, err = run(capsys, "study", "profiles", "--messages", "4", "--utilisation", "0.3")
@@ -196,18 +310,21 @@ def test_study_profiles_on_a_scenario(tmp_path, capsys):
     assert stdout.splitlines()[0].split()[:3] == ["message", "ID", "period"] and "bus load %" in stdout
 
 
-@pytest.mark.parametrize("args,message", [
-    (["schedulability", "--utilisation", "0:1:0"], "the step of a range must not be 0"),
-    (["schedulability", "--utilisation", "2"], "a utilisation is > 0 and at most 1.5"),
-    (["schedulability", "--utilisation", "half"], "is not a utilisation"),
-    (["schedulability", "--period-range", "5"], "give MIN,MAX in ms"),
-    (["schedulability", "--sets", "0"], "at least 1"),
-    (["schedulability", "--generator", "magic"], "invalid choice"),
-    (["schedulability", "--out", "x.json"], "write .csv or .parquet"),
-    (["profiles", "--scenario", "nowhere.toml"], "nowhere.toml: no such scenario file"),
-    (["profiles", "--utilisation", "3"], "utilisation 3.0: must be > 0 and at most 1.5"),
-    (["nosuch"], "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["schedulability", "--utilisation", "0:1:0"], "the step of a range must not be 0"),
+        (["schedulability", "--utilisation", "2"], "a utilisation is > 0 and at most 1.5"),
+        (["schedulability", "--utilisation", "half"], "is not a utilisation"),
+        (["schedulability", "--period-range", "5"], "give MIN,MAX in ms"),
+        (["schedulability", "--sets", "0"], "at least 1"),
+        (["schedulability", "--generator", "magic"], "invalid choice"),
+        (["schedulability", "--out", "x.json"], "write .csv or .parquet"),
+        (["profiles", "--scenario", "nowhere.toml"], "nowhere.toml: no such scenario file"),
+        (["profiles", "--utilisation", "3"], "utilisation 3.0: must be > 0 and at most 1.5"),
+        (["nosuch"], "invalid choice"),
+    ],
+)
 def test_study_bad_input_is_one_line_and_exit_2(capsys, args, message):
     code, stdout, err = run(capsys, "study", *args)
     assert code == 2 and stdout == ""

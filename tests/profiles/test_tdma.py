@@ -35,12 +35,14 @@ NET = {
         {"name": "abs", "profile": "tdma", "messages": [{"name": "C", "id": 0x120, "dlc": 4}]},
     ],
     "tdma": {
-        "reference_id": 0x010, "time_masters": ["gw", "eng"], "basic_cycle_us": 5000, "matrix_cycles": 4,
+        "reference_id": 0x010,
+        "time_masters": ["gw", "eng"],
+        "basic_cycle_us": 5000,
+        "matrix_cycles": 4,
         "windows": [
             {"start_us": 500, "length_us": 400, "kind": "exclusive", "messages": ["A"]},
             {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["B"], "repeat": 2},
-            {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["C"], "repeat": 2,
-             "base_cycle": 1},
+            {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["C"], "repeat": 2, "base_cycle": 1},
         ],
     },
 }
@@ -89,8 +91,12 @@ def test_fault_free_schedule_is_exact_to_the_nanosecond():
     assert [(w["frames"], w["outside"], w["late_starts"]) for w in t["windows"]] == [(18, 0, 0), (9, 0, 0), (9, 0, 0)]
     assert t["nodes"]["gw"]["master_mode"] == "current_master"
     assert t["nodes"]["eng"]["master_mode"] == "backup_master"
-    assert t["nodes"]["abs"] == {"sync_mode": "in_schedule", "master_mode": "time_slave", "watch_triggers": 0,
-                                 "restarts": 0}
+    assert t["nodes"]["abs"] == {
+        "sync_mode": "in_schedule",
+        "master_mode": "time_slave",
+        "watch_triggers": 0,
+        "restarts": 0,
+    }
 
 
 def test_spine_rows_are_filled_for_tdma_messages():
@@ -142,10 +148,14 @@ def test_every_master_gone_the_network_restarts_after_the_init_watch_trigger():
     (65535 NTU = 131.07 ms, at 172.092 ms) they may start the network again, like at power-up:
     their references meet at 172.092 + 5.254 = 177.346 ms, gw wins, and the matrix starts over at
     Cycle_Count 0."""
+
     def m(raw):
         raw["bus"]["duration"] = 0.2
-        raw["faults"] = [{"kind": "disconnect", "node": "gw", "at_ms": 40, "reconnect_ms": 70},
-                         {"kind": "disconnect", "node": "eng", "at_ms": 40, "reconnect_ms": 70}]
+        raw["faults"] = [
+            {"kind": "disconnect", "node": "gw", "at_ms": 40, "reconnect_ms": 70},
+            {"kind": "disconnect", "node": "eng", "at_ms": 40, "reconnect_ms": 70},
+        ]
+
     res, data = run(net(m))
     t = data["tdma"]
     refs = [r for r in res.trace if r.kind == "frame" and r.frame.can_id in (0x010, 0x011)]
@@ -166,9 +176,11 @@ def test_a_master_stuck_recessive_goes_bus_off_while_the_backup_keeps_the_schedu
     identifier), it fails, and the engine's request — still active, no reference has completed —
     goes out right after it. gw reaches bus off, recovers, listens until it is synchronised
     (ISO 11898-4 8.3), fails again …; when the fault ends it takes the schedule back."""
+
     def m(raw):
         raw["bus"]["duration"] = 0.15
         raw["faults"] = [{"kind": "stuck", "node": "gw", "level": "recessive", "start_ms": 40, "end_ms": 120}]
+
     res, data = run(net(m))
     t = data["tdma"]
     assert t["switches"][0] == {"at_ms": 40.508, "from": "gw", "to": "eng", "after_cycle_end_us": 254.0}
@@ -193,10 +205,19 @@ def test_a_master_stuck_recessive_goes_bus_off_while_the_backup_keeps_the_schedu
 def test_tx_enable_misses_are_counted_and_never_sent_late():
     """An ungated CSMA frame (0x050, 8 bytes) starts 100 µs before A's window in every cycle and
     holds the bus past A's Tx_Enable window (32 µs): A is withdrawn every time, never sent late."""
+
     def m(raw):
-        raw["nodes"].append({"name": "body", "profile": "csma", "tdma_gated": False,
-                             "messages": [{"name": "Blocker", "id": 0x050, "dlc": 8, "period_ms": 5,
-                                           "offset_ms": (FIRST_REF + 400_000) / 1e6}]})
+        raw["nodes"].append(
+            {
+                "name": "body",
+                "profile": "csma",
+                "tdma_gated": False,
+                "messages": [
+                    {"name": "Blocker", "id": 0x050, "dlc": 8, "period_ms": 5, "offset_ms": (FIRST_REF + 400_000) / 1e6}
+                ],
+            }
+        )
+
     res, data = run(net(m))
     a = tdma_row(data, "A")
     assert a["late_starts"] == 18 and a["frames"] == 0
@@ -209,6 +230,7 @@ def test_tx_enable_misses_are_counted_and_never_sent_late():
 def test_one_shot_in_exclusive_windows_a_flipped_bit_is_not_retried():
     def m(raw):
         raw["faults"] = [{"kind": "flip", "id": 0x100, "occurrence": 3, "field": "data", "bit": 0}]
+
     res, data = run(net(m))
     errors = [r for r in res.trace if r.kind != "frame" and r.frame.can_id == 0x100]
     assert [r.start for r in errors] == [FIRST_REF + 3 * CYCLE + 500_000]
@@ -225,6 +247,7 @@ def test_a_disturbed_reference_is_repeated_at_once_with_an_updated_master_ref_ma
     def m(raw):
         raw["tdma"]["level"] = level
         raw["faults"] = [{"kind": "flip", "id": 0x010, "occurrence": 5, "field": "data", "bit": 0}]
+
     res, data = run(net(m))
     err = next(r for r in res.trace if r.kind != "frame" and r.frame.can_id == 0x010)
     assert err.start == FIRST_REF + 4 * CYCLE
@@ -252,14 +275,29 @@ def drifting(level):
         "bus": {"bitrate": 500000, "duration": 0.5, "seed": 1},
         "nodes": [
             {"name": "master", "profile": "tdma"},
-            {"name": "fast", "profile": "tdma", "drift_ppm": DRIFT,
-             "messages": [{"name": "Fast", "id": 0x100, "dlc": 8}]},
-            {"name": "slow", "profile": "tdma", "drift_ppm": -DRIFT,
-             "messages": [{"name": "Slow", "id": 0x101, "dlc": 8}]},
+            {
+                "name": "fast",
+                "profile": "tdma",
+                "drift_ppm": DRIFT,
+                "messages": [{"name": "Fast", "id": 0x100, "dlc": 8}],
+            },
+            {
+                "name": "slow",
+                "profile": "tdma",
+                "drift_ppm": -DRIFT,
+                "messages": [{"name": "Slow", "id": 0x101, "dlc": 8}],
+            },
         ],
-        "tdma": {"reference_id": 0x10, "time_masters": ["master"], "basic_cycle_us": 60000, "level": level,
-                 "windows": [{"start_us": 50000, "length_us": 320, "kind": "exclusive", "messages": ["Fast"]},
-                             {"start_us": 55000, "length_us": 320, "kind": "exclusive", "messages": ["Slow"]}]},
+        "tdma": {
+            "reference_id": 0x10,
+            "time_masters": ["master"],
+            "basic_cycle_us": 60000,
+            "level": level,
+            "windows": [
+                {"start_us": 50000, "length_us": 320, "kind": "exclusive", "messages": ["Fast"]},
+                {"start_us": 55000, "length_us": 320, "kind": "exclusive", "messages": ["Slow"]},
+            ],
+        },
     }
 
 
@@ -292,9 +330,18 @@ def mixed(gated):
     def m(raw):
         raw["bus"]["duration"] = 0.3
         raw["tdma"]["windows"].append(dict(MIXED_WINDOW))
-        raw["nodes"].append({"name": "body", "profile": "csma", "tdma_gated": gated, "messages": [
-            {"name": "Lights", "id": 0x050, "dlc": 8, "period_ms": 3, "jitter_ms": 1},
-            {"name": "Doors", "id": 0x400, "dlc": 8, "period_ms": 7}]})
+        raw["nodes"].append(
+            {
+                "name": "body",
+                "profile": "csma",
+                "tdma_gated": gated,
+                "messages": [
+                    {"name": "Lights", "id": 0x050, "dlc": 8, "period_ms": 3, "jitter_ms": 1},
+                    {"name": "Doors", "id": 0x400, "dlc": 8, "period_ms": 7},
+                ],
+            }
+        )
+
     return net(m)
 
 

@@ -12,25 +12,36 @@ from hypothesis import strategies as st
 
 from profiles.scenario import ScenarioError, parse_scenario
 from profiles.tdma.monitor import message_bounds
-from profiles.tdma.schedule import (MARK_MODULUS, ReferenceInfo, Window, decode_reference, encode_reference,
-                                    frame_ns_worst)
+from profiles.tdma.schedule import (
+    MARK_MODULUS,
+    ReferenceInfo,
+    Window,
+    decode_reference,
+    encode_reference,
+    frame_ns_worst,
+)
 
 BASE = {
     "bus": {"bitrate": 500000, "duration": 0.1},
     "nodes": [
         {"name": "gw", "profile": "tdma", "messages": [{"name": "A", "id": 0x100, "dlc": 8}]},
-        {"name": "eng", "profile": "tdma", "messages": [{"name": "B", "id": 0x110, "dlc": 8},
-                                                         {"name": "E", "id": 0x111, "dlc": 1}]},
+        {
+            "name": "eng",
+            "profile": "tdma",
+            "messages": [{"name": "B", "id": 0x110, "dlc": 8}, {"name": "E", "id": 0x111, "dlc": 1}],
+        },
         {"name": "abs", "profile": "tdma", "messages": [{"name": "C", "id": 0x120, "dlc": 4}]},
         {"name": "body", "profile": "csma", "messages": [{"name": "L", "id": 0x400, "dlc": 8, "period_ms": 10}]},
     ],
     "tdma": {
-        "reference_id": 0x010, "time_masters": ["gw", "eng"], "basic_cycle_us": 5000, "matrix_cycles": 4,
+        "reference_id": 0x010,
+        "time_masters": ["gw", "eng"],
+        "basic_cycle_us": 5000,
+        "matrix_cycles": 4,
         "windows": [
             {"start_us": 500, "length_us": 400, "kind": "exclusive", "messages": ["A"]},
             {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["B"], "repeat": 2},
-            {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["C"], "repeat": 2,
-             "base_cycle": 1},
+            {"start_us": 1000, "length_us": 400, "kind": "exclusive", "messages": ["C"], "repeat": 2, "base_cycle": 1},
             {"start_us": 1500, "length_us": 2000, "kind": "arbitrating", "messages": ["E"]},
             {"start_us": 4000, "length_us": 500, "kind": "free"},
         ],
@@ -75,11 +86,14 @@ def refuse(mutate, *parts):
 
 # -- the refusals the issue lists ------------------------------------------------------------
 
+
 def test_overlapping_windows_are_refused():
     def m(raw):
         window(raw, 2)["start_us"] = 800  # 800..1200 overlaps window 1 (500..900) in every cycle
-    refuse(m, "[tdma] > [[tdma.windows]] #2: start_us:", "overlaps window #1 (exclusive, 500..900 µs)",
-           "in basic cycle 0")
+
+    refuse(
+        m, "[tdma] > [[tdma.windows]] #2: start_us:", "overlaps window #1 (exclusive, 500..900 µs)", "in basic cycle 0"
+    )
 
 
 def test_windows_at_the_same_time_in_different_matrix_rows_do_not_overlap():
@@ -91,81 +105,131 @@ def test_a_message_that_does_not_fit_its_window_is_refused():
     # 8 bytes: 135 bits worst case with intermission = 270 µs, + Tx_Enable 32 µs = 302 µs
     def m(raw):
         window(raw, 1)["length_us"] = 300
-    refuse(m, "[[tdma.windows]] #1: length_us:", "message 'A' does not fit", "270 µs (135 bits",
-           "Tx_Enable window of 32 µs", "needs 302 µs, the window is 300 µs")
+
+    refuse(
+        m,
+        "[[tdma.windows]] #1: length_us:",
+        "message 'A' does not fit",
+        "270 µs (135 bits",
+        "Tx_Enable window of 32 µs",
+        "needs 302 µs, the window is 300 µs",
+    )
 
 
 def test_the_error_budget_counts_in_the_fit():
     def m(raw):
         raw["tdma"]["error_budget_bits"] = 50  # + 100 µs: 402 µs > 400 µs
+
     refuse(m, "[[tdma.windows]] #1: length_us:", "plus the error budget 100 µs", "needs 402 µs")
 
 
 def test_a_window_past_the_cycle_end_is_refused():
     def m(raw):
         window(raw, 5)["length_us"] = 1200  # 4000 + 1200 > 5000
+
     refuse(m, "[[tdma.windows]] #5: length_us:", "ends at 5200 µs, past the end of the basic cycle (5000 µs")
 
 
 def test_a_repeat_that_is_not_a_power_of_two_is_refused():
     def m(raw):
         window(raw, 2)["repeat"] = 3
+
     refuse(m, "[[tdma.windows]] #2: repeat: 3 is not a power of two")
 
 
 def test_an_exclusive_window_from_two_nodes_is_refused():
     def m(raw):
         window(raw, 1)["messages"] = ["A", "C"]
-    refuse(m, "[[tdma.windows]] #1: messages: 'C' (node 'abs') and 'A' (node 'gw'): an exclusive window belongs to "
-           "one node")
+
+    refuse(
+        m,
+        "[[tdma.windows]] #1: messages: 'C' (node 'abs') and 'A' (node 'gw'): an exclusive window belongs to one node",
+    )
 
 
 # -- the other rules -------------------------------------------------------------------------
 
-@pytest.mark.parametrize("mutate, parts", [
-    (lambda r: window(r, 1).update(messages=["A", "E"]) or r["tdma"]["windows"].pop(3),
-     ["#1: messages:", "belongs to one node"]),
-    (lambda r: window(r, 2).update(messages=["B", "E"]) or r["tdma"]["windows"].pop(3),
-     ["#2: messages: an exclusive window carries exactly one message (got 2)"]),
-    (lambda r: window(r, 2).update(repeat=8), ["#2: repeat: 8 is more than matrix_cycles 4"]),
-    (lambda r: window(r, 3).update(base_cycle=2), ["#3: base_cycle: 2 must be below repeat 2"]),
-    (lambda r: r["tdma"].update(matrix_cycles=3), ["[tdma]: matrix_cycles: 3 is not one of 1, 2, 4, 8, 16, 32, 64"]),
-    (lambda r: r["tdma"].update(reference_id=0x013),
-     ["[tdma]: reference_id: 0x13 has its three least significant bits set", "give 0x10"]),
-    (lambda r: r["tdma"].update(reference_id=0x100),
-     ["[tdma]: reference_id: 0x100..0x101", "includes message 'A' (0x100)"]),
-    (lambda r: r["tdma"].update(time_masters=["gw", "body"]),
-     ["[tdma]: time_masters: 'body' is not a node with profile = 'tdma'"]),
-    (lambda r: r["tdma"].update(time_masters=[]), ["[tdma]: time_masters: 0 names given", "1 to 8"]),
-    (lambda r: r["tdma"].update(time_masters=["gw", "gw"]), ["[tdma]: time_masters: 'gw' is named twice"]),
-    (lambda r: r["tdma"].update(level=3), ["[tdma]: level: 3 is not 1 or 2"]),
-    (lambda r: r["tdma"].update(basic_cycle_us=200000),
-     ["[tdma]: basic_cycle_us: 200000 µs is 100000 NTU", "at most 65535 NTU"]),
-    (lambda r: r["tdma"].update(watch_trigger_us=5100),
-     ["[tdma]: watch_trigger_us: 5100 µs must be after the backup masters' reference message",
-      "Initial_Ref_Offset 127 NTU"]),
-    (lambda r: r["tdma"].update(initial_ref_offset=200), ["[tdma]: initial_ref_offset: 200 is outside 0..127"]),
-    (lambda r: window(r, 1).update(start_us=100),
-     ["#1: start_us: 100 µs overlaps the reference message", "first 130 µs"]),
-    (lambda r: window(r, 5).update(messages=["A"]), ["#5: messages: a free window is reserved"]),
-    (lambda r: window(r, 4).update(messages=["E", "L"]),
-     ["#4: messages: 'L' is a message of node 'body' (profile 'csma')"]),
-    (lambda r: window(r, 4).update(messages=["Nope"]), ["#4: messages: 'Nope' is not a message of a node"]),
-    (lambda r: window(r, 4).update(kind="shared"), ["#4: kind: 'shared' is not one of 'exclusive'"]),
-    (lambda r: window(r, 4).update(colour="red"), ["#4: unknown key 'colour'"]),
-    (lambda r: r["tdma"]["windows"].pop(3),
-     ["[[nodes]] 'eng' > [[nodes.messages]] 'E': in no [[tdma.windows]]"]),
-    (lambda r: r["nodes"][0]["messages"][0].update(period_ms=5),
-     ["[[nodes]] 'gw' > [[nodes.messages]] 'A': period_ms: a TDMA message is released by its time window"]),
-    (lambda r: r["nodes"][0]["messages"][0].update(offset_ms=1),
-     ["'A': offset_ms: a TDMA message is released at its window's start"]),
-    (lambda r: r.pop("tdma"), ["[[nodes]] 'gw': profile: 'tdma' needs a [tdma] table"]),
-    (lambda r: [n.update(profile="csma", messages=[]) for n in r["nodes"][:3]],
-     ["[tdma]: no node has profile = 'tdma'"]),
-    (lambda r: window(r, 4).update(length_us=250),
-     ["[[nodes]] 'body' > [[nodes.messages]] 'L': no arbitrating window fits it (270 µs worst case",
-      "widest is 250 µs", "tdma_gated = false"]),
-])
+
+@pytest.mark.parametrize(
+    "mutate, parts",
+    [
+        (
+            lambda r: window(r, 1).update(messages=["A", "E"]) or r["tdma"]["windows"].pop(3),
+            ["#1: messages:", "belongs to one node"],
+        ),
+        (
+            lambda r: window(r, 2).update(messages=["B", "E"]) or r["tdma"]["windows"].pop(3),
+            ["#2: messages: an exclusive window carries exactly one message (got 2)"],
+        ),
+        (lambda r: window(r, 2).update(repeat=8), ["#2: repeat: 8 is more than matrix_cycles 4"]),
+        (lambda r: window(r, 3).update(base_cycle=2), ["#3: base_cycle: 2 must be below repeat 2"]),
+        (
+            lambda r: r["tdma"].update(matrix_cycles=3),
+            ["[tdma]: matrix_cycles: 3 is not one of 1, 2, 4, 8, 16, 32, 64"],
+        ),
+        (
+            lambda r: r["tdma"].update(reference_id=0x013),
+            ["[tdma]: reference_id: 0x13 has its three least significant bits set", "give 0x10"],
+        ),
+        (
+            lambda r: r["tdma"].update(reference_id=0x100),
+            ["[tdma]: reference_id: 0x100..0x101", "includes message 'A' (0x100)"],
+        ),
+        (
+            lambda r: r["tdma"].update(time_masters=["gw", "body"]),
+            ["[tdma]: time_masters: 'body' is not a node with profile = 'tdma'"],
+        ),
+        (lambda r: r["tdma"].update(time_masters=[]), ["[tdma]: time_masters: 0 names given", "1 to 8"]),
+        (lambda r: r["tdma"].update(time_masters=["gw", "gw"]), ["[tdma]: time_masters: 'gw' is named twice"]),
+        (lambda r: r["tdma"].update(level=3), ["[tdma]: level: 3 is not 1 or 2"]),
+        (
+            lambda r: r["tdma"].update(basic_cycle_us=200000),
+            ["[tdma]: basic_cycle_us: 200000 µs is 100000 NTU", "at most 65535 NTU"],
+        ),
+        (
+            lambda r: r["tdma"].update(watch_trigger_us=5100),
+            [
+                "[tdma]: watch_trigger_us: 5100 µs must be after the backup masters' reference message",
+                "Initial_Ref_Offset 127 NTU",
+            ],
+        ),
+        (lambda r: r["tdma"].update(initial_ref_offset=200), ["[tdma]: initial_ref_offset: 200 is outside 0..127"]),
+        (
+            lambda r: window(r, 1).update(start_us=100),
+            ["#1: start_us: 100 µs overlaps the reference message", "first 130 µs"],
+        ),
+        (lambda r: window(r, 5).update(messages=["A"]), ["#5: messages: a free window is reserved"]),
+        (
+            lambda r: window(r, 4).update(messages=["E", "L"]),
+            ["#4: messages: 'L' is a message of node 'body' (profile 'csma')"],
+        ),
+        (lambda r: window(r, 4).update(messages=["Nope"]), ["#4: messages: 'Nope' is not a message of a node"]),
+        (lambda r: window(r, 4).update(kind="shared"), ["#4: kind: 'shared' is not one of 'exclusive'"]),
+        (lambda r: window(r, 4).update(colour="red"), ["#4: unknown key 'colour'"]),
+        (lambda r: r["tdma"]["windows"].pop(3), ["[[nodes]] 'eng' > [[nodes.messages]] 'E': in no [[tdma.windows]]"]),
+        (
+            lambda r: r["nodes"][0]["messages"][0].update(period_ms=5),
+            ["[[nodes]] 'gw' > [[nodes.messages]] 'A': period_ms: a TDMA message is released by its time window"],
+        ),
+        (
+            lambda r: r["nodes"][0]["messages"][0].update(offset_ms=1),
+            ["'A': offset_ms: a TDMA message is released at its window's start"],
+        ),
+        (lambda r: r.pop("tdma"), ["[[nodes]] 'gw': profile: 'tdma' needs a [tdma] table"]),
+        (
+            lambda r: [n.update(profile="csma", messages=[]) for n in r["nodes"][:3]],
+            ["[tdma]: no node has profile = 'tdma'"],
+        ),
+        (
+            lambda r: window(r, 4).update(length_us=250),
+            [
+                "[[nodes]] 'body' > [[nodes.messages]] 'L': no arbitrating window fits it (270 µs worst case",
+                "widest is 250 µs",
+                "tdma_gated = false",
+            ],
+        ),
+    ],
+)
 def test_every_other_rule_names_file_table_key(mutate, parts):
     refuse(mutate, *parts)
 
@@ -176,16 +240,20 @@ def test_an_ungated_csma_node_needs_no_arbitrating_window():
         raw["tdma"]["windows"].pop(3)
         raw["nodes"][1]["messages"].pop()
         raw["nodes"][3]["tdma_gated"] = False
+
     assert scenario(m).tables["tdma"].gated == ()
 
 
 def test_a_scenario_without_tdma_is_not_touched():
-    raw = {"bus": {"bitrate": 500000, "duration": 0.1},
-           "nodes": [{"name": "a", "messages": [{"name": "X", "id": 1, "dlc": 1, "period_ms": 1}]}]}
+    raw = {
+        "bus": {"bitrate": 500000, "duration": 0.1},
+        "nodes": [{"name": "a", "messages": [{"name": "X", "id": 1, "dlc": 1, "period_ms": 1}]}],
+    }
     assert "tdma" not in parse_scenario(raw).tables
 
 
 # -- reference message -----------------------------------------------------------------------
+
 
 def test_reference_layout_by_hand():
     assert encode_reference(5, level=1) == b"\x05"

@@ -49,7 +49,7 @@ _RESERVED_BITS = 0x3FFF_F800
 class PdoHost(Protocol):
     """What a PDO needs from its device."""
 
-    node: "NodeAPI"
+    node: NodeAPI
     store: ObjectStore
     node_id: int
     remap_in_operational: bool
@@ -58,7 +58,7 @@ class PdoHost(Protocol):
         """The device's NMT state."""
         ...
 
-    def pdo_changed(self, pdo: "Pdo") -> None:
+    def pdo_changed(self, pdo: Pdo) -> None:
         """A PDO's configuration changed (routes and timers follow)."""
         ...
 
@@ -131,8 +131,11 @@ class Pdo:
                 raise SdoAbort(abort.INVALID_VALUE, f"{where}: bits 29..11 must be 0 (11-bit CAN-IDs only)")
             if valid:
                 if self.valid and can_id != self.can_id:
-                    raise SdoAbort(abort.INVALID_VALUE, f"{where}: set bit 31 (not valid) before changing the CAN-ID "
-                                                        f"0x{self.can_id:03X} to 0x{can_id:03X}")
+                    raise SdoAbort(
+                        abort.INVALID_VALUE,
+                        f"{where}: set bit 31 (not valid) before changing the CAN-ID "
+                        f"0x{self.can_id:03X} to 0x{can_id:03X}",
+                    )
                 if cob.is_restricted(can_id):
                     raise SdoAbort(abort.INVALID_VALUE, f"{where}: CAN-ID 0x{can_id:03X} is restricted (CiA 301 7.3.5)")
                 if not self.mapped:
@@ -144,26 +147,33 @@ class Pdo:
         elif sub == 3 and not self.receive and self.valid:
             raise SdoAbort(abort.INVALID_VALUE, f"{where}: the inhibit time can change only while the PDO is not valid")
         elif sub == 6 and (self.valid or value > 240):
-            raise SdoAbort(abort.INVALID_VALUE, f"{where}: the SYNC start value (0..240) can change only while the "
-                                                f"PDO is not valid")
+            raise SdoAbort(
+                abort.INVALID_VALUE,
+                f"{where}: the SYNC start value (0..240) can change only while the PDO is not valid",
+            )
 
     def _check_map(self, sub: int, value: Any, data: bytes) -> None:
         where = f"0x{self.map_index:04X}:{sub} ({self.name} mapping)"
         if self.host.nmt_state() is NmtState.OPERATIONAL and not self.host.remap_in_operational:
             raise SdoAbort(abort.DEVICE_STATE, f"{where}: re-mapping is done in pre-operational")
         if self.valid:
-            raise SdoAbort(abort.UNSUPPORTED_ACCESS, f"{where}: set bit 31 of 0x{self.comm_index:04X}:1 (PDO not "
-                                                     f"valid) before changing the mapping")
+            raise SdoAbort(
+                abort.UNSUPPORTED_ACCESS,
+                f"{where}: set bit 31 of 0x{self.comm_index:04X}:1 (PDO not valid) before changing the mapping",
+            )
         if sub == 0:
             entries = [k for k in self.store.od.indices[self.map_index].subindices if k]
             if value > len(entries):
                 raise SdoAbort(abort.PDO_LENGTH, f"{where}: {value} objects, the mapping has {len(entries)} entries")
-            check_mapping(self.store, [self.store.u(self.map_index, k) for k in range(1, value + 1)],
-                          receive=self.receive)
+            check_mapping(
+                self.store, [self.store.u(self.map_index, k) for k in range(1, value + 1)], receive=self.receive
+            )
         else:
             if self.store.u(self.map_index, 0):
-                raise SdoAbort(abort.UNSUPPORTED_ACCESS, f"{where}: set the number of mapped objects (sub-index 0) "
-                                                         f"to 0 before writing entries")
+                raise SdoAbort(
+                    abort.UNSUPPORTED_ACCESS,
+                    f"{where}: set the number of mapped objects (sub-index 0) to 0 before writing entries",
+                )
             check_entry(self.store, value, receive=self.receive)
 
     def _written(self, index: int, sub: int) -> None:
@@ -172,6 +182,10 @@ class Pdo:
 
     def info(self) -> dict[str, Any]:
         """The configuration, JSON-ready."""
-        return {"pdo": self.name, "cob_id": self.can_id, "valid": self.valid,
-                "transmission_type": self.transmission_type,
-                "mapping": [f"0x{m.index:04X}:{m.sub}/{8 * m.size}" for m in self.mapped]}
+        return {
+            "pdo": self.name,
+            "cob_id": self.can_id,
+            "valid": self.valid,
+            "transmission_type": self.transmission_type,
+            "mapping": [f"0x{m.index:04X}:{m.sub}/{8 * m.size}" for m in self.mapped],
+        }

@@ -17,8 +17,16 @@ from profiles.canopen.dictionary import ObjectStore
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 
-__all__ = ["MappedObject", "parse_entry", "check_entry", "check_mapping", "pack", "unpack", "entry_value",
-           "MAX_PDO_BYTES"]
+__all__ = [
+    "MappedObject",
+    "parse_entry",
+    "check_entry",
+    "check_mapping",
+    "pack",
+    "unpack",
+    "entry_value",
+    "MAX_PDO_BYTES",
+]
 
 MAX_PDO_BYTES = 8
 
@@ -81,7 +89,7 @@ def pack(store: ObjectStore, mapped: list[MappedObject]) -> bytes:
     """A TPDO's data: each object's low ``size`` bytes (little-endian), zeros for dummies."""
     out = bytearray()
     for m in mapped:
-        out += bytes(m.size) if m.dummy else store.read(m.index, m.sub)[:m.size]
+        out += bytes(m.size) if m.dummy else store.read(m.index, m.sub)[: m.size]
     return bytes(out)
 
 
@@ -91,7 +99,7 @@ def unpack(store: ObjectStore, mapped: list[MappedObject], data: bytes) -> list[
     out = []
     pos = 0
     for m in mapped:
-        chunk = data[pos:pos + m.size]
+        chunk = data[pos : pos + m.size]
         pos += m.size
         if m.dummy:
             continue

@@ -13,7 +13,8 @@ that long is reported with EMCY 0x8250 (RPDO timeout), cleared by the next frame
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen.pdo.common import Pdo, PdoHost
@@ -39,8 +40,14 @@ class Rpdo(Pdo):
     receive = True
     kind = "RPDO"
 
-    def __init__(self, host: PdoHost, n: int, report: Callable[..., Any], clear: Callable[[Any], Any],
-                 applied: Callable[["Rpdo", list[tuple[int, int]], int], Any]) -> None:
+    def __init__(
+        self,
+        host: PdoHost,
+        n: int,
+        report: Callable[..., Any],
+        clear: Callable[[Any], Any],
+        applied: Callable[[Rpdo, list[tuple[int, int]], int], Any],
+    ) -> None:
         self.report = report
         self.clear = clear
         self.applied = applied
@@ -85,9 +92,9 @@ class Rpdo(Pdo):
             self._timer = self.host.node.call_at(t + self.event_ns, self._timed_out)
         self.last_time = t
         if self.synchronous:
-            self.buffer = bytes(data[:self.size])
+            self.buffer = bytes(data[: self.size])
         else:
-            self.apply(bytes(data[:self.size]), t)
+            self.apply(bytes(data[: self.size]), t)
 
     def on_sync(self, t: int) -> None:
         """A SYNC: the data of a synchronous RPDO take effect now."""

@@ -28,14 +28,14 @@ PDOs go out only in operational; leaving it takes back the ones still queued.
 
 from __future__ import annotations
 
-from typing import Any, Callable
-
-from stack import Frame, TxRequest
+from collections.abc import Callable
+from typing import Any
 
 from profiles.canopen import cob
 from profiles.canopen._state import NmtState
 from profiles.canopen.pdo.common import Pdo, PdoHost
 from profiles.canopen.pdo.mapping import pack
+from stack import Frame, TxRequest
 
 __all__ = ["Tpdo"]
 
@@ -53,8 +53,9 @@ class Tpdo(Pdo):
     receive = False
     kind = "TPDO"
 
-    def __init__(self, host: PdoHost, n: int, transmit: Callable[..., TxRequest | None],
-                 sync_info: Callable[[], tuple[int, int]]) -> None:
+    def __init__(
+        self, host: PdoHost, n: int, transmit: Callable[..., TxRequest | None], sync_info: Callable[[], tuple[int, int]]
+    ) -> None:
         self.transmit = transmit
         self.sync_info = sync_info  # () -> (window ns, counter overflow value)
         self.send_request = True

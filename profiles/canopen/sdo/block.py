@@ -55,8 +55,12 @@ class Transfer:
     def kind(self) -> str:
         """The transfer's kind for the server's counters ('segmented download', ...)."""
         name = type(self).__name__
-        return {"SegmentedDownload": "segmented download", "SegmentedUpload": "segmented upload",
-                "BlockDownload": "block download", "BlockUpload": "block upload"}.get(name, name)
+        return {
+            "SegmentedDownload": "segmented download",
+            "SegmentedUpload": "segmented upload",
+            "BlockDownload": "block download",
+            "BlockUpload": "block upload",
+        }.get(name, name)
 
 
 class BlockDownload(Transfer):
@@ -108,8 +112,10 @@ class BlockDownload(Transfer):
             del self.buffer[-n:]
         data = bytes(self.buffer)
         if self.size is not None and len(data) != self.size:
-            raise SdoAbort(abort.LENGTH_HIGH if len(data) > self.size else abort.LENGTH_LOW,
-                           f"{len(data)} bytes received, {self.size} indicated")
+            raise SdoAbort(
+                abort.LENGTH_HIGH if len(data) > self.size else abort.LENGTH_LOW,
+                f"{len(data)} bytes received, {self.size} indicated",
+            )
         if self.crc:
             client_crc = struct.unpack_from("<H", req, 1)[0]
             if client_crc != crc16(data):
@@ -170,7 +176,7 @@ class BlockUpload(Transfer):
         pos = self.block_start
         self.sent = 0
         for seq in range(1, self.block_size + 1):
-            chunk = self.data[pos:pos + 7]
+            chunk = self.data[pos : pos + 7]
             pos += 7
             last = pos >= len(self.data)
             self.server.send(bytes([(0x80 if last else 0) | seq]) + chunk + bytes(7 - len(chunk)))

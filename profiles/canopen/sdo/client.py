@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import struct
 from collections import deque
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 from profiles.canopen.sdo import abort
 
@@ -48,8 +49,9 @@ class SdoResult(NamedTuple):
 
 
 class _Transfer:
-    def __init__(self, index: int, sub: int, upload: bool, data: bytes | None,
-                 done: Callable[[SdoResult], Any] | None) -> None:
+    def __init__(
+        self, index: int, sub: int, upload: bool, data: bytes | None, done: Callable[[SdoResult], Any] | None
+    ) -> None:
         self.index, self.sub, self.upload, self.data, self.done = index, sub, upload, data, done
         self.buffer = bytearray()
         self.size: int | None = None
@@ -61,8 +63,9 @@ class _Transfer:
 class SdoClient:
     """The SDO client of one server. Counters: ``completed``, ``aborted``, ``timeouts``."""
 
-    def __init__(self, send: Callable[[bytes], Any], call_later: Callable[..., Any], *,
-                 timeout_ns: int = 500_000_000) -> None:
+    def __init__(
+        self, send: Callable[[bytes], Any], call_later: Callable[..., Any], *, timeout_ns: int = 500_000_000
+    ) -> None:
         self.send = send
         self.call_later = call_later
         self.timeout_ns = timeout_ns
@@ -147,7 +150,7 @@ class SdoClient:
                 raise _Protocol(abort.COMMAND)
             if cmd & 0x02:
                 size = 4 - ((cmd >> 2) & 0x03) if cmd & 0x01 else 4
-                self._finish(bytes(data[4:4 + size]), None)
+                self._finish(bytes(data[4 : 4 + size]), None)
                 return
             t.size = struct.unpack_from("<L", data, 4)[0] if cmd & 0x01 else None
             t.phase = "segments"
@@ -163,7 +166,7 @@ class SdoClient:
 
     def _send_segment(self, t: _Transfer) -> None:
         assert t.data is not None
-        chunk = t.data[t.pos:t.pos + 7]
+        chunk = t.data[t.pos : t.pos + 7]
         t.pos += len(chunk)
         last = t.pos >= len(t.data)
         self._request(bytes([t.toggle | ((7 - len(chunk)) << 1) | (1 if last else 0)]) + chunk + bytes(7 - len(chunk)))
@@ -185,7 +188,7 @@ class SdoClient:
         if cmd & 0x10 != t.toggle:
             raise _Protocol(abort.TOGGLE_BIT)
         n = (cmd >> 1) & 0x07
-        t.buffer += data[1:8 - n]
+        t.buffer += data[1 : 8 - n]
         t.toggle ^= 0x10
         if cmd & 0x01:
             if t.size is not None and len(t.buffer) != t.size:

@@ -31,7 +31,8 @@ while the device's NMT state has no SDO never reaches the server (the device dro
 from __future__ import annotations
 
 import struct
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from profiles.canopen.dictionary import ObjectStore
 from profiles.canopen.sdo import abort
@@ -49,7 +50,7 @@ _HEADER = struct.Struct("<BHB")
 class SegmentedDownload(Transfer):
     """Download segments after an initiate without the expedited bit (CiA 301 7.2.4.3.3-4)."""
 
-    def __init__(self, server: "SdoServer", index: int, sub: int, size: int | None) -> None:
+    def __init__(self, server: SdoServer, index: int, sub: int, size: int | None) -> None:
         super().__init__(index, sub)
         self.server = server
         self.size = size
@@ -64,7 +65,7 @@ class SegmentedDownload(Transfer):
         if cmd & 0x10 != self.toggle:
             raise SdoAbort(abort.TOGGLE_BIT, "download segment toggle bit not alternated")
         n = (cmd >> 1) & 0x07
-        self.buffer += req[1:8 - n]
+        self.buffer += req[1 : 8 - n]
         if self.size is not None and len(self.buffer) > self.size:
             raise SdoAbort(abort.LENGTH_HIGH, f"{len(self.buffer)} bytes received, {self.size} indicated")
         store_size = self.server.store.size(self.index, self.sub)
@@ -82,7 +83,7 @@ class SegmentedDownload(Transfer):
 class SegmentedUpload(Transfer):
     """Upload segments after an initiate response with the size (CiA 301 7.2.4.3.5-6)."""
 
-    def __init__(self, server: "SdoServer", index: int, sub: int, data: bytes) -> None:
+    def __init__(self, server: SdoServer, index: int, sub: int, data: bytes) -> None:
         super().__init__(index, sub)
         self.server = server
         self.data = data
@@ -96,7 +97,7 @@ class SegmentedUpload(Transfer):
             raise SdoAbort(abort.COMMAND, f"expected an upload segment request, got command 0x{cmd:02X}")
         if cmd & 0x10 != self.toggle:
             raise SdoAbort(abort.TOGGLE_BIT, "upload segment toggle bit not alternated")
-        chunk = self.data[self.pos:self.pos + 7]
+        chunk = self.data[self.pos : self.pos + 7]
         self.pos += len(chunk)
         last = self.pos >= len(self.data)
         resp = bytes([self.toggle | ((7 - len(chunk)) << 1) | (0x01 if last else 0)]) + chunk + bytes(7 - len(chunk))
@@ -117,9 +118,15 @@ class SdoServer:
     (not 8 bytes), and ``completed`` by transfer kind.
     """
 
-    def __init__(self, store: ObjectStore, send: Callable[[bytes], Any],
-                 call_later: Callable[..., Any], *, timeout_ns: int = DEFAULT_TIMEOUT_NS,
-                 block_size: int = 127) -> None:
+    def __init__(
+        self,
+        store: ObjectStore,
+        send: Callable[[bytes], Any],
+        call_later: Callable[..., Any],
+        *,
+        timeout_ns: int = DEFAULT_TIMEOUT_NS,
+        block_size: int = 127,
+    ) -> None:
         if not 1 <= block_size <= 127:
             raise ValueError(f"block_size {block_size!r}: an SDO block has 1..127 segments (CiA 301 7.2.4.3.9)")
         self.store = store
@@ -134,8 +141,14 @@ class SdoServer:
         self.aborts_received = 0
         self.ignored = 0
         self.last_abort: int | None = None
-        self.completed: dict[str, int] = {"expedited download": 0, "expedited upload": 0, "segmented download": 0,
-                                          "segmented upload": 0, "block download": 0, "block upload": 0}
+        self.completed: dict[str, int] = {
+            "expedited download": 0,
+            "expedited upload": 0,
+            "segmented download": 0,
+            "segmented upload": 0,
+            "block download": 0,
+            "block upload": 0,
+        }
 
     # ------------------------------------------------------------------ frames
     def on_request(self, data: bytes) -> None:
@@ -202,7 +215,7 @@ class SdoServer:
             else:
                 fixed = self.store.size(index, sub)
                 size = fixed if fixed is not None and fixed < 4 else 4
-            self.store.sdo_write(index, sub, bytes(req[4:4 + size]))
+            self.store.sdo_write(index, sub, bytes(req[4 : 4 + size]))
             self.send(bytes([0x60]) + req[1:4] + bytes(4))
             self.completed["expedited download"] += 1
             return None
@@ -254,5 +267,7 @@ def _check_size(store: ObjectStore, index: int, sub: int, size: int | None, var:
     """An indicated size against a fixed-size object (CANopenNode checks it at initiate)."""
     fixed = store.size(index, sub)
     if size is not None and fixed is not None and size != fixed:
-        raise SdoAbort(abort.LENGTH_HIGH if size > fixed else abort.LENGTH_LOW,
-                       f"{size} bytes indicated for a {fixed}-byte object 0x{index:04X}:{sub}")
+        raise SdoAbort(
+            abort.LENGTH_HIGH if size > fixed else abort.LENGTH_LOW,
+            f"{size} bytes indicated for a {fixed}-byte object 0x{index:04X}:{sub}",
+        )

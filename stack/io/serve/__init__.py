@@ -13,10 +13,41 @@ ECU prototypes in several processes contend as on a real bus. A client joins wit
 """
 
 from stack.io.serve.client import RemotePort
-from stack.io.serve.protocol import (BYE, ERROR, FILTERS, HELLO, MAX_MESSAGE, MODE, PROTOCOL_VERSION, RX, SEND,
-                                     STATE, TXEND, TXERROR, WELCOME, encode_message)
+from stack.io.serve.protocol import (
+    BYE,
+    ERROR,
+    FILTERS,
+    HELLO,
+    MAX_MESSAGE,
+    MODE,
+    PROTOCOL_VERSION,
+    RX,
+    SEND,
+    STATE,
+    TXEND,
+    TXERROR,
+    WELCOME,
+    encode_message,
+)
 from stack.io.serve.server import HELLO_TIMEOUT_S, MAX_BACKLOG, BusServer
 
-__all__ = ["BusServer", "RemotePort", "MAX_MESSAGE", "MAX_BACKLOG", "HELLO_TIMEOUT_S", "encode_message",
-           "PROTOCOL_VERSION", "HELLO", "WELCOME", "ERROR", "SEND", "RX", "TXEND", "STATE", "FILTERS", "BYE",
-           "TXERROR", "MODE"]
+__all__ = [
+    "BusServer",
+    "RemotePort",
+    "MAX_MESSAGE",
+    "MAX_BACKLOG",
+    "HELLO_TIMEOUT_S",
+    "encode_message",
+    "PROTOCOL_VERSION",
+    "HELLO",
+    "WELCOME",
+    "ERROR",
+    "SEND",
+    "RX",
+    "TXEND",
+    "STATE",
+    "FILTERS",
+    "BYE",
+    "TXERROR",
+    "MODE",
+]

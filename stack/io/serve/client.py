@@ -10,7 +10,8 @@ import logging
 import socket
 import threading
 import time
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import can
 
@@ -30,9 +31,19 @@ class RemotePort:
 
     native_periodic = False
 
-    def __init__(self, owner: PortOwner, kind: str, addr: Any, name: str, bitrate: int | None,
-                 node_name: str | None, config: Mapping[str, Any], *, channel: str = "",
-                 receive_own_messages: bool = False) -> None:
+    def __init__(
+        self,
+        owner: PortOwner,
+        kind: str,
+        addr: Any,
+        name: str,
+        bitrate: int | None,
+        node_name: str | None,
+        config: Mapping[str, Any],
+        *,
+        channel: str = "",
+        receive_own_messages: bool = False,
+    ) -> None:
         self.owner = owner
         where = channel or str(addr)
         try:
@@ -44,10 +55,14 @@ class RemotePort:
                 self.sock.settimeout(5.0)
                 self.sock.connect(addr)
         except OSError as exc:
-            what = "nothing listens there" if isinstance(exc, (ConnectionRefusedError, FileNotFoundError)) \
+            what = (
+                "nothing listens there"
+                if isinstance(exc, (ConnectionRefusedError, FileNotFoundError))
                 else (exc.strerror or str(exc))
+            )
             raise can.CanInitializationError(
-                f"cannot reach a canstack server at {where}: {what} (is `canstack serve` running there?)") from None
+                f"cannot reach a canstack server at {where}: {what} (is `canstack serve` running there?)"
+            ) from None
         self._wlock = threading.Lock()
         self._reader = P.Reader()
         self._pending: list[tuple[int, bytes]] = []

@@ -39,12 +39,43 @@ from stack.controller.confinement import ErrorState
 from stack.wire.frame import Frame
 
 __all__ = [
-    "PROTOCOL_VERSION", "MAX_MESSAGE", "HELLO", "WELCOME", "ERROR", "SEND", "RX", "TXEND", "STATE",
-    "FILTERS", "BYE", "TXERROR", "MODE", "F_EXT", "F_RTR", "F_OWN", "NODE_KEYS",
-    "encode_message", "json_message", "Reader", "Hello",
-    "encode_hello", "parse_hello", "encode_welcome", "parse_welcome",
-    "encode_send", "decode_send", "encode_rx", "RxDecoder", "encode_txend", "decode_txend",
-    "encode_state", "decode_state", "encode_tx_error", "decode_tx_error", "encode_mode", "decode_mode",
+    "PROTOCOL_VERSION",
+    "MAX_MESSAGE",
+    "HELLO",
+    "WELCOME",
+    "ERROR",
+    "SEND",
+    "RX",
+    "TXEND",
+    "STATE",
+    "FILTERS",
+    "BYE",
+    "TXERROR",
+    "MODE",
+    "F_EXT",
+    "F_RTR",
+    "F_OWN",
+    "NODE_KEYS",
+    "encode_message",
+    "json_message",
+    "Reader",
+    "Hello",
+    "encode_hello",
+    "parse_hello",
+    "encode_welcome",
+    "parse_welcome",
+    "encode_send",
+    "decode_send",
+    "encode_rx",
+    "RxDecoder",
+    "encode_txend",
+    "decode_txend",
+    "encode_state",
+    "decode_state",
+    "encode_tx_error",
+    "decode_tx_error",
+    "encode_mode",
+    "decode_mode",
     "parse_filters",
 ]
 
@@ -65,8 +96,14 @@ _RX = struct.Struct("!QIBB")
 _STATE = struct.Struct("!BHH")
 _TXERROR = struct.Struct("!QHH")
 
-NODE_KEYS: dict[str, Any] = {"queue": str, "mailboxes": (int, type(None)), "abort": bool, "tx_queue_size": int,
-                             "listen_only": bool, "one_shot": bool}
+NODE_KEYS: dict[str, Any] = {
+    "queue": str,
+    "mailboxes": (int, type(None)),
+    "abort": bool,
+    "tx_queue_size": int,
+    "listen_only": bool,
+    "one_shot": bool,
+}
 """The node options HELLO may carry, with their JSON types."""
 
 
@@ -99,7 +136,7 @@ class Reader:
                 raise ValueError(f"message length {length} outside 1..{MAX_MESSAGE}")
             if n - pos < 4 + length:
                 break
-            out.append((mtype, bytes(buf[pos + 5:pos + 4 + length])))
+            out.append((mtype, bytes(buf[pos + 5 : pos + 4 + length])))
             pos += 4 + length
         if pos:
             del buf[:pos]
@@ -126,12 +163,21 @@ class Hello(NamedTuple):
     receive_own_messages: bool
 
 
-def encode_hello(bus: str, bitrate: int | None, node_name: str | None, config: dict[str, Any],
-                 receive_own_messages: bool) -> bytes:
+def encode_hello(
+    bus: str, bitrate: int | None, node_name: str | None, config: dict[str, Any], receive_own_messages: bool
+) -> bytes:
     """The HELLO message a client starts with (``config`` keeps only `NODE_KEYS`)."""
-    return json_message(HELLO, {"v": PROTOCOL_VERSION, "bus": bus, "bitrate": bitrate, "node_name": node_name,
-                                "config": {k: v for k, v in config.items() if k in NODE_KEYS},
-                                "receive_own_messages": bool(receive_own_messages)})
+    return json_message(
+        HELLO,
+        {
+            "v": PROTOCOL_VERSION,
+            "bus": bus,
+            "bitrate": bitrate,
+            "node_name": node_name,
+            "config": {k: v for k, v in config.items() if k in NODE_KEYS},
+            "receive_own_messages": bool(receive_own_messages),
+        },
+    )
 
 
 def parse_hello(payload: bytes, bus: str, bitrate: int) -> Hello:
@@ -182,8 +228,11 @@ def parse_welcome(payload: bytes) -> tuple[int, str, float]:
 # ---------------------------------------------------------------------------------- frames
 def encode_send(frame: Frame) -> bytes:
     """The SEND message of ``frame``."""
-    return encode_message(SEND, _SEND.pack(frame.can_id, (F_EXT if frame.extended else 0)
-                                           | (F_RTR if frame.remote else 0), frame.dlc) + frame.data)
+    return encode_message(
+        SEND,
+        _SEND.pack(frame.can_id, (F_EXT if frame.extended else 0) | (F_RTR if frame.remote else 0), frame.dlc)
+        + frame.data,
+    )
 
 
 def decode_send(payload: bytes) -> Frame:
@@ -192,16 +241,23 @@ def decode_send(payload: bytes) -> Frame:
         raise ValueError(f"SEND payload of {len(payload)} bytes is too short")
     can_id, flags, dlc = _SEND.unpack_from(payload)
     try:
-        return Frame(can_id, payload[_SEND.size:], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
+        return Frame(can_id, payload[_SEND.size :], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
     except TypeError as exc:
         raise ValueError(str(exc)) from None
 
 
 def encode_rx(t_ns: int, frame: Frame, own: bool) -> bytes:
     """The RX message of a frame received at ``t_ns`` (``own``: the client's own frame)."""
-    return encode_message(RX, _RX.pack(t_ns, frame.can_id, (F_EXT if frame.extended else 0)
-                                       | (F_RTR if frame.remote else 0) | (F_OWN if own else 0),
-                                       frame.dlc) + frame.data)
+    return encode_message(
+        RX,
+        _RX.pack(
+            t_ns,
+            frame.can_id,
+            (F_EXT if frame.extended else 0) | (F_RTR if frame.remote else 0) | (F_OWN if own else 0),
+            frame.dlc,
+        )
+        + frame.data,
+    )
 
 
 class RxDecoder:
@@ -217,7 +273,7 @@ class RxDecoder:
         f = self._cache.get(key)
         if f is None:
             can_id, flags, dlc = _SEND.unpack_from(key)
-            f = Frame(can_id, key[_SEND.size:], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
+            f = Frame(can_id, key[_SEND.size :], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
             if len(self._cache) > 4096:
                 self._cache.clear()
             self._cache[key] = f
@@ -227,7 +283,7 @@ class RxDecoder:
 # ---------------------------------------------------------------------------------- status
 def encode_txend(error: str | None) -> bytes:
     """TXEND: the frame was sent (None) or not, and why."""
-    return encode_message(TXEND, b"\x01" if error is None else b"\x00" + error.encode()[:MAX_MESSAGE - 2])
+    return encode_message(TXEND, b"\x01" if error is None else b"\x00" + error.encode()[: MAX_MESSAGE - 2])
 
 
 def decode_txend(payload: bytes) -> str | None:
@@ -248,14 +304,16 @@ def decode_state(payload: bytes) -> tuple[ErrorState, int, int]:
 
 def encode_tx_error(t_ns: int, reason: str, tec: int, rec: int) -> bytes:
     """TXERROR: a transmission failed at ``t_ns`` (one-shot), with the counters after it."""
-    return encode_message(TXERROR, _TXERROR.pack(t_ns, min(tec, 65535), min(rec, 65535))
-                          + reason.encode()[:MAX_MESSAGE - 1 - _TXERROR.size])
+    return encode_message(
+        TXERROR,
+        _TXERROR.pack(t_ns, min(tec, 65535), min(rec, 65535)) + reason.encode()[: MAX_MESSAGE - 1 - _TXERROR.size],
+    )
 
 
 def decode_tx_error(payload: bytes) -> tuple[int, str, int, int]:
     """(t_ns, reason, tec, rec) of a TXERROR payload."""
     t_ns, tec, rec = _TXERROR.unpack_from(payload)
-    return t_ns, payload[_TXERROR.size:].decode(errors="replace"), tec, rec
+    return t_ns, payload[_TXERROR.size :].decode(errors="replace"), tec, rec
 
 
 def encode_mode(listen_only: bool) -> bytes:

@@ -46,7 +46,7 @@ _unix_peers = count(1)
 class _Session:
     """One connected client: a reader thread, a writer thread and, once joined, its `Port`."""
 
-    def __init__(self, server: "BusServer", sock: socket.socket, peer: str) -> None:
+    def __init__(self, server: BusServer, sock: socket.socket, peer: str) -> None:
         self.server = server
         self.sock = sock
         self.peer = peer
@@ -132,7 +132,7 @@ class _Session:
         self.rejected += 1
         self.server.rejected += 1
         LOG.warning("client %s: %s%s", self.peer, reason, " (disconnected)" if fatal else "")
-        self.push(P.encode_message(P.ERROR, reason.encode()[:P.MAX_MESSAGE - 1]))
+        self.push(P.encode_message(P.ERROR, reason.encode()[: P.MAX_MESSAGE - 1]))
         if fatal:
             self.out.put(None)
             self.closed.set()
@@ -146,7 +146,7 @@ class _Session:
             while not self.closed.is_set():
                 try:
                     data = sock.recv(65536)
-                except socket.timeout:
+                except TimeoutError:
                     if self.port is None:
                         self._reject(f"no HELLO within {HELLO_TIMEOUT_S} s", fatal=True)
                         return
@@ -180,8 +180,14 @@ class _Session:
         srv = self.server
         try:
             hello = P.parse_hello(payload, srv.name, srv.bitrate)
-            self.port = Port(srv.runner, self, node_name=hello.node_name, prefix="client", config=hello.config,
-                             receive_own_messages=hello.receive_own_messages)
+            self.port = Port(
+                srv.runner,
+                self,
+                node_name=hello.node_name,
+                prefix="client",
+                config=hello.config,
+                receive_own_messages=hello.receive_own_messages,
+            )
         except (ValueError, TypeError, can.CanError) as exc:
             self._reject(f"HELLO refused: {exc}", fatal=True)
             return False
@@ -265,15 +271,25 @@ def _claim_unix_path(path: str) -> None:
 def _bind_error(exc: OSError, where: str, tcp: bool) -> ValueError:
     """A bind failure as one line naming the address or path and what to do."""
     if exc.errno == errno.EADDRINUSE:
-        hint = ("another server (perhaps another canstack serve) listens there: stop it, or pick another port "
-                "(--listen HOST:0 picks a free one)") if tcp else "another server uses it"
+        hint = (
+            (
+                "another server (perhaps another canstack serve) listens there: stop it, or pick another port "
+                "(--listen HOST:0 picks a free one)"
+            )
+            if tcp
+            else "another server uses it"
+        )
         return ValueError(f"{where} is already in use: {hint}")
     if exc.errno == errno.ENOENT:
-        return ValueError(f"{where}: the directory {os.path.dirname(where)!r} does not exist; create it or "
-                          "choose another path")
+        return ValueError(
+            f"{where}: the directory {os.path.dirname(where)!r} does not exist; create it or choose another path"
+        )
     if exc.errno in (errno.EACCES, errno.EPERM):
-        what = "ports below 1024 need privileges; choose a port above 1023" if tcp else \
-            "choose a path in a directory you may write"
+        what = (
+            "ports below 1024 need privileges; choose a port above 1023"
+            if tcp
+            else "choose a path in a directory you may write"
+        )
         return ValueError(f"{where}: permission denied ({what})")
     if exc.errno == errno.EADDRNOTAVAIL:
         return ValueError(f"{where}: that address belongs to no interface of this machine")
@@ -303,8 +319,15 @@ class BusServer:
     names the address or path when it cannot listen there (in use, missing directory, ...).
     """
 
-    def __init__(self, bitrate: int = 500_000, *, name: str = "bus0", listen: tuple[str, int] | None = None,
-                 unix: str | None = None, allow_remote: bool = False) -> None:
+    def __init__(
+        self,
+        bitrate: int = 500_000,
+        *,
+        name: str = "bus0",
+        listen: tuple[str, int] | None = None,
+        unix: str | None = None,
+        allow_remote: bool = False,
+    ) -> None:
         if not BUS_NAME_RE.match(name):
             raise ValueError(f"bus name {name!r}: use 1..64 of A-Z a-z 0-9 _ . -")
         if (listen is None) == (unix is None):
@@ -331,8 +354,10 @@ class BusServer:
     def _bind_tcp(listen: tuple[str, int], name: str, allow_remote: bool) -> tuple[socket.socket, Any, str]:
         host, port = listen
         if not allow_remote and not _is_loopback(host):
-            raise ValueError(f"listen address {host!r} is not loopback: the simulated bus has no "
-                             "authentication; pass --allow-remote to serve other machines")
+            raise ValueError(
+                f"listen address {host!r} is not loopback: the simulated bus has no "
+                "authentication; pass --allow-remote to serve other machines"
+            )
         where = f"{'[' + host + ']' if ':' in host else host}:{port}"
         fam = socket.AF_INET6 if ":" in host else socket.AF_INET
         sock = socket.socket(fam, socket.SOCK_STREAM)
@@ -372,7 +397,7 @@ class BusServer:
         while not self._stop.is_set():
             try:
                 conn, addr = self.sock.accept()
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
                 break
@@ -414,7 +439,7 @@ class BusServer:
         self.runner.stop()
         self.runner.join(2.0)
 
-    def __enter__(self) -> "BusServer":
+    def __enter__(self) -> BusServer:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -80,6 +80,7 @@ def device(bus):
         d = CanopenDevice(bus.node(f"dev{node_id}"), node_id, eds, **options)
         d.start()
         return d
+
     return make
 
 

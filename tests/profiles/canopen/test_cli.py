@@ -34,6 +34,7 @@ def registered(monkeypatch):
         def entry_points(**kw):
             eps = real(**kw)
             return importlib.metadata.EntryPoints([*eps, EP]) if kw.get("group") == "canstack.commands" else eps
+
         monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
 
 
@@ -50,14 +51,17 @@ def test_pyproject_registers_the_command():
     assert py["project"]["entry-points"]["canstack.commands"]["canopen"] == EP.value
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--node-id", "0", "--interface", "virtual"], r"0: a CANopen node-ID is 1\.\.127"),
-    (["--node-id", "128", "--interface", "virtual"], r"128: a CANopen node-ID is 1\.\.127"),
-    (["--node-id", "x", "--interface", "virtual"], r"'x' is not an integer"),
-    (["--node-id", "5"], r"the following arguments are required: --interface"),
-    (["--node-id", "5", "--interface", "virtual", "--heartbeat", "70000"], r"70000: the producer heartbeat time"),
-    (["--node-id", "5", "--interface", "no-such-interface"], r"cannot open no-such-interface channel None"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--node-id", "0", "--interface", "virtual"], r"0: a CANopen node-ID is 1\.\.127"),
+        (["--node-id", "128", "--interface", "virtual"], r"128: a CANopen node-ID is 1\.\.127"),
+        (["--node-id", "x", "--interface", "virtual"], r"'x' is not an integer"),
+        (["--node-id", "5"], r"the following arguments are required: --interface"),
+        (["--node-id", "5", "--interface", "virtual", "--heartbeat", "70000"], r"70000: the producer heartbeat time"),
+        (["--node-id", "5", "--interface", "no-such-interface"], r"cannot open no-such-interface channel None"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_status_2(capsys, registered, argv, message):
     import re
 
@@ -76,13 +80,37 @@ def test_a_malformed_eds_names_the_file(capsys, registered, tmp_path):
 
 
 def test_a_short_run_on_the_virtual_bus_prints_the_summary(capsys, registered):
-    code, out, err = run(capsys, "canopen", "--node-id", "9", "--interface", "virtual", "--channel", "co-cli",
-                         "--heartbeat", "50", "--duration", "0.3", "--start")
+    code, out, err = run(
+        capsys,
+        "canopen",
+        "--node-id",
+        "9",
+        "--interface",
+        "virtual",
+        "--channel",
+        "co-cli",
+        "--heartbeat",
+        "50",
+        "--duration",
+        "0.3",
+        "--start",
+    )
     assert code == 0, err
     assert "NMT INITIALISING -> OPERATIONAL" in out
     assert "node 9: OPERATIONAL, 1 boot-up," in out
-    code, out, err = run(capsys, "canopen", "--node-id", "9", "--interface", "virtual", "--channel", "co-cli",
-                         "--duration", "0.1", "--json")
+    code, out, err = run(
+        capsys,
+        "canopen",
+        "--node-id",
+        "9",
+        "--interface",
+        "virtual",
+        "--channel",
+        "co-cli",
+        "--duration",
+        "0.1",
+        "--json",
+    )
     import json
 
     m = json.loads(out)
@@ -97,9 +125,26 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
         (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: canstack-canopen-entry\nVersion: 0\n")
         (dist / "entry_points.txt").write_text(f"[canstack.commands]\ncanopen = {EP.value}\n")
     with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
-        proc = subprocess.Popen([sys.executable, "-m", "stack.cli", "canopen", "--node-id", "12", "--interface",
-                                 "canstack", "--channel", srv.url, "--heartbeat", "100"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "stack.cli",
+                "canopen",
+                "--node-id",
+                "12",
+                "--interface",
+                "canstack",
+                "--channel",
+                srv.url,
+                "--heartbeat",
+                "100",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
         net = canopen.Network()
         try:
             assert "Ctrl-C stops it" in proc.stdout.readline()

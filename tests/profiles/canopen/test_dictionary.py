@@ -39,28 +39,44 @@ def test_default_eds_has_cia_301s_mandatory_objects_and_resolves_nodeid(store):
 
 def test_the_shipped_eds_is_package_data():
     assert DEFAULT_EDS.name == "default.eds" and DEFAULT_EDS.is_file()
-    import tomllib
     from pathlib import Path
+
+    import tomllib
 
     py = tomllib.loads((Path(__file__).resolve().parents[3] / "pyproject.toml").read_text())
     assert "*.eds" in py["tool"]["setuptools"]["package-data"]["profiles.canopen"]
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda t: drop_section(t, "1001"), r"mandatory object 0x1001 \(error register\) is missing"),
-    (lambda t: drop_section(drop_section(drop_section(t, "1017"), "100C"), "100D"),
-     r"neither 0x1017 .* nor 0x100C/0x100D"),
-    (lambda t: t.replace("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006",
-                         "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0007"),
-     r"0x1017 \(Producer heartbeat time\) must be UNSIGNED16 .*not UNSIGNED32"),
-    (lambda t: drop_section(t, "1A01"), r"TPDO2: 0x1801 is defined without 0x1A01"),
-    (lambda t: t.replace("ParameterName=Temperature\nObjectType=0x7\nDataType=0x0003\nAccessType=rw\nDefaultValue=250",
-                         "ParameterName=Temperature\nObjectType=0x7\nDataType=0x0003\nAccessType=rw\nDefaultValue=70000"),
-     r"0x2003 \(Temperature\): default value 70000 does not fit INTEGER16"),
-    (lambda t: t + "\n[2999sub1]\nParameterName=orphan\nDataType=0x0005\nAccessType=rw\n",
-     r"a sub-index section names an object that is not defined"),
-    (lambda t: t.replace("[1018]", "[1018", 1), r"not a valid EDS \(CiA 306 INI syntax\)"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda t: drop_section(t, "1001"), r"mandatory object 0x1001 \(error register\) is missing"),
+        (
+            lambda t: drop_section(drop_section(drop_section(t, "1017"), "100C"), "100D"),
+            r"neither 0x1017 .* nor 0x100C/0x100D",
+        ),
+        (
+            lambda t: t.replace(
+                "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006",
+                "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0007",
+            ),
+            r"0x1017 \(Producer heartbeat time\) must be UNSIGNED16 .*not UNSIGNED32",
+        ),
+        (lambda t: drop_section(t, "1A01"), r"TPDO2: 0x1801 is defined without 0x1A01"),
+        (
+            lambda t: t.replace(
+                "ParameterName=Temperature\nObjectType=0x7\nDataType=0x0003\nAccessType=rw\nDefaultValue=250",
+                "ParameterName=Temperature\nObjectType=0x7\nDataType=0x0003\nAccessType=rw\nDefaultValue=70000",
+            ),
+            r"0x2003 \(Temperature\): default value 70000 does not fit INTEGER16",
+        ),
+        (
+            lambda t: t + "\n[2999sub1]\nParameterName=orphan\nDataType=0x0005\nAccessType=rw\n",
+            r"a sub-index section names an object that is not defined",
+        ),
+        (lambda t: t.replace("[1018]", "[1018", 1), r"not a valid EDS \(CiA 306 INI syntax\)"),
+    ],
+)
 def test_malformed_eds_names_the_file_and_the_problem(tmp_path, edit, message):
     path = eds_with(tmp_path, edit)
     with pytest.raises(EdsError, match=message) as exc:
@@ -80,23 +96,31 @@ def test_eds_path_problems(tmp_path):
 
 
 def test_dcf_parameter_values_win_over_defaults(tmp_path):
-    path = eds_with(tmp_path, lambda t: t.replace(
-        "ParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=1000",
-        "ParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=1000\n"
-        "ParameterValue=250"), name="device.dcf")
+    path = eds_with(
+        tmp_path,
+        lambda t: t.replace(
+            "ParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=1000",
+            "ParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=1000\n"
+            "ParameterValue=250",
+        ),
+        name="device.dcf",
+    )
     assert ObjectStore(load_od(path, 3)).get(0x1017) == 250
 
 
-@pytest.mark.parametrize("index, sub, data, code", [
-    (0x3000, 0, b"\x00", abort.NO_OBJECT),
-    (0x1018, 9, b"\x00\x00\x00\x00", abort.NO_SUBINDEX),
-    (0x1000, 0, b"\x00\x00\x00\x00", abort.READ_ONLY),
-    (0x1008, 0, b"x", abort.READ_ONLY),  # const
-    (0x1017, 0, b"\x01\x02\x03", abort.LENGTH_HIGH),
-    (0x1017, 0, b"\x01", abort.LENGTH_LOW),
-    (0x2003, 0, (1251).to_bytes(2, "little", signed=True), abort.VALUE_HIGH),  # HighLimit 1250
-    (0x2003, 0, (-401).to_bytes(2, "little", signed=True), abort.VALUE_LOW),  # LowLimit -400
-])
+@pytest.mark.parametrize(
+    "index, sub, data, code",
+    [
+        (0x3000, 0, b"\x00", abort.NO_OBJECT),
+        (0x1018, 9, b"\x00\x00\x00\x00", abort.NO_SUBINDEX),
+        (0x1000, 0, b"\x00\x00\x00\x00", abort.READ_ONLY),
+        (0x1008, 0, b"x", abort.READ_ONLY),  # const
+        (0x1017, 0, b"\x01\x02\x03", abort.LENGTH_HIGH),
+        (0x1017, 0, b"\x01", abort.LENGTH_LOW),
+        (0x2003, 0, (1251).to_bytes(2, "little", signed=True), abort.VALUE_HIGH),  # HighLimit 1250
+        (0x2003, 0, (-401).to_bytes(2, "little", signed=True), abort.VALUE_LOW),  # LowLimit -400
+    ],
+)
 def test_sdo_write_refusals_with_cia_301_abort_codes(store, index, sub, data, code):
     with pytest.raises(SdoAbort) as exc:
         store.sdo_write(index, sub, data)

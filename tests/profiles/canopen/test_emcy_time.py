@@ -1,14 +1,13 @@
 """EMCY producer (CiA 301 7.2.7; objects 0x1001, 0x1003, 0x1014, 0x1015) decoded by the
 ``canopen`` library's EMCY consumer, and TIME (7.2.6) against the library's TIME producer."""
 
-
 import pytest
 from canopen.sdo import SdoAbortedError
 from canopen.timestamp import TIME_OF_DAY_STRUCT, TimeProducer
 
-from stack import Frame
 from profiles.canopen.emcy import decode_emcy, describe, register_bits
 from profiles.canopen.timestamp import decode_time_of_day, encode_time_of_day
+from stack import Frame
 
 MS = 1_000_000
 REMOTE_OPTIONS = {"heartbeat_ms": 0}  # the `remote` fixture's device: no heartbeat frames
@@ -18,9 +17,9 @@ def test_emcy_message_layout_decoded_by_the_library(remote, lib, spy, frames_wit
     dev, node = remote
     dev.report_error(0x4210, b"\x01\x02\x03")  # temperature: device
     lib.run(1 * MS)
-    (_, f), = frames_with(spy, 0x85)  # COB-ID 0x80 + node-ID
+    ((_, f),) = frames_with(spy, 0x85)  # COB-ID 0x80 + node-ID
     assert f.data == bytes([0x10, 0x42, 0x09, 1, 2, 3, 0, 0])  # code LE, register, 5 bytes
-    e, = node.emcy.active
+    (e,) = node.emcy.active
     assert (e.code, e.register, e.data) == (0x4210, 0x09, b"\x01\x02\x03\x00\x00")
     assert e.get_desc() == "Temperature" and describe(0x4210) == "temperature"
 

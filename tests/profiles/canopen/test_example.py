@@ -10,7 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
-SECTION = README[README.index("## CANopen-like profile"):README.index("## Python API tour")]
+SECTION = README[README.index("## CANopen-like profile") : README.index("## Python API tour")]
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +27,11 @@ def result(example):
 
 
 def test_the_readme_quotes_the_examples_output(example, result):
-    quoted = [ln[4:] for ln in SECTION.splitlines() if ln.startswith("    ") and
-              re.match(r"    (bus load|node \d|  PDO|0x[0-9A-F]{3})", ln)]
+    quoted = [
+        ln[4:]
+        for ln in SECTION.splitlines()
+        if ln.startswith("    ") and re.match(r"    (bus load|node \d|  PDO|0x[0-9A-F]{3})", ln)
+    ]
     assert quoted == example.report(result).splitlines()
 
 

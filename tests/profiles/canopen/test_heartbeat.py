@@ -4,10 +4,10 @@ the heartbeat event, node guarding with the toggle bit and life guarding (CiA 30
 import canopen
 import pytest
 
-from stack import Frame
 from profiles.canopen.dictionary import DEFAULT_EDS
 from profiles.canopen.emcy import decode_emcy
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
 MS = 1_000_000
 
@@ -117,7 +117,7 @@ def test_life_guarding_event_after_guard_time_times_life_time_factor(bus, device
     bus.run(until=t_request + 29 * MS)
     assert frames_with(spy, 0x88) == []
     bus.run(until=t_request + 31 * MS)
-    (t, f), = frames_with(spy, 0x88)
+    ((t, f),) = frames_with(spy, 0x88)
     assert decode_emcy(f.data).code == 0x8130 and d.guarding.life_guarding_events == 1
     master_node.send(Frame(0x708, remote=True, dlc=1))  # guarding again: error reset
     bus.run(until=bus.now() + 3 * MS)
@@ -131,7 +131,8 @@ def test_master_guards_nodes_and_sees_a_missing_reply(bus, device):
     m = CanopenMaster(bus.node("m"), nodes=[8], node_guarding_ms=20, reset_nodes=False, read_pdo_config=False)
     m.start()
     bus.run(until=5 * MS)
-    d.stop(); d.start()  # a boot-up the master sees
+    d.stop()
+    d.start()  # a boot-up the master sees
     bus.run(until=200 * MS)
     g = m.guarding.nodes[8]
     assert g.replies >= 9 and g.toggle_errors == 0 and g.missed == 0 and m.node_state(8) == "OPERATIONAL"

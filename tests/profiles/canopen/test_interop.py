@@ -37,7 +37,7 @@ from stack.io.serve import BusServer
 
 ROOT = Path(__file__).resolve().parents[3]
 
-MASTER = r'''
+MASTER = r"""
 import json, sys, time
 import canopen
 import stack.io.pycan
@@ -123,7 +123,7 @@ e = [e for e in nodes[2].emcy.log if e.code == 0x8130][0]
 r["emcy"] = [e.code, e.register, e.data.hex(), e.get_desc()]
 net.disconnect()
 print(json.dumps(r))
-'''
+"""
 
 
 @pytest.fixture(scope="module")
@@ -131,16 +131,23 @@ def library_master():
     """The library's master session against three canstack devices; (its results, the devices)."""
     with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
         driver = PyCanDriver(interface="canstack", channel=srv.url)
-        devices = [CanopenDevice(driver.node("d1"), 1, heartbeat_ms=100),
-                   CanopenDevice(driver.node("d2"), 2, heartbeat_ms=100, heartbeat_consumers={3: 300}),
-                   CanopenDevice(driver.node("d3"), 3, heartbeat_ms=100)]
+        devices = [
+            CanopenDevice(driver.node("d1"), 1, heartbeat_ms=100),
+            CanopenDevice(driver.node("d2"), 2, heartbeat_ms=100, heartbeat_consumers={3: 300}),
+            CanopenDevice(driver.node("d3"), 3, heartbeat_ms=100),
+        ]
         driver.start()
         try:
             for d in devices:
                 driver.submit(d.start)
             env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-            proc = subprocess.run([sys.executable, "-c", MASTER, srv.url, str(DEFAULT_EDS)], capture_output=True,
-                                  text=True, env=env, timeout=60)
+            proc = subprocess.run(
+                [sys.executable, "-c", MASTER, srv.url, str(DEFAULT_EDS)],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=60,
+            )
             assert proc.returncode == 0, proc.stderr
             results = json.loads(proc.stdout.strip().splitlines()[-1])
             with driver.lock:
@@ -196,8 +203,7 @@ def test_canstack_master_drives_a_canopen_local_node():
     local = canopen.LocalNode(4, str(DEFAULT_EDS))
     net.add_node(local)
     driver = PyCanDriver(interface="canstack", channel=channel)
-    master = CanopenMaster(driver.node("m"), nodes=[4], heartbeat_ms=100, sync_period_us=10_000,
-                           boot_timeout_ms=3000)
+    master = CanopenMaster(driver.node("m"), nodes=[4], heartbeat_ms=100, sync_period_us=10_000, boot_timeout_ms=3000)
     booted = threading.Event()
     master.on_boot(lambda rec: booted.set())
     driver.start()

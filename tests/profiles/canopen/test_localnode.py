@@ -30,6 +30,7 @@ class Recorder(canopen.Network):
 
             def update(self, data):
                 pass
+
         return Task()
 
 

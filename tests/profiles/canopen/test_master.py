@@ -3,9 +3,9 @@ SDO configuration, SYNC, heartbeat consumption and the SYNC-to-PDO latency it me
 
 import pytest
 
-from stack import Frame
 from profiles.canopen import CanopenMaster
 from profiles.canopen.sdo.client import SdoClient
+from stack import Frame
 
 MS = 1_000_000
 US = 1_000
@@ -18,6 +18,7 @@ def network(bus, device):
         m = CanopenMaster(bus.node("master-profile"), nodes=list(node_ids), **options)
         m.start()
         return m, devs
+
     return make
 
 
@@ -84,8 +85,11 @@ def test_heartbeat_loss_is_detected_and_counted(bus, network):
     assert node["heartbeat_timeouts"] == 1 and node["heartbeats_missed"] == (bus.now() - last) // (25 * MS)
     lost = [t for t, nid, what in m.events if what == "heartbeat lost"]
     assert len(lost) == 1 and lost[0] - last == 25 * MS
-    assert {n["node_id"]: n["nmt_state"] for n in m.metrics()["nodes"]} == {1: "OPERATIONAL", 2: "UNKNOWN",
-                                                                            3: "OPERATIONAL"}
+    assert {n["node_id"]: n["nmt_state"] for n in m.metrics()["nodes"]} == {
+        1: "OPERATIONAL",
+        2: "UNKNOWN",
+        3: "OPERATIONAL",
+    }
 
 
 def test_sync_to_pdo_latency_is_from_the_sync_sof_to_the_pdo_end(bus, network):
@@ -113,7 +117,7 @@ def test_emcy_of_a_node_is_logged(bus, network):
     bus.run(until=20 * MS)
     devs[0].report_error(0x5000, b"\x07")
     bus.run(until=25 * MS)
-    (t, e), = m.nodes[1].emcy
+    ((t, e),) = m.nodes[1].emcy
     assert e.code == 0x5000 and e.info[0] == 7 and (1, "emcy 0x5000") in [(n, w) for _, n, w in m.events]
 
 

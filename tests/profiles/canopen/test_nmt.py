@@ -5,9 +5,9 @@ import canopen
 import pytest
 from canopen.sdo import SdoCommunicationError
 
-from stack import Frame
 from profiles.canopen._state import NmtState
 from profiles.canopen.dictionary import DEFAULT_EDS
+from stack import Frame
 
 MS = 1_000_000
 
@@ -34,13 +34,19 @@ def test_boot_delay_and_self_starting_device(bus, device, spy, frames_with):
     assert frames_with(spy, 0x709)[0][0] >= 3 * MS and d.state is NmtState.OPERATIONAL
 
 
-def test_commands_follow_the_transition_table_and_the_heartbeat_reports_each_state(bus, device, master_node, spy,
-                                                                                    frames_with):
+def test_commands_follow_the_transition_table_and_the_heartbeat_reports_each_state(
+    bus, device, master_node, spy, frames_with
+):
     d = device(4, heartbeat_ms=100)
     bus.run(until=2 * MS)
-    for cs, state, code in ((0x01, NmtState.OPERATIONAL, 5), (0x02, NmtState.STOPPED, 4),
-                            (0x80, NmtState.PRE_OPERATIONAL, 127), (0x02, NmtState.STOPPED, 4),
-                            (0x01, NmtState.OPERATIONAL, 5), (0x80, NmtState.PRE_OPERATIONAL, 127)):
+    for cs, state, code in (
+        (0x01, NmtState.OPERATIONAL, 5),
+        (0x02, NmtState.STOPPED, 4),
+        (0x80, NmtState.PRE_OPERATIONAL, 127),
+        (0x02, NmtState.STOPPED, 4),
+        (0x01, NmtState.OPERATIONAL, 5),
+        (0x80, NmtState.PRE_OPERATIONAL, 127),
+    ):
         n = len(spy)
         nmt(master_node, bus, cs, 4)
         assert d.state is state
@@ -107,7 +113,7 @@ def test_reset_communication_restores_the_communication_area_only(bus, device, m
     nmt(master_node, bus, 0x01, 3)
     n = len(spy)
     nmt(master_node, bus, 0x82, 3)
-    assert [f.data for _, f in frames_with(spy[n:], 0x703)][0] == b"\x00"  # boot-up again
+    assert next(f.data for _, f in frames_with(spy[n:], 0x703)) == b"\x00"  # boot-up again
     assert d.state is NmtState.PRE_OPERATIONAL
     assert d.read(0x1017) == 0 and d.read(0x2000) == 0x42  # 0x1000..0x1FFF reset, application kept
     assert d.resets == {"application": 0, "communication": 1}

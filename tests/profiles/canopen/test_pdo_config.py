@@ -20,7 +20,9 @@ def test_the_library_reads_the_pdo_configuration(remote):
         ours, theirs = dev.tpdo(n), node.tpdo[n]
         assert theirs.cob_id == ours.can_id and theirs.enabled == ours.valid
         assert theirs.trans_type == ours.transmission_type
-        assert [(v.index, v.subindex, v.length) for v in theirs.map] == [(m.index, m.sub, 8 * m.size) for m in ours.mapped]
+        assert [(v.index, v.subindex, v.length) for v in theirs.map] == [
+            (m.index, m.sub, 8 * m.size) for m in ours.mapped
+        ]
     assert node.rpdo[1].cob_id == 0x205 and [v.name for v in node.rpdo[1].map] == ["Digital outputs"]
     assert node.rpdo[4].enabled is False
 
@@ -39,7 +41,9 @@ def test_remap_in_pre_operational_then_tpdos_after_each_sync(remote, lib):
     assert [(m.index, m.sub, m.size) for m in dev.tpdo(1).mapped] == [(0x2003, 0, 2), (0x2001, 1, 2), (0x2002, 0, 4)]
     assert dev.tpdo(1).valid and dev.tpdo(1).transmission_type == 2
     received = []
-    pdo.add_callback(lambda m: received.append((m["Temperature"].raw, m["Analog inputs.Analog input 1"].raw, m["Cycle counter"].raw)))
+    pdo.add_callback(
+        lambda m: received.append((m["Temperature"].raw, m["Analog inputs.Analog input 1"].raw, m["Cycle counter"].raw))
+    )
     dev.write(0x2003, 0, -55)
     dev.write(0x2001, 1, 321)
     node.nmt.state = "OPERATIONAL"
@@ -95,25 +99,58 @@ def write(node, index, sub, value):
 REFUSALS = [
     # (why, steps before, the refused write, abort code)
     ("mapping while the PDO is valid", [], (0x1A00, 0, 0), 0x0601_0000),
-    ("an entry while the number of objects is not 0", [(0x1800, 1, 0x8000_0185)], (0x1A00, 1, 0x2003_0010),
-     0x0601_0000),
-    ("an object that does not exist", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1A00, 1, 0x3000_0008),
-     0x0602_0000),
-    ("an object that is not mappable", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1A00, 1, 0x1017_0010),
-     0x0604_0041),
-    ("more bits than the object has", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1A00, 1, 0x2000_0010),
-     0x0604_0041),
-    ("a length that is not whole bytes", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1A00, 1, 0x2002_0004),
-     0x0604_0041),
-    ("a read-only object in an RPDO", [(0x1400, 1, 0x8000_0205), (0x1600, 0, 0)], (0x1600, 1, 0x2202_0010),
-     0x0604_0041),
-    ("more than 8 bytes", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0), (0x1A00, 1, 0x2002_0020),
-                           (0x1A00, 2, 0x2002_0020), (0x1A00, 3, 0x2000_0008)], (0x1A00, 0, 3), 0x0604_0042),
+    (
+        "an entry while the number of objects is not 0",
+        [(0x1800, 1, 0x8000_0185)],
+        (0x1A00, 1, 0x2003_0010),
+        0x0601_0000,
+    ),
+    (
+        "an object that does not exist",
+        [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)],
+        (0x1A00, 1, 0x3000_0008),
+        0x0602_0000,
+    ),
+    (
+        "an object that is not mappable",
+        [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)],
+        (0x1A00, 1, 0x1017_0010),
+        0x0604_0041,
+    ),
+    (
+        "more bits than the object has",
+        [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)],
+        (0x1A00, 1, 0x2000_0010),
+        0x0604_0041,
+    ),
+    (
+        "a length that is not whole bytes",
+        [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)],
+        (0x1A00, 1, 0x2002_0004),
+        0x0604_0041,
+    ),
+    (
+        "a read-only object in an RPDO",
+        [(0x1400, 1, 0x8000_0205), (0x1600, 0, 0)],
+        (0x1600, 1, 0x2202_0010),
+        0x0604_0041,
+    ),
+    (
+        "more than 8 bytes",
+        [
+            (0x1800, 1, 0x8000_0185),
+            (0x1A00, 0, 0),
+            (0x1A00, 1, 0x2002_0020),
+            (0x1A00, 2, 0x2002_0020),
+            (0x1A00, 3, 0x2000_0008),
+        ],
+        (0x1A00, 0, 3),
+        0x0604_0042,
+    ),
     ("a new CAN-ID while valid", [], (0x1800, 1, 0x0000_0190), 0x0609_0030),
     ("a restricted CAN-ID", [(0x1800, 1, 0x8000_0185)], (0x1800, 1, 0x0000_0605), 0x0609_0030),
     ("an extended CAN-ID (bit 29)", [(0x1800, 1, 0x8000_0185)], (0x1800, 1, 0x2000_0185), 0x0609_0030),
-    ("valid without mapped objects", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1800, 1, 0x0000_0185),
-     0x0609_0030),
+    ("valid without mapped objects", [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0)], (0x1800, 1, 0x0000_0185), 0x0609_0030),
     ("a reserved TPDO transmission type", [], (0x1800, 2, 245), 0x0609_0030),
     ("a reserved RPDO transmission type", [], (0x1400, 2, 252), 0x0609_0030),
     ("the inhibit time while valid", [], (0x1800, 3, 10), 0x0609_0030),
@@ -134,8 +171,14 @@ def test_refused_pdo_configuration(remote, why, before, refused, code):
 
 def test_the_allowed_order_works_step_by_step(remote, lib, bus, spy, frames_with):
     dev, node = remote
-    for step in [(0x1800, 1, 0x8000_0185), (0x1A00, 0, 0), (0x1A00, 1, 0x2002_0020), (0x1A00, 0, 1),
-                 (0x1800, 1, 0x0000_0199), (0x1800, 2, 1)]:
+    for step in [
+        (0x1800, 1, 0x8000_0185),
+        (0x1A00, 0, 0),
+        (0x1A00, 1, 0x2002_0020),
+        (0x1A00, 0, 1),
+        (0x1800, 1, 0x0000_0199),
+        (0x1800, 2, 1),
+    ]:
         write(node, *step)
     node.nmt.state = "OPERATIONAL"
     lib.sync.transmit()

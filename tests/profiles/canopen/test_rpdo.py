@@ -2,8 +2,8 @@
 ones at the next SYNC), call the application, and report a wrong length (CANopenNode's EMCY
 codes)."""
 
-from stack import Frame
 from profiles.canopen.emcy import decode_emcy
+from stack import Frame
 
 MS = 1_000_000
 
@@ -38,14 +38,13 @@ def test_a_synchronous_rpdo_takes_effect_at_the_next_sync(bus, device, master_no
     assert (d.read(0x2101, 1), d.read(0x2101, 2)) == (1001, -3)  # the last one before the SYNC
 
 
-def test_an_rpdo_shorter_than_its_mapping_is_not_processed_and_is_an_emcy(bus, device, master_node, spy,
-                                                                          frames_with):
+def test_an_rpdo_shorter_than_its_mapping_is_not_processed_and_is_an_emcy(bus, device, master_node, spy, frames_with):
     d = device(4, heartbeat_ms=0)  # RPDO3 (0x404) -> 0x2102, UNSIGNED32: 4 bytes
     start(bus, master_node, 4)
     master_node.send(Frame(0x404, b"\x01\x02"))
     bus.run(until=bus.now() + 1 * MS)
     assert d.read(0x2102) == 0
-    (_, f), = frames_with(spy, 0x84)
+    ((_, f),) = frames_with(spy, 0x84)
     e = decode_emcy(f.data)
     assert e.code == 0x8210 and e.register & 0x10  # PDO not processed due to length error
     master_node.send(Frame(0x404, b"\x01\x02\x03\x04"))  # the right length clears the error
@@ -90,8 +89,7 @@ def test_a_value_outside_the_objects_limits_is_skipped(bus, device, master_node)
     assert d.read(0x2003) == 250 and d.rpdo(1).rejected == 1
 
 
-def test_an_rpdo_that_writes_a_mapped_object_triggers_an_event_driven_tpdo(bus, device, master_node, spy,
-                                                                           frames_with):
+def test_an_rpdo_that_writes_a_mapped_object_triggers_an_event_driven_tpdo(bus, device, master_node, spy, frames_with):
     device(4, heartbeat_ms=0, rpdo={1: {"mapping": ["0x2001:1/16"]}})  # TPDO2 (255) maps 0x2001:1
     start(bus, master_node, 4)
     n = len(frames_with(spy, 0x284))

@@ -12,12 +12,23 @@ from profiles.scenario import ScenarioError, load_scenario, parse_scenario
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "canopen.toml"
 
-BASE = {"bus": {"bitrate": 1_000_000, "duration": 0.3},
-        "nodes": [{"name": "plc", "profile": "canopen-master",
-                   "canopen": {"nodes": [1, 2], "sync_period_us": 1000, "heartbeat_consumer_ms": 75}},
-                  {"name": "a", "profile": "canopen", "node_id": 1,
-                   "canopen": {"heartbeat_ms": 50, "tpdo": {"1": {"transmission_type": 1}}}},
-                  {"name": "b", "profile": "canopen", "node_id": 2, "canopen": {"heartbeat_ms": 50}}]}
+BASE = {
+    "bus": {"bitrate": 1_000_000, "duration": 0.3},
+    "nodes": [
+        {
+            "name": "plc",
+            "profile": "canopen-master",
+            "canopen": {"nodes": [1, 2], "sync_period_us": 1000, "heartbeat_consumer_ms": 75},
+        },
+        {
+            "name": "a",
+            "profile": "canopen",
+            "node_id": 1,
+            "canopen": {"heartbeat_ms": 50, "tpdo": {"1": {"transmission_type": 1}}},
+        },
+        {"name": "b", "profile": "canopen", "node_id": 2, "canopen": {"heartbeat_ms": 50}},
+    ],
+}
 
 
 def test_the_example_network_boots_synchronises_and_reports_the_unplugged_device():
@@ -38,16 +49,21 @@ def test_the_example_network_boots_synchronises_and_reports_the_unplugged_device
             assert p["sync_latency_ms"]["max"] <= 0.6 + 0.135  # window + one worst-case 8-byte frame at 1 Mbit/s
 
 
-@pytest.mark.parametrize("change,expected", [
-    (lambda r: r["nodes"][2].update(node_id=1), "node_id: 1 is already node 'a''s"),
-    (lambda r: r["nodes"][1].update(node_id=128), "node_id: 128 is outside 1..127 (CiA 301 node-ID)"),
-    (lambda r: r["nodes"][1].pop("node_id"), "key 'node_id' is required"),
-    (lambda r: r["nodes"][1]["canopen"].update(heartbeat_ms=-5), "[[nodes]] #2 'a': canopen: heartbeat_ms -5"),
-    (lambda r: r["nodes"][0]["canopen"].update(nodes=[0]), "[[nodes]] #1 'plc': canopen:"),
-    (lambda r: r["nodes"][1].update(eds="/nonexistent.eds"), "[[nodes]] #2 'a': canopen:"),
-    (lambda r: r["nodes"][1].update(messages=[{"name": "x", "id": 1, "dlc": 0}]),
-     "a canopen node sends what CiA 301 says"),
-])
+@pytest.mark.parametrize(
+    "change,expected",
+    [
+        (lambda r: r["nodes"][2].update(node_id=1), "node_id: 1 is already node 'a''s"),
+        (lambda r: r["nodes"][1].update(node_id=128), "node_id: 128 is outside 1..127 (CiA 301 node-ID)"),
+        (lambda r: r["nodes"][1].pop("node_id"), "key 'node_id' is required"),
+        (lambda r: r["nodes"][1]["canopen"].update(heartbeat_ms=-5), "[[nodes]] #2 'a': canopen: heartbeat_ms -5"),
+        (lambda r: r["nodes"][0]["canopen"].update(nodes=[0]), "[[nodes]] #1 'plc': canopen:"),
+        (lambda r: r["nodes"][1].update(eds="/nonexistent.eds"), "[[nodes]] #2 'a': canopen:"),
+        (
+            lambda r: r["nodes"][1].update(messages=[{"name": "x", "id": 1, "dlc": 0}]),
+            "a canopen node sends what CiA 301 says",
+        ),
+    ],
+)
 def test_bad_canopen_tables_are_refused_before_the_run(change, expected):
     raw = copy.deepcopy(BASE)
     change(raw)

@@ -8,10 +8,10 @@ import pytest
 from canopen.sdo import SdoAbortedError
 from canopen.sdo import constants as lib
 
-from stack import Frame
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import ABORT_TEXT
 from profiles.canopen.sdo.block import crc16
+from stack import Frame
 
 MS = 1_000_000
 
@@ -75,19 +75,22 @@ def test_block_upload_below_the_protocol_switch_threshold_goes_expedited(remote,
     assert resp.data[0] == 0x4B and resp.data[4:6] == (1000).to_bytes(2, "little")  # expedited, 2 bytes
 
 
-@pytest.mark.parametrize("access, code", [
-    (lambda n: n.sdo.upload(0x3000, 0), lib.ABORT_NOT_IN_OD),
-    (lambda n: n.sdo.upload(0x1018, 7), lib.ABORT_NO_SUBINDEX),
-    (lambda n: n.sdo.download(0x1000, 0, b"\x01\x00\x00\x00"), lib.ABORT_WRITE_READONLY),
-    (lambda n: n.sdo.upload(0x2203, 0), lib.ABORT_READ_WRITEONLY),
-    (lambda n: n.sdo.download(0x1017, 0, b"\x01\x02\x03"), lib.ABORT_LENGTH_TOO_HIGH),
-    (lambda n: n.sdo.download(0x1017, 0, b"\x01"), lib.ABORT_LENGTH_TOO_LOW),
-    (lambda n: n.sdo.download(0x2003, 0, (2000).to_bytes(2, "little")), lib.ABORT_VALUE_TOO_HIGH),
-    (lambda n: n.sdo.download(0x2003, 0, (-1000).to_bytes(2, "little", signed=True)), lib.ABORT_VALUE_TOO_LOW),
-    (lambda n: n.sdo.download(0x1008, 0, b"renamed device"), lib.ABORT_WRITE_READONLY),  # segmented, const
-    (lambda n: n.sdo.download(0x1003, 0, b"\x02"), lib.ABORT_INVALID_VALUE),  # only 0 clears 0x1003
-    (lambda n: n.sdo.upload(0x1003, 1), lib.ABORT_NO_DATA_AVAILABLE),  # no error in the history
-])
+@pytest.mark.parametrize(
+    "access, code",
+    [
+        (lambda n: n.sdo.upload(0x3000, 0), lib.ABORT_NOT_IN_OD),
+        (lambda n: n.sdo.upload(0x1018, 7), lib.ABORT_NO_SUBINDEX),
+        (lambda n: n.sdo.download(0x1000, 0, b"\x01\x00\x00\x00"), lib.ABORT_WRITE_READONLY),
+        (lambda n: n.sdo.upload(0x2203, 0), lib.ABORT_READ_WRITEONLY),
+        (lambda n: n.sdo.download(0x1017, 0, b"\x01\x02\x03"), lib.ABORT_LENGTH_TOO_HIGH),
+        (lambda n: n.sdo.download(0x1017, 0, b"\x01"), lib.ABORT_LENGTH_TOO_LOW),
+        (lambda n: n.sdo.download(0x2003, 0, (2000).to_bytes(2, "little")), lib.ABORT_VALUE_TOO_HIGH),
+        (lambda n: n.sdo.download(0x2003, 0, (-1000).to_bytes(2, "little", signed=True)), lib.ABORT_VALUE_TOO_LOW),
+        (lambda n: n.sdo.download(0x1008, 0, b"renamed device"), lib.ABORT_WRITE_READONLY),  # segmented, const
+        (lambda n: n.sdo.download(0x1003, 0, b"\x02"), lib.ABORT_INVALID_VALUE),  # only 0 clears 0x1003
+        (lambda n: n.sdo.upload(0x1003, 1), lib.ABORT_NO_DATA_AVAILABLE),  # no error in the history
+    ],
+)
 def test_refusals_reach_the_client_with_cia_301_abort_codes(remote, access, code):
     _, node = remote
     with pytest.raises(SdoAbortedError) as exc:

@@ -18,26 +18,34 @@ def test_state_codes_are_the_heartbeat_bytes_of_cia_301():
 
 def test_command_specifiers_are_cia_301s_and_the_canopen_librarys():
     assert (C.START, C.STOP, C.ENTER_PRE_OPERATIONAL, C.RESET_NODE, C.RESET_COMMUNICATION) == (1, 2, 0x80, 0x81, 0x82)
-    lib = {"OPERATIONAL": C.START, "STOPPED": C.STOP, "PRE-OPERATIONAL": C.ENTER_PRE_OPERATIONAL,
-           "RESET": C.RESET_NODE, "RESET COMMUNICATION": C.RESET_COMMUNICATION}
+    lib = {
+        "OPERATIONAL": C.START,
+        "STOPPED": C.STOP,
+        "PRE-OPERATIONAL": C.ENTER_PRE_OPERATIONAL,
+        "RESET": C.RESET_NODE,
+        "RESET COMMUNICATION": C.RESET_COMMUNICATION,
+    }
     for name, cs in lib.items():
         assert NMT_COMMANDS[name] == cs
 
 
-@pytest.mark.parametrize("number, state, command, target", [
-    (3, S.PRE_OPERATIONAL, C.START, S.OPERATIONAL),
-    (4, S.OPERATIONAL, C.ENTER_PRE_OPERATIONAL, S.PRE_OPERATIONAL),
-    (5, S.PRE_OPERATIONAL, C.STOP, S.STOPPED),
-    (6, S.STOPPED, C.START, S.OPERATIONAL),
-    (7, S.STOPPED, C.ENTER_PRE_OPERATIONAL, S.PRE_OPERATIONAL),
-    (8, S.OPERATIONAL, C.STOP, S.STOPPED),
-    (9, S.PRE_OPERATIONAL, C.RESET_NODE, S.INITIALISING),
-    (10, S.OPERATIONAL, C.RESET_NODE, S.INITIALISING),
-    (11, S.STOPPED, C.RESET_NODE, S.INITIALISING),
-    (12, S.PRE_OPERATIONAL, C.RESET_COMMUNICATION, S.INITIALISING),
-    (13, S.OPERATIONAL, C.RESET_COMMUNICATION, S.INITIALISING),
-    (14, S.STOPPED, C.RESET_COMMUNICATION, S.INITIALISING),
-])
+@pytest.mark.parametrize(
+    "number, state, command, target",
+    [
+        (3, S.PRE_OPERATIONAL, C.START, S.OPERATIONAL),
+        (4, S.OPERATIONAL, C.ENTER_PRE_OPERATIONAL, S.PRE_OPERATIONAL),
+        (5, S.PRE_OPERATIONAL, C.STOP, S.STOPPED),
+        (6, S.STOPPED, C.START, S.OPERATIONAL),
+        (7, S.STOPPED, C.ENTER_PRE_OPERATIONAL, S.PRE_OPERATIONAL),
+        (8, S.OPERATIONAL, C.STOP, S.STOPPED),
+        (9, S.PRE_OPERATIONAL, C.RESET_NODE, S.INITIALISING),
+        (10, S.OPERATIONAL, C.RESET_NODE, S.INITIALISING),
+        (11, S.STOPPED, C.RESET_NODE, S.INITIALISING),
+        (12, S.PRE_OPERATIONAL, C.RESET_COMMUNICATION, S.INITIALISING),
+        (13, S.OPERATIONAL, C.RESET_COMMUNICATION, S.INITIALISING),
+        (14, S.STOPPED, C.RESET_COMMUNICATION, S.INITIALISING),
+    ],
+)
 def test_transition_numbered_in_cia_301_state_diagram(number, state, command, target):
     assert next_state(state, command) is target
     # the canopen library's command -> state table agrees where it has one

@@ -4,10 +4,10 @@ changing the objects."""
 
 import pytest
 
-from stack import Frame
 from profiles.canopen.emcy import decode_emcy
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
+from stack import Frame
 
 MS = 1_000_000
 US = 1_000
@@ -44,7 +44,7 @@ def test_a_sync_of_the_wrong_length_is_ignored_and_reported(bus, device, master_
     master_node.send(Frame(0x080, b"\x01"))  # a counter while 0x1019 is 0
     bus.run(until=5 * MS)
     assert frames_with(spy, 0x182) == [] and d.sync.received == 0
-    (_, f), = frames_with(spy, 0x82)
+    ((_, f),) = frames_with(spy, 0x82)
     assert decode_emcy(f.data).code == 0x8240  # unexpected SYNC data length (CANopenNode)
     assert f.data[3] == 1  # the length received
 
@@ -63,12 +63,15 @@ def test_the_consumer_reports_a_missing_sync_after_one_and_a_half_periods(bus, d
     assert decode_emcy(frames_with(spy, 0x82)[-1][1].data).code == 0x0000 and d.sync.timeouts == 1
 
 
-@pytest.mark.parametrize("index, value, code", [
-    (0x1019, 1, abort.INVALID_VALUE),  # 1 is reserved
-    (0x1019, 241, abort.INVALID_VALUE),
-    (0x1005, 0x8000_0080, abort.INVALID_VALUE),  # bit 31 must be 0
-    (0x1005, 0x0000_0701, abort.INVALID_VALUE),  # restricted CAN-ID
-])
+@pytest.mark.parametrize(
+    "index, value, code",
+    [
+        (0x1019, 1, abort.INVALID_VALUE),  # 1 is reserved
+        (0x1019, 241, abort.INVALID_VALUE),
+        (0x1005, 0x8000_0080, abort.INVALID_VALUE),  # bit 31 must be 0
+        (0x1005, 0x0000_0701, abort.INVALID_VALUE),  # restricted CAN-ID
+    ],
+)
 def test_sync_objects_refuse_reserved_values(bus, device, index, value, code):
     d = device(2, heartbeat_ms=0)
     with pytest.raises(SdoAbort) as exc:

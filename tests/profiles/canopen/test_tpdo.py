@@ -3,8 +3,8 @@ inhibit time and event timer, the SYNC start value, and the synchronous window (
 
 import pytest
 
-from stack import Frame
 from profiles.canopen.emcy import decode_emcy
+from stack import Frame
 
 MS = 1_000_000
 US = 1_000
@@ -79,8 +79,9 @@ def test_type_0_goes_at_the_sync_after_an_event_only(bus, device, master_node, s
     assert len(frames_with(spy, 0x181)) == 3
 
 
-def test_type_252_answers_a_remote_request_with_data_sampled_at_the_last_sync(bus, device, master_node, spy,
-                                                                             frames_with):
+def test_type_252_answers_a_remote_request_with_data_sampled_at_the_last_sync(
+    bus, device, master_node, spy, frames_with
+):
     d = device(1, heartbeat_ms=0, tpdo={1: dict(ONE, transmission_type=252)})
     operational(bus, master_node, 1)
     d.write(0x2002, 0, 11)
@@ -162,10 +163,20 @@ def test_event_timer_restarts_after_each_event(bus, device, master_node, spy, fr
 def window_devices(device, n=4):
     # three synchronous TPDOs of 8 bytes per device, every SYNC: 12 frames of ~130 us per cycle
     full = ["0x2002:0/32", "0x2001:1/16", "0x2001:2/16"]
-    return [device(k, heartbeat_ms=0, sync_window_us=300,
-                   tpdo={1: {"transmission_type": 1, "mapping": full}, 2: {"transmission_type": 1, "mapping": full},
-                         3: {"transmission_type": 1, "mapping": full}, 4: {"valid": False}})
-            for k in range(1, n + 1)]
+    return [
+        device(
+            k,
+            heartbeat_ms=0,
+            sync_window_us=300,
+            tpdo={
+                1: {"transmission_type": 1, "mapping": full},
+                2: {"transmission_type": 1, "mapping": full},
+                3: {"transmission_type": 1, "mapping": full},
+                4: {"valid": False},
+            },
+        )
+        for k in range(1, n + 1)
+    ]
 
 
 def test_a_tpdo_that_cannot_start_inside_the_window_is_not_sent_late(bus, device, master_node):

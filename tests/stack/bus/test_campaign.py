@@ -9,21 +9,35 @@ import random
 
 import pytest
 
-from stack.controller.events import TxDone, TxFailed
 from stack.bus.faults import FaultInjector
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
+from stack.controller.events import TxDone, TxFailed
+from stack.wire.frame import Frame
 
-RULE_DELTA = {"rule 1": 1, "rule 2": 8, "rule 3": 8, "rule 4": 8, "rule 5": 8, "rule 6": 8,
-              "rule 3 exception 1": 0, "rule 3 exception 2": 0}
+RULE_DELTA = {
+    "rule 1": 1,
+    "rule 2": 8,
+    "rule 3": 8,
+    "rule 4": 8,
+    "rule 5": 8,
+    "rule 6": 8,
+    "rule 3 exception 1": 0,
+    "rule 3 exception 2": 0,
+}
 
 
 def campaign(frames: int, ber: float, seed: int):
     bus = SimBus(500_000, seed=seed)
     names = [f"n{i}" for i in range(5)]
-    nodes = [bus.node(n, rx_fifo_size=1 << 20, one_shot=(i == 0),
-                      filters=None if i % 2 == 0 else [{"can_id": 0x100, "can_mask": 0x700}])
-             for i, n in enumerate(names)]
+    nodes = [
+        bus.node(
+            n,
+            rx_fifo_size=1 << 20,
+            one_shot=(i == 0),
+            filters=None if i % 2 == 0 else [{"can_id": 0x100, "can_mask": 0x700}],
+        )
+        for i, n in enumerate(names)
+    ]
     fi = FaultInjector(bus)
     fi.bit_errors(ber)
     fi.bit_errors(ber, nodes=names)

@@ -40,28 +40,31 @@ def test_frame_layout_the_comments_rely_on():
     assert fb.bits[54:61] == "1111111" and fb.length == 61
 
 
-@pytest.mark.parametrize("dlc_bit,error,detected_at", [
-    # Directly: b reads DLC bit 0 (position 19) as 1 -> DLC 3. Its third data byte is the real
-    # CRC's first 8 bits (36..43) and its CRC runs from 44: 44..50 "0010101", 51 '1', 52 '0',
-    # 53 '1', then EOF. With the real EOF bit 0 (54) seen dominant by b, no 5 equal bits come
-    # before its CRC has 15 bits (44..58); CRC delimiter 59, ACK slot 60 (b does not ACK: its CRC
-    # is wrong), ACK delimiter 61 -> the CRC error is found at 61 and flagged from 62, after the
-    # transmitter's last EOF bit (60).
-    (3, "crc", 61),
-    # Through a shifted stuff bit: b reads DLC bit 3 (position 15) as 1, so 12..16 are no longer
-    # five 0s and b takes the stuff bit at 17 for a DLC bit: DLC 1,0,1,1 (15..18) = 11 -> 8 data
-    # bytes from 19. Its data runs past the frame: 53 '1', 54 '0' (flipped), 55..59 '11111', so
-    # the stuff bit due at 60 is recessive -> a stuff error at the last EOF bit, flag from 61.
-    # Without the EOF flip, 53..57 would be five 1s and the stuff error would come at 58,
-    # inside EOF, where the transmitter sees b's flag and retransmits.
-    (0, "stuff", 60),
-])
+@pytest.mark.parametrize(
+    "dlc_bit,error,detected_at",
+    [
+        # Directly: b reads DLC bit 0 (position 19) as 1 -> DLC 3. Its third data byte is the real
+        # CRC's first 8 bits (36..43) and its CRC runs from 44: 44..50 "0010101", 51 '1', 52 '0',
+        # 53 '1', then EOF. With the real EOF bit 0 (54) seen dominant by b, no 5 equal bits come
+        # before its CRC has 15 bits (44..58); CRC delimiter 59, ACK slot 60 (b does not ACK: its CRC
+        # is wrong), ACK delimiter 61 -> the CRC error is found at 61 and flagged from 62, after the
+        # transmitter's last EOF bit (60).
+        (3, "crc", 61),
+        # Through a shifted stuff bit: b reads DLC bit 3 (position 15) as 1, so 12..16 are no longer
+        # five 0s and b takes the stuff bit at 17 for a DLC bit: DLC 1,0,1,1 (15..18) = 11 -> 8 data
+        # bytes from 19. Its data runs past the frame: 53 '1', 54 '0' (flipped), 55..59 '11111', so
+        # the stuff bit due at 60 is recessive -> a stuff error at the last EOF bit, flag from 61.
+        # Without the EOF flip, 53..57 would be five 1s and the stuff error would come at 58,
+        # inside EOF, where the transmitter sees b's flag and retransmits.
+        (0, "stuff", 60),
+    ],
+)
 def test_receiver_misses_a_frame_the_transmitter_counts_as_sent(dlc_bit, error, detected_at):
     bus = SimBus(500_000)
     a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
     fi = FaultInjector(bus)
     fi.flip(can_id=0x123, field="DLC", bit=dlc_bit, nodes=["b"])  # b's view of the DLC
-    fi.flip(can_id=0x123, field="eof", bit=0, nodes=["b"])        # hides b's stuff error in EOF
+    fi.flip(can_id=0x123, field="eof", bit=0, nodes=["b"])  # hides b's stuff error in EOF
     a.send(F)
     bus.run(until=2_000_000)
 

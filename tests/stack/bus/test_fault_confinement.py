@@ -6,12 +6,12 @@ scenario (the comments give the arithmetic), not read back from the implementati
 
 import pytest
 
-from stack.wire.coding import Field
-from stack.controller.events import ErrorStateChanged, TxFailed
 from stack.bus.faults import FaultInjector
-from stack.wire.frame import Frame
-from stack.controller.node import ErrorState
 from stack.bus.sim import SimBus
+from stack.controller.events import ErrorStateChanged, TxFailed
+from stack.controller.node import ErrorState
+from stack.wire.coding import Field
+from stack.wire.frame import Frame
 
 F = Frame(0x123, b"\x55\xaa")
 
@@ -184,8 +184,10 @@ def test_rule_10_stuck_recessive_transmitter_goes_passive_then_bus_off():
     a.send(F)
     bus.run(duration=2_000_000)
     assert [(c.old, c.new, c.tec) for c in changes] == [
-        ("error-active", "error-warning", 96), ("error-warning", "error-passive", 128),
-        ("error-passive", "bus-off", 256)]
+        ("error-active", "error-warning", 96),
+        ("error-warning", "error-passive", 128),
+        ("error-passive", "bus-off", 256),
+    ]
     bit = 2000  # ns at 500 kbit/s
     # TEC 96 after the SOF error (bit 0) and 11 flag-bit errors (bits 1..11): at the end of bit 11
     assert changes[0].time == 12 * bit and changes[1].time == 16 * bit
@@ -333,12 +335,15 @@ def test_babbling_idiot_starves_lower_priorities():
     assert during and all(r.sender == "c" for r in during)
 
 
-@pytest.mark.parametrize("kw,msg", [
-    ({"field": "bogus"}, "unknown field 'bogus'"),
-    ({"field": "data", "bit": 64}, "bit 64 outside field data"),
-    ({"field": "crc", "bit": -1}, "bit -1 outside field crc"),
-    ({"nodes": ["nobody"]}, "unknown node 'nobody'"),
-])
+@pytest.mark.parametrize(
+    "kw,msg",
+    [
+        ({"field": "bogus"}, "unknown field 'bogus'"),
+        ({"field": "data", "bit": 64}, "bit 64 outside field data"),
+        ({"field": "crc", "bit": -1}, "bit -1 outside field crc"),
+        ({"nodes": ["nobody"]}, "unknown node 'nobody'"),
+    ],
+)
 def test_bad_fault_specifications(kw, msg):
     bus = SimBus()
     bus.node("a")
@@ -378,6 +383,7 @@ def test_overload_count_is_at_most_two():
 
 
 # --- behaviours found in review -------------------------------------------------------------
+
 
 def test_receiver_reading_its_dominant_ack_as_recessive_has_a_bit_error():
     bus, a, b, c, fi = three()
@@ -480,7 +486,7 @@ def test_transmitter_disconnected_mid_frame_loses_its_frame():
     a.send(f)
     bus.run(until=2_000_000)
     wire = f.bits.bits[:25] + "1" * 20
-    expect = next(i for i in range(5, len(wire)) if wire[i - 5:i + 1] == "111111")
+    expect = next(i for i in range(5, len(wire)) if wire[i - 5 : i + 1] == "111111")
     err = bus.trace[0]
     assert err.kind == "error" and err.detail["error"] == "stuff" and err.detail["seen_by"] == "b"
     assert err.detail["bit"] == expect and b.recv() is None and a.tx_frames == 0
@@ -495,8 +501,11 @@ def test_stuck_dominant_starting_mid_frame_is_a_bit_error_at_its_bit():
     # transmitter's error flag
     f = Frame(0x100, b"\x01" * 8)
     bits = f.bits.bits
-    r = next(i for i in range(35, len(bits)) if bits[i] == "1"
-             and "000000" not in bits[i - 5:i] + "0" + bits[i + 1:i + 6])
+    r = next(
+        i
+        for i in range(35, len(bits))
+        if bits[i] == "1" and "000000" not in bits[i - 5 : i] + "0" + bits[i + 1 : i + 6]
+    )
     bus = SimBus(500_000)
     a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
     FaultInjector(bus).stuck("c", "dominant", start=r * 2000, end=(r + 1) * 2000)

@@ -1,14 +1,14 @@
 """The simulated bus: arbitration, exact timing, ACK, collisions, determinism, statistics, traces."""
 
-import can
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from stack.wire.coding import Field
-from stack.cli.demo import build_demo
-from stack.wire.frame import Frame
 from stack.bus.sim import SimBus
 from stack.bus.trace import load_messages
+from stack.cli.demo import build_demo
+from stack.wire.coding import Field
+from stack.wire.frame import Frame
 
 
 def bitwise_winner(frames):
@@ -26,10 +26,15 @@ def bitwise_winner(frames):
 
 def frame_strategy():
     return st.one_of(
-        st.builds(lambda i, r: Frame(i, remote=True, dlc=1) if r else Frame(i, b"\x01"),
-                  st.integers(0, 0x7FF), st.booleans()),
-        st.builds(lambda i, r: Frame(i, extended=True, remote=True, dlc=1) if r else Frame(i, b"\x01", extended=True),
-                  st.integers(0, 0x1FFFFFFF), st.booleans()))
+        st.builds(
+            lambda i, r: Frame(i, remote=True, dlc=1) if r else Frame(i, b"\x01"), st.integers(0, 0x7FF), st.booleans()
+        ),
+        st.builds(
+            lambda i, r: Frame(i, extended=True, remote=True, dlc=1) if r else Frame(i, b"\x01", extended=True),
+            st.integers(0, 0x1FFFFFFF),
+            st.booleans(),
+        ),
+    )
 
 
 @settings(max_examples=60, deadline=None)
@@ -108,7 +113,9 @@ def test_remote_frames_same_id_different_dlc_collide_and_are_reported():
     rec = bus.trace[0]
     assert rec.kind == "collision" and rec.detail["field"] == "DLC"
     # DLC 0001 vs 0010: b sends recessive first (bit 2 of DLC) and sees the bit error
-    assert rec.detail["seen_by"] == "b" and rec.detail["bit"] == Frame(0x55, remote=True, dlc=1).bits.position(Field.DLC, 2)
+    assert rec.detail["seen_by"] == "b" and rec.detail["bit"] == Frame(0x55, remote=True, dlc=1).bits.position(
+        Field.DLC, 2
+    )
     # both count +8 per collision (rule 3); at 128 b is error passive, its passive flag no
     # longer destroys a's frame: that attempt is a's frame alone, recorded with a as sender
     bus.run(duration=5_000_000)
@@ -297,24 +304,39 @@ def _random_network(seed: int) -> tuple:
         elif kind < 0.6:
             n.listen(ArbitrationLost, lambda ev: log.append(("lost", ev.time, ev.frame.key)))
         if rng.random() < 0.3:
-            n.send_periodic(frame(rng), rng.choice([200_000, 333_333, 1_000_000]), offset=rng.randint(0, 100_000),
-                            count=rng.randint(1, 20))
+            n.send_periodic(
+                frame(rng),
+                rng.choice([200_000, 333_333, 1_000_000]),
+                offset=rng.randint(0, 100_000),
+                count=rng.randint(1, 20),
+            )
         for _ in range(rng.randint(0, 15)):
             try:
                 n.send(frame(rng))
             except Exception as exc:
                 log.append(("refused", type(exc).__name__))
     victim = rng.choice(nodes)
-    bus.call_at(rng.randint(0, 2_000_000),
-                lambda: log.append(("abort", bool(victim.pending()) and victim.abort(max(victim.pending(), key=lambda r: r.seq)))))
+    bus.call_at(
+        rng.randint(0, 2_000_000),
+        lambda: log.append(
+            ("abort", bool(victim.pending()) and victim.abort(max(victim.pending(), key=lambda r: r.seq)))
+        ),
+    )
     for _ in range(3):
         bus.call_at(rng.randint(0, 5_000_000), lambda: log.extend(("recv", n.name, n.recv()) for n in nodes))
     bus.run(until=rng.choice([2_000_000, 10_000_000, 40_000_000]))
-    return ([r.as_tuple() for r in bus.trace], {n.name: n.counters() for n in nodes},
-            {n.name: [(t, f, s.name) for t, f, s in n.rx_fifo] for n in nodes},
-            {n.name: sorted((r.frame.key, r.seq) for r in n.pending()) for n in nodes},
-            bus.now(), bus.frames_ok, bus.rounds, bus.busy_ns, log,
-            {k: (v.count, v.total, v.losses, v.min, v.max) for k, v in bus.id_stats.items()})
+    return (
+        [r.as_tuple() for r in bus.trace],
+        {n.name: n.counters() for n in nodes},
+        {n.name: [(t, f, s.name) for t, f, s in n.rx_fifo] for n in nodes},
+        {n.name: sorted((r.frame.key, r.seq) for r in n.pending()) for n in nodes},
+        bus.now(),
+        bus.frames_ok,
+        bus.rounds,
+        bus.busy_ns,
+        log,
+        {k: (v.count, v.total, v.losses, v.min, v.max) for k, v in bus.id_stats.items()},
+    )
 
 
 @pytest.mark.parametrize("seed", range(300))

@@ -18,15 +18,48 @@ from stack.wire.frame import Frame
 ERR_CLASS = {"CRTL": 0x04, "PROT": 0x08, "ACK": 0x20, "BUSOFF": 0x40, "BUSERROR": 0x80, "CNT": 0x200}
 PROT_TYPE = {0x01: "bit", 0x02: "form", 0x04: "stuff", 0x00: "unspec"}
 PROT_TX = 0x80
-PROT_LOC = {0x03: "SOF", 0x02: "ID28_21", 0x06: "ID20_18", 0x04: "SRTR", 0x05: "IDE", 0x07: "ID17_13",
-            0x0F: "ID12_05", 0x0E: "ID04_00", 0x0C: "RTR", 0x0D: "RES1", 0x09: "RES0", 0x0B: "DLC",
-            0x0A: "DATA", 0x08: "CRC_SEQ", 0x18: "CRC_DEL", 0x19: "ACK", 0x1B: "ACK_DEL", 0x1A: "EOF",
-            0x12: "INTERM", 0x00: "UNSPEC"}
+PROT_LOC = {
+    0x03: "SOF",
+    0x02: "ID28_21",
+    0x06: "ID20_18",
+    0x04: "SRTR",
+    0x05: "IDE",
+    0x07: "ID17_13",
+    0x0F: "ID12_05",
+    0x0E: "ID04_00",
+    0x0C: "RTR",
+    0x0D: "RES1",
+    0x09: "RES0",
+    0x0B: "DLC",
+    0x0A: "DATA",
+    0x08: "CRC_SEQ",
+    0x18: "CRC_DEL",
+    0x19: "ACK",
+    0x1B: "ACK_DEL",
+    0x1A: "EOF",
+    0x12: "INTERM",
+    0x00: "UNSPEC",
+}
 CRTL = {0x04: "RX_WARNING", 0x08: "TX_WARNING", 0x10: "RX_PASSIVE", 0x20: "TX_PASSIVE", 0x40: "ACTIVE"}
 # the trace's field names as the kernel's locations
-FIELD_LOC = {"SOF": "SOF", "DATA": "DATA", "CRC": "CRC_SEQ", "CRC_DELIM": "CRC_DEL", "ACK_DELIM": "ACK_DEL",
-             "EOF": "EOF", "ACK_SLOT": "ACK", "DLC": "DLC"}
-TYPE_OF = {"bit": "bit", "form": "form", "stuff": "stuff", "stuff-arbitration": "stuff", "crc": "unspec", "ack": "unspec"}
+FIELD_LOC = {
+    "SOF": "SOF",
+    "DATA": "DATA",
+    "CRC": "CRC_SEQ",
+    "CRC_DELIM": "CRC_DEL",
+    "ACK_DELIM": "ACK_DEL",
+    "EOF": "EOF",
+    "ACK_SLOT": "ACK",
+    "DLC": "DLC",
+}
+TYPE_OF = {
+    "bit": "bit",
+    "form": "form",
+    "stuff": "stuff",
+    "stuff-arbitration": "stuff",
+    "crc": "unspec",
+    "ack": "unspec",
+}
 
 
 def _faulted_bus() -> SimBus:

@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from stack.wire.decoder import decode
 from stack.cli import main
+from stack.wire.decoder import decode
 
 
 def run_cli(*args):
@@ -43,24 +43,27 @@ def test_frame_remote_extended(capsys):
     assert d.frame.remote and d.frame.extended and d.frame.dlc == 8
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["frame", "--id", "0x800"], "0x800 out of range"),
-    (["frame", "--id", "0x1", "--data", "zz"], "not hex"),
-    (["frame", "--id", "0x1", "--remote", "--dlc", "16"], "DLC 16"),
-    (["frame", "--id", "0x1", "--data", "112233445566778899"], "at most 8"),
-    (["frame", "--id", "abc"], "not an integer"),
-    (["demo", "--bitrate", "5000000"], "1000..1000000"),
-    (["demo", "--trace", "x.unknown"], "unknown suffix"),
-    (["demo", "--duration", "-1"], "--duration"),
-    (["demo", "--plot", "x.png"], "use it with --faults"),
-    (["nosuchcommand"], "invalid choice"),
-    (["frame", "--id", "-1"], "identifier -0x1 out of range"),
-    (["demo", "--trace", "/nonexistent-dir/x.asc"], "'/nonexistent-dir' does not exist"),
-    (["demo", "--trace", ""], "--trace needs a file name"),
-    (["demo", "--vcd", "/"], "is a directory"),
-    (["demo", "--interface", "virtual", "--trace", "x.asc"], "--trace needs the simulated bus"),
-    (["demo", "--interface", "virtual", "--json"], "--json needs the simulated bus"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["frame", "--id", "0x800"], "0x800 out of range"),
+        (["frame", "--id", "0x1", "--data", "zz"], "not hex"),
+        (["frame", "--id", "0x1", "--remote", "--dlc", "16"], "DLC 16"),
+        (["frame", "--id", "0x1", "--data", "112233445566778899"], "at most 8"),
+        (["frame", "--id", "abc"], "not an integer"),
+        (["demo", "--bitrate", "5000000"], "1000..1000000"),
+        (["demo", "--trace", "x.unknown"], "unknown suffix"),
+        (["demo", "--duration", "-1"], "--duration"),
+        (["demo", "--plot", "x.png"], "use it with --faults"),
+        (["nosuchcommand"], "invalid choice"),
+        (["frame", "--id", "-1"], "identifier -0x1 out of range"),
+        (["demo", "--trace", "/nonexistent-dir/x.asc"], "'/nonexistent-dir' does not exist"),
+        (["demo", "--trace", ""], "--trace needs a file name"),
+        (["demo", "--vcd", "/"], "is a directory"),
+        (["demo", "--interface", "virtual", "--trace", "x.asc"], "--trace needs the simulated bus"),
+        (["demo", "--interface", "virtual", "--json"], "--json needs the simulated bus"),
+    ],
+)
 def test_bad_input_is_one_line_and_status_2(args, needle):
     p = run_cli(*args)
     assert p.returncode == 2
@@ -74,18 +77,22 @@ def test_fault_demo_goes_passive_bus_off_and_recovers(capsys, tmp_path):
     assert main(["demo", "--faults", "--plot", str(png)]) == 0
     out = capsys.readouterr().out
     import re
+
     assert re.search(r"ecu2 +error-warning -> error-passive", out)
     # the disconnected transmitter: warning at TEC 96 and passive at 128 within its first
     # attempt (rules 3, 4, 9), then bus off at 256 (rule 10) after 16 passive attempts
-    assert re.search(r"ecu2 +error-active -> error-warning TEC +96.*\n.*ecu2 +error-warning -> error-passive TEC 128"
-                     r".*\n.*ecu2 +error-passive -> bus-off +TEC 256", out)
+    assert re.search(
+        r"ecu2 +error-active -> error-warning TEC +96.*\n.*ecu2 +error-warning -> error-passive TEC 128"
+        r".*\n.*ecu2 +error-passive -> bus-off +TEC 256",
+        out,
+    )
     assert re.search(r"ecu2 +bus-off -> error-active +TEC +0 REC +0", out)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_demo_waveform_decodes_back_to_the_trace(tmp_path, capsys):
-    from stack.cli.demo import build_demo, write_trace_vcd
     from stack.bus.sim import SimBus
+    from stack.cli.demo import build_demo, write_trace_vcd
     from stack.phy.waveform import decode_file
 
     bus = SimBus(500_000)

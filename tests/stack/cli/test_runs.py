@@ -80,8 +80,10 @@ def _capture_bus(monkeypatch):
     return made
 
 
-@pytest.mark.parametrize("extra,record", [([], False), (["--faults"], False), (["--trace", "{tmp}/t.blf"], True),
-                                          (["--vcd", "{tmp}/t.vcd"], True)])
+@pytest.mark.parametrize(
+    "extra,record",
+    [([], False), (["--faults"], False), (["--trace", "{tmp}/t.blf"], True), (["--vcd", "{tmp}/t.vcd"], True)],
+)
 def test_demo_keeps_trace_records_only_for_a_trace(monkeypatch, capsys, tmp_path, extra, record):
     made = _capture_bus(monkeypatch)
     rc, out, _ = _run(capsys, "demo", "--duration", "0.05", *[a.format(tmp=tmp_path) for a in extra])
@@ -182,11 +184,14 @@ def test_plot_without_matplotlib_is_refused_before_the_run(monkeypatch, capsys, 
     assert "--plot needs matplotlib" in err and "canstack[plot]" in err
 
 
-@pytest.mark.parametrize("make,needle", [
-    (lambda t: str(t), "is a directory, not a file"),
-    (lambda t: str(t / "missing" / "x.asc"), "does not exist"),
-    (lambda t: str(t / "afile" / "x.asc"), "afile' is a file, not a directory"),
-])
+@pytest.mark.parametrize(
+    "make,needle",
+    [
+        (lambda t: str(t), "is a directory, not a file"),
+        (lambda t: str(t / "missing" / "x.asc"), "does not exist"),
+        (lambda t: str(t / "afile" / "x.asc"), "afile' is a file, not a directory"),
+    ],
+)
 def test_bad_output_paths_name_the_problem(capsys, tmp_path, make, needle):
     (tmp_path / "afile").write_text("x")
     for argv in (["demo", "--trace"], ["demo", "--vcd"], ["demo", "--faults", "--plot"]):
@@ -260,11 +265,14 @@ def test_restbus_duration_is_bounded_on_the_simulated_bus(capsys):
     assert "at most 3600 s" in err
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["frame", "--id", "0x20000000", "--extended"], "out of range for an extended (29-bit) frame"),
-    (["frame", "--id", "0x800"], "out of range for a standard (11-bit) frame"),
-    (["frame", "--id", "0x1", "--remote", "--data", "01"], "a remote frame carries no data (got 1 byte);"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["frame", "--id", "0x20000000", "--extended"], "out of range for an extended (29-bit) frame"),
+        (["frame", "--id", "0x800"], "out of range for a standard (11-bit) frame"),
+        (["frame", "--id", "0x1", "--remote", "--data", "01"], "a remote frame carries no data (got 1 byte);"),
+    ],
+)
 def test_wording(capsys, argv, message):
     rc, _, err = _run(capsys, *argv)
     _one_line(rc, err)

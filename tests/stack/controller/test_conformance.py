@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import itertools
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import can
 import pytest
@@ -284,8 +285,14 @@ def test_error_counters_and_states_follow_the_driver(net):
         net.start()
         other = can.Bus(interface="virtual", channel=net.channel)
         try:  # CAN_ERR_CRTL | CAN_ERR_CNT: controller problem, TEC 130 and REC 5 in data[6]/[7]
-            other.send(can.Message(is_error_frame=True, arbitration_id=0x004 | 0x200,
-                                   data=bytes([0, 0x20, 0, 0, 0, 0, 130, 5]), is_extended_id=False))
+            other.send(
+                can.Message(
+                    is_error_frame=True,
+                    arbitration_id=0x004 | 0x200,
+                    data=bytes([0, 0x20, 0, 0, 0, 0, 130, 5]),
+                    is_extended_id=False,
+                )
+            )
             assert net.wait(lambda: a.state == "error-passive")
             assert (a.tec, a.rec) == (130, 5) and changes[-1].new == "error-passive"
         finally:

@@ -2,14 +2,15 @@
 
 import can
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stack.bus import sim as sim_mod
+from stack.bus.sim import SimBus
 from stack.controller.events import ArbitrationLost, Received, TxDone, TxFailed
 from stack.controller.filters import AcceptanceFilter
-from stack.wire.frame import Frame
 from stack.controller.node import NodeError, QueueFull
-from stack.bus.sim import SimBus
+from stack.wire.frame import Frame
 
 
 def sent_ids(bus, sender=None):
@@ -68,12 +69,15 @@ def test_mailboxes_without_abort_show_priority_inversion_and_abort_fixes_it():
     assert abort_order[0] == 0x010 and abort_latency == prio_latency
 
 
-@pytest.mark.parametrize("abort,order", [
-    # no abort: the backlog is a FIFO behind the one mailbox
-    (False, [0x300, 0x200, 0x100, 0x050]),
-    # abort: each refill is checked like a new frame, the best backlog frame takes the mailbox
-    (True, [0x300, 0x050, 0x100, 0x200]),
-])
+@pytest.mark.parametrize(
+    "abort,order",
+    [
+        # no abort: the backlog is a FIFO behind the one mailbox
+        (False, [0x300, 0x200, 0x100, 0x050]),
+        # abort: each refill is checked like a new frame, the best backlog frame takes the mailbox
+        (True, [0x300, 0x050, 0x100, 0x200]),
+    ],
+)
 def test_one_mailbox_refills_in_order_or_by_priority_with_abort(abort, order):
     bus = SimBus(500_000)
     a, b = bus.node("a", queue="mailbox", mailboxes=1, abort=abort), bus.node("b")
@@ -103,9 +107,13 @@ def _pycan_match(filters, frame):
         bus.shutdown()
 
 
-filter_st = st.lists(st.fixed_dictionaries(
-    {"can_id": st.integers(0, 0x7FF), "can_mask": st.sampled_from([0x7FF, 0x700, 0x0F0, 0, 0x1FFFFFFF])},
-    optional={"extended": st.booleans()}), max_size=3)
+filter_st = st.lists(
+    st.fixed_dictionaries(
+        {"can_id": st.integers(0, 0x7FF), "can_mask": st.sampled_from([0x7FF, 0x700, 0x0F0, 0, 0x1FFFFFFF])},
+        optional={"extended": st.booleans()},
+    ),
+    max_size=3,
+)
 
 
 @settings(max_examples=80, deadline=None)
@@ -115,12 +123,15 @@ def test_acceptance_filter_agrees_with_python_can(filters, cid, ext):
     assert AcceptanceFilter(filters).accepts(f) == _pycan_match(filters or None, f)
 
 
-@pytest.mark.parametrize("bad,msg", [
-    ([{"can_id": 1}], "lacks 'can_mask'"),
-    ([{"can_id": 1, "can_mask": -1}], "can_mask -1"),
-    ([{"can_id": 1, "can_mask": 1, "ext": True}], "unknown key"),
-    ({"can_id": 1, "can_mask": 1}, "list"),
-])
+@pytest.mark.parametrize(
+    "bad,msg",
+    [
+        ([{"can_id": 1}], "lacks 'can_mask'"),
+        ([{"can_id": 1, "can_mask": -1}], "can_mask -1"),
+        ([{"can_id": 1, "can_mask": 1, "ext": True}], "unknown key"),
+        ({"can_id": 1, "can_mask": 1}, "list"),
+    ],
+)
 def test_bad_filters_are_named(bad, msg):
     with pytest.raises(ValueError, match=msg):
         AcceptanceFilter(bad)
@@ -189,8 +200,10 @@ def test_automatic_remote_reply():
     body.set_remote_reply(Frame(0x700, b"\x5a\x5a"))
     tester.send(Frame(0x700, remote=True, dlc=2))
     bus.run()
-    assert [(r.sender, r.frame) for r in bus.trace] == [("tester", Frame(0x700, remote=True, dlc=2)),
-                                                         ("body", Frame(0x700, b"\x5a\x5a"))]
+    assert [(r.sender, r.frame) for r in bus.trace] == [
+        ("tester", Frame(0x700, remote=True, dlc=2)),
+        ("body", Frame(0x700, b"\x5a\x5a")),
+    ]
     with pytest.raises(ValueError, match="must be a data frame"):
         body.set_remote_reply(Frame(0x1, remote=True))
 
@@ -315,17 +328,21 @@ def test_callback_that_disconnects_the_only_acknowledger(monkeypatch):
             a.send(Frame(0x100, bytes([i])))
         bus.run(until=3_000_000)
         return bus.frames_ok, bus.error_frames, a.tec
+
     assert run(True) == run(False)
     assert run(True)[0] == 1
 
 
-@pytest.mark.parametrize("kw,msg", [
-    ({"queue": "lifo"}, "unknown queue policy 'lifo'"),
-    ({"queue": "mailbox", "mailboxes": 0}, "mailboxes 0"),
-    ({"tx_queue_size": 0}, "transmit queue capacity 0"),
-    ({"rx_fifo_size": -1}, "rx_fifo_size -1"),
-    ({"filters": [{"can_id": 1}]}, "lacks 'can_mask'"),
-])
+@pytest.mark.parametrize(
+    "kw,msg",
+    [
+        ({"queue": "lifo"}, "unknown queue policy 'lifo'"),
+        ({"queue": "mailbox", "mailboxes": 0}, "mailboxes 0"),
+        ({"tx_queue_size": 0}, "transmit queue capacity 0"),
+        ({"rx_fifo_size": -1}, "rx_fifo_size -1"),
+        ({"filters": [{"can_id": 1}]}, "lacks 'can_mask'"),
+    ],
+)
 def test_bad_node_configuration_is_named(kw, msg):
     with pytest.raises(ValueError, match=msg):
         SimBus().node("n", **kw)
@@ -338,16 +355,26 @@ def test_bad_controller_requests_are_named():
         n.recover()
     with pytest.raises(ValueError, match="give the frame to reply with"):
         n.set_remote_reply(None)
-    with pytest.raises(TypeError, match="takes a Frame or can.Message"):
+    with pytest.raises(TypeError, match=r"takes a Frame or can\.Message"):
         n.send(b"\x01")
     from stack.controller.node import Node
+
     with pytest.raises(NodeError, match="not attached"):
         Node("loose").send(Frame(1))
 
 
 @settings(max_examples=150)
-@given(st.lists(st.tuples(st.sampled_from(["push", "abort", "send"]), st.sampled_from([1, 2, 3, 0x10, 0x7FF]),
-                          st.booleans(), st.integers(0, 1000)), max_size=120))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["push", "abort", "send"]),
+            st.sampled_from([1, 2, 3, 0x10, 0x7FF]),
+            st.booleans(),
+            st.integers(0, 1000),
+        ),
+        max_size=120,
+    )
+)
 def test_priority_queue_matches_a_sorted_reference(ops):
     # the head is always the pending request with the lowest (arbitration key, queue order):
     # checked against a plain sorted list under pushes, aborts from anywhere and sends

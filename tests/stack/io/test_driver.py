@@ -8,13 +8,13 @@ import time
 import can
 import pytest
 
-from stack.wire.coding import INTERMISSION_BITS
-from stack.cli.demo import run_demo_on_bus
-from stack.io.driver import PyCanDriver
-from stack.controller.events import Received, TxDone, TxFailed
-from stack.wire.frame import Frame
-from stack.controller.node import Node
 from stack.bus.sim import SimBus
+from stack.cli.demo import run_demo_on_bus
+from stack.controller.events import Received, TxDone, TxFailed
+from stack.controller.node import Node
+from stack.io.driver import PyCanDriver
+from stack.wire.coding import INTERMISSION_BITS
+from stack.wire.frame import Frame
 
 _ids = itertools.count()
 
@@ -35,10 +35,12 @@ def collect(bus, seconds):
 
 def echo_ecu(node, log):
     """Protocol code written once: answers 0x100 with 0x180 carrying the doubled byte."""
+
     def on_rx(ev: Received):
         log.append(("rx", ev.frame))
         if ev.frame.can_id == 0x100:
             node.send(Frame(0x180, bytes([ev.frame.data[0] * 2 & 0xFF])))
+
     node.subscribe(on_rx, filters=[{"can_id": 0x100, "can_mask": 0x7FF}])
     node.listen(TxDone, lambda ev: log.append(("tx", ev.frame)))
 
@@ -82,8 +84,10 @@ def test_pacing_keeps_frames_one_wire_time_apart():
     ch = chan()
     frame = Frame(0x123, bytes(8))
     gap = (frame.bits.length + INTERMISSION_BITS) / 20_000  # 20 kbit/s: ~6.6 ms per frame
-    with can.Bus(interface="virtual", channel=ch) as mon, \
-            PyCanDriver(interface="virtual", channel=ch, pace_bitrate=20_000) as drv:
+    with (
+        can.Bus(interface="virtual", channel=ch) as mon,
+        PyCanDriver(interface="virtual", channel=ch, pace_bitrate=20_000) as drv,
+    ):
         node = drv.node("n")
         done = []
         node.listen(TxDone, done.append)
@@ -208,8 +212,10 @@ def test_received_times_are_the_buses_timestamps():
     ch = f"drvts{os.getpid()}"
     frame = Frame(0x123, bytes(8))
     got = []
-    with can.Bus(interface="canstack", channel=ch, bitrate=500_000) as tx, \
-            PyCanDriver(interface="canstack", channel=ch, bitrate=500_000) as drv:
+    with (
+        can.Bus(interface="canstack", channel=ch, bitrate=500_000) as tx,
+        PyCanDriver(interface="canstack", channel=ch, bitrate=500_000) as drv,
+    ):
         node = drv.node("n")
         node.subscribe(got.append)
         tx.send(frame.to_message())

@@ -92,8 +92,11 @@ def test_filters_that_are_no_list_are_refused_with_python_cans_error(bad):
 
 def _raw_join(server):
     s = socket.create_connection(server.address, timeout=2.0)
-    s.sendall(encode_message(HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None,
-                                                "config": {}}).encode()))
+    s.sendall(
+        encode_message(
+            HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}}).encode()
+        )
+    )
     return s
 
 
@@ -105,7 +108,7 @@ def _read(sock, until_types, timeout=2.0):
     while time.monotonic() < end and not set(until_types) <= {t for t, _ in out}:
         try:
             data = sock.recv(65536)
-        except socket.timeout:
+        except TimeoutError:
             continue
         if not data:
             break
@@ -114,8 +117,8 @@ def _read(sock, until_types, timeout=2.0):
             length, mtype = struct.unpack_from("!IB", buf)
             if len(buf) < 4 + length:
                 break
-            out.append((mtype, buf[5:4 + length]))
-            buf = buf[4 + length:]
+            out.append((mtype, buf[5 : 4 + length]))
+            buf = buf[4 + length :]
     return out
 
 
@@ -165,10 +168,19 @@ def test_served_clients_that_leave_are_removed_from_the_bus(server):
             s = _raw_join(server)
             _read(s, [WELCOME])
             s.close()
-        proc = subprocess.Popen([sys.executable, "-c", "import sys, can, stack.io.pycan, time\n"
-                                 "b = can.Bus(interface='canstack', channel=sys.argv[1]); print('in', flush=True)\n"
-                                 "time.sleep(60)", server.url],
-                                stdout=subprocess.PIPE, text=True, env=env_with_checkout())
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                "import sys, can, stack.io.pycan, time\n"
+                "b = can.Bus(interface='canstack', channel=sys.argv[1]); print('in', flush=True)\n"
+                "time.sleep(60)",
+                server.url,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env_with_checkout(),
+        )
         assert proc.stdout.readline().strip() == "in"
         proc.send_signal(signal.SIGKILL)  # a client process that dies
         proc.wait()
@@ -210,8 +222,12 @@ def test_processes_that_send_and_shut_down_at_once_lose_nothing(drain, tmp_path)
     with BusServer(125_000, listen=("127.0.0.1", 0)) as srv:
         rx = can.Bus(interface="canstack", channel=srv.url)
         try:
-            procs = [subprocess.Popen([sys.executable, "-c", PLAYERLIKE, srv.url, str(0x200 + i), "20"],
-                                      env=env_with_checkout()) for i in range(3)]
+            procs = [
+                subprocess.Popen(
+                    [sys.executable, "-c", PLAYERLIKE, srv.url, str(0x200 + i), "20"], env=env_with_checkout()
+                )
+                for i in range(3)
+            ]
             assert [p.wait(20) for p in procs] == [0, 0, 0]
             got = drain(rx, 61, timeout=0.3)
         finally:
@@ -223,16 +239,25 @@ def test_processes_that_send_and_shut_down_at_once_lose_nothing(drain, tmp_path)
 
 def test_can_player_plays_the_whole_log_onto_a_served_bus(drain, tmp_path):
     log = tmp_path / "play.log"
-    sent = [can.Message(timestamp=1.0 + 0.002 * i, arbitration_id=0x300 + i, data=bytes([i] * (i % 9)),
-                        is_extended_id=False) for i in range(8)]
+    sent = [
+        can.Message(
+            timestamp=1.0 + 0.002 * i, arbitration_id=0x300 + i, data=bytes([i] * (i % 9)), is_extended_id=False
+        )
+        for i in range(8)
+    ]
     with can.Logger(str(log)) as w:
         for m in sent:
             w.on_message_received(m)
     with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
         rx = can.Bus(interface="canstack", channel=srv.url)
         try:
-            res = subprocess.run([sys.executable, "-m", "can.player", "-i", "canstack", "-c", srv.url, str(log)],
-                                 env=env_with_checkout(tmp_path), capture_output=True, text=True, timeout=30)
+            res = subprocess.run(
+                [sys.executable, "-m", "can.player", "-i", "canstack", "-c", srv.url, str(log)],
+                env=env_with_checkout(tmp_path),
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
             assert res.returncode == 0, res.stderr
             got = drain(rx, 9, timeout=0.3)
         finally:
@@ -349,16 +374,21 @@ def test_going_passive_while_the_own_frame_is_on_the_wire_stops_its_retransmissi
 
 def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(drain, tmp_path, server):
     asc = tmp_path / "rec.asc"
-    proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive",
-                             "-f", str(asc)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env_with_checkout(tmp_path))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive", "-f", str(asc)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env_with_checkout(tmp_path),
+    )
     try:
         line = proc.stdout.readline()
         assert "Connected to CanstackBus" in line, line + proc.stderr.read()
-        assert wait_for(lambda: server.runner.call(lambda: [n.listen_only for n in server.sim.nodes]), [True]) \
-            == [True]
-        with can.Bus(interface="canstack", channel=server.url) as tx, \
-                can.Bus(interface="canstack", channel=server.url) as other:
+        assert wait_for(lambda: server.runner.call(lambda: [n.listen_only for n in server.sim.nodes]), [True]) == [True]
+        with (
+            can.Bus(interface="canstack", channel=server.url) as tx,
+            can.Bus(interface="canstack", channel=server.url) as other,
+        ):
             sent = [msg(0x600 + i, bytes([i])) for i in range(4)]
             for m in sent:
                 tx.send(m)
@@ -437,14 +467,17 @@ def test_failed_one_shot_frame_arrives_as_an_error_frame_through_serve(server):
         lone.shutdown()
 
 
-@pytest.mark.parametrize("reason,classes,d2,d3", [
-    ("arbitration lost (one-shot)", 0x202, 0x00, 0x00),
-    ("ack error (one-shot)", 0x2A8, 0x80, 0x19),
-    ("bit error (one-shot)", 0x288, 0x81, 0x00),
-    ("stuff error (one-shot)", 0x288, 0x84, 0x00),
-    ("form error (one-shot)", 0x288, 0x82, 0x00),
-    ("crc error (one-shot)", 0x288, 0x80, 0x08),
-])
+@pytest.mark.parametrize(
+    "reason,classes,d2,d3",
+    [
+        ("arbitration lost (one-shot)", 0x202, 0x00, 0x00),
+        ("ack error (one-shot)", 0x2A8, 0x80, 0x19),
+        ("bit error (one-shot)", 0x288, 0x81, 0x00),
+        ("stuff error (one-shot)", 0x288, 0x84, 0x00),
+        ("form error (one-shot)", 0x288, 0x82, 0x00),
+        ("crc error (one-shot)", 0x288, 0x80, 0x08),
+    ],
+)
 def test_error_frames_carry_socketcans_classes(reason, classes, d2, d3):
     m = pycan.error_frame_of(reason, 130, 5, timestamp=1.5, channel="x")
     assert (m.is_error_frame, m.arbitration_id, m.dlc, m.timestamp) == (True, classes, 8, 1.5)

@@ -15,9 +15,9 @@ import can
 import pytest
 
 import stack.io.pycan  # noqa: F401  (registers interface="canstack" when the package is not installed)
+from stack.io.pycan import CanstackBus, CanstackCyclicTask, InvalidFrame, running_buses
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
-from stack.io.pycan import CanstackBus, CanstackCyclicTask, InvalidFrame, running_buses
 
 ROOT = Path(__file__).resolve().parents[3]
 _ids = itertools.count()
@@ -51,7 +51,9 @@ def test_bus_created_through_python_can_is_a_canstack_node(pair):
     assert isinstance(a, CanstackBus) and a.bitrate == b.bitrate == 500_000
     assert a.node_name != b.node_name
     assert a.state is can.BusState.ACTIVE
-    assert {"interface": "canstack", "channel": a.channel, "bitrate": 500_000} in can.detect_available_configs("canstack")
+    assert {"interface": "canstack", "channel": a.channel, "bitrate": 500_000} in can.detect_available_configs(
+        "canstack"
+    )
 
 
 def test_back_to_back_frames_arrive_one_wire_time_apart(pair):
@@ -255,8 +257,9 @@ def test_notifier_printer_and_logger_write_what_was_sent(tmp_path):
     a.shutdown()
     b.shutdown()
     read = list(can.LogReader(str(asc)))
-    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in read] == \
-        [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in sent]
+    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in read] == [
+        (m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in sent
+    ]
     assert out.read_text().count("\n") == len(sent)
 
 
@@ -280,8 +283,13 @@ def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path):
     # the entry point, exactly as the installed distribution declares it (pyproject.toml)
     env["PYTHONPATH"] = os.pathsep.join([_entry_point_path(tmp_path), str(ROOT), env.get("PYTHONPATH", "")])
     with BusServer(500_000, listen=("127.0.0.1", 0)) as server:
-        proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url,
-                                 "-f", str(asc)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "-f", str(asc)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
         try:
             line = proc.stdout.readline()
             assert "Connected to CanstackBus" in line, line + proc.stderr.read()
@@ -389,16 +397,24 @@ def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
     heartbeats = []
 
     def dut() -> None:  # doubles the setpoint, reports Enable as Active
-        cmd, status, hb = db.get_message_by_name("Command"), db.get_message_by_name("Status"), \
-            db.get_message_by_name("Heartbeat")
+        cmd, status, hb = (
+            db.get_message_by_name("Command"),
+            db.get_message_by_name("Status"),
+            db.get_message_by_name("Heartbeat"),
+        )
         while not stop.is_set():
             m = dut_bus.recv(0.05)
             if m is None:
                 continue
             if m.arbitration_id == cmd.frame_id:
                 s = cmd.decode(m.data)
-                dut_bus.send(can.Message(arbitration_id=status.frame_id, is_extended_id=False,
-                                         data=status.encode({"Active": s["Enable"], "Value": 2 * s["Setpoint"] % 256})))
+                dut_bus.send(
+                    can.Message(
+                        arbitration_id=status.frame_id,
+                        is_extended_id=False,
+                        data=status.encode({"Active": s["Enable"], "Value": 2 * s["Setpoint"] % 256}),
+                    )
+                )
             elif m.arbitration_id == hb.frame_id:
                 heartbeats.append(m.timestamp)
 
@@ -424,21 +440,25 @@ def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
     assert sum(1 for g in gaps if abs(g - 0.020) < 1e-3) >= len(gaps) - 2
 
 
-@pytest.mark.parametrize("kw,needle", [
-    ({"queue": "mailbox", "mailboxes": "x"}, "mailboxes 'x'"),
-    ({"listen_only": "maybe"}, "listen_only 'maybe' must be True or False"),
-    ({"node_name": "a b"}, "node name 'a b'"),
-    ({"node_name": "\x01\x02"}, "node name"),
-    ({"data_bitrate": 2_000_000}, "no FD data phase"),
-])
+@pytest.mark.parametrize(
+    "kw,needle",
+    [
+        ({"queue": "mailbox", "mailboxes": "x"}, "mailboxes 'x'"),
+        ({"listen_only": "maybe"}, "listen_only 'maybe' must be True or False"),
+        ({"node_name": "a b"}, "node name 'a b'"),
+        ({"node_name": "\x01\x02"}, "node name"),
+        ({"data_bitrate": 2_000_000}, "no FD data phase"),
+    ],
+)
 def test_bad_node_options_are_refused(kw, needle):
     with pytest.raises(can.CanInitializationError, match=re.escape(needle)):
         can.Bus(interface="canstack", channel=f"opt{os.getpid()}", **kw)
 
 
 def test_config_file_strings_for_flags_are_read():
-    bus = can.Bus(interface="canstack", channel=f"optstr{os.getpid()}", listen_only="yes", mailboxes="2",
-                  queue="mailbox")
+    bus = can.Bus(
+        interface="canstack", channel=f"optstr{os.getpid()}", listen_only="yes", mailboxes="2", queue="mailbox"
+    )
     try:
         with pytest.raises(can.CanOperationError, match="listen-only"):
             bus.send(can.Message(arbitration_id=1, is_extended_id=False))

@@ -111,10 +111,8 @@ def test_a_client_process_that_dies_does_not_disturb_the_others(drain, server):
     try:
         assert proc.stdout.readline().strip() == "ready"
         assert drain(b, 20, timeout=3.0)  # the dying client was sending
-        sent = 0
         for k in range(300):
             a.send(msg(0x100, k.to_bytes(2, "big")), timeout=1.0)
-            sent += 1
             if k == 100:
                 proc.send_signal(signal.SIGKILL)
         got = [int.from_bytes(m.data, "big") for m in drain(b, 10_000, timeout=1.0) if m.arbitration_id == 0x100]
@@ -144,19 +142,20 @@ def _read_msgs(sock, timeout=1.0):
             if not data:
                 break
             buf += data
-    except socket.timeout:
+    except TimeoutError:
         pass
     out = []
     while len(buf) >= 5:
         length, mtype = struct.unpack_from("!IB", buf)
-        out.append((mtype, buf[5:4 + length]))
-        buf = buf[4 + length:]
+        out.append((mtype, buf[5 : 4 + length]))
+        buf = buf[4 + length :]
     return out
 
 
 def _hello(**kw):
-    return encode_message(HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None,
-                                             "config": {}, **kw}).encode())
+    return encode_message(
+        HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}, **kw}).encode()
+    )
 
 
 def test_hostile_clients_are_rejected_and_the_server_keeps_serving(drain, server):
@@ -175,9 +174,14 @@ def test_hostile_clients_are_rejected_and_the_server_keeps_serving(drain, server
         assert _read_msgs(s)[0][0] == ERROR
         s.close()
         # 3. HELLO with bad JSON, bad option types
-        for bad in (encode_message(HELLO, b"{not json"), _hello(config={"tx_queue_size": "huge"}),
-                    _hello(config={"evil": 1}), _hello(v=99), encode_message(HELLO, b"[" * 5_000),
-                    _hello(node_name="\x01\x02")):
+        for bad in (
+            encode_message(HELLO, b"{not json"),
+            _hello(config={"tx_queue_size": "huge"}),
+            _hello(config={"evil": 1}),
+            _hello(v=99),
+            encode_message(HELLO, b"[" * 5_000),
+            _hello(node_name="\x01\x02"),
+        ):
             s = _raw(server)
             s.sendall(bad)
             assert _read_msgs(s)[0][0] == ERROR
@@ -230,11 +234,30 @@ def test_non_loopback_listen_is_refused_without_allow_remote():
 
 def test_serve_command_runs_a_bus_other_processes_join():
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    code = ("import argparse, sys; from stack.cli.serve import register; p = argparse.ArgumentParser(); "
-            "register(p.add_subparsers()); a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))")
-    proc = subprocess.Popen([sys.executable, "-c", code, "serve", "--listen", "127.0.0.1:0", "--bitrate", "125000",
-                             "--name", "cli0", "--duration", "5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+    code = (
+        "import argparse, sys; from stack.cli.serve import register; p = argparse.ArgumentParser(); "
+        "register(p.add_subparsers()); a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))"
+    )
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            code,
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--bitrate",
+            "125000",
+            "--name",
+            "cli0",
+            "--duration",
+            "5",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         line = proc.stdout.readline()
         assert line.startswith("serving cli0 at 125000 bit/s on tcp://127.0.0.1:"), line + proc.stderr.read()
@@ -272,16 +295,19 @@ def test_unix_path_that_is_not_a_stale_socket_is_never_replaced(tmp_path):
 
 def test_unix_channel_naming_the_socket_itself_says_to_add_the_bus_name(tmp_path):
     path = str(tmp_path / "bus.sock")
-    with BusServer(500_000, unix=path, name="body"):
-        with pytest.raises(can.CanInitializationError, match=r"is the socket itself; add the bus name"):
-            can.Bus(interface="canstack", channel=f"unix://{path}")
+    with (
+        BusServer(500_000, unix=path, name="body"),
+        pytest.raises(can.CanInitializationError, match=r"is the socket itself; add the bus name"),
+    ):
+        can.Bus(interface="canstack", channel=f"unix://{path}")
 
 
 # ---------------------------------------------------------------------------- the command line
 def _cli(*args, timeout=20):
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "stack.cli", "serve", *args], capture_output=True, text=True,
-                          env=env, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "stack.cli", "serve", *args], capture_output=True, text=True, env=env, timeout=timeout
+    )
 
 
 def test_serve_help_describes_every_option_and_the_client_channels():

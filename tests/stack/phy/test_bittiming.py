@@ -9,6 +9,7 @@ import subprocess
 import can
 import pytest
 
+from stack.cli import main
 from stack.phy import bittiming as bt
 from stack.phy.bittiming import (
     BitTimingError,
@@ -20,7 +21,6 @@ from stack.phy.bittiming import (
     max_bus_length,
     solve,
 )
-from stack.cli import main
 
 CALC = shutil.which("can-calc-bit-timing")
 
@@ -34,8 +34,15 @@ def _calc(controller: str, clock: int) -> list[dict[str, int | float]]:
         if len(f) < 12 or not f[0].isdigit():
             continue
         rows.append(
-            dict(bitrate=int(f[0]), prop_seg=int(f[2]), phase_seg1=int(f[3]), phase_seg2=int(f[4]),
-                 sjw=int(f[5]), brp=int(f[6]), real_sp=float(f[10].rstrip("%")))
+            dict(
+                bitrate=int(f[0]),
+                prop_seg=int(f[2]),
+                phase_seg1=int(f[3]),
+                phase_seg2=int(f[4]),
+                sjw=int(f[5]),
+                brp=int(f[6]),
+                real_sp=float(f[10].rstrip("%")),
+            )
         )
     return rows
 
@@ -43,8 +50,12 @@ def _calc(controller: str, clock: int) -> list[dict[str, int | float]]:
 def _calc_is_legacy() -> bool:
     """Which tie rule the installed tool follows: at 16 MHz, 1 Mbit/s, 80 % both 16 tq (brp 1)
     and 8 tq (brp 2) reach 75 % exactly; Linux >= 5.19 (and can-utils since 2022) keeps brp 1."""
-    out = subprocess.run([CALC, "-q", "-c", "16000000", "-b", "1000000", "-s", "800", "sja1000"],
-                         capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [CALC, "-q", "-c", "16000000", "-b", "1000000", "-s", "800", "sja1000"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     return int(out.split()[6]) == 2
 
 
@@ -76,10 +87,17 @@ def test_matches_can_calc_bit_timing(controller: str, clock: int) -> None:
 
 
 @pytest.mark.skipif(CALC is None, reason="can-calc-bit-timing (can-utils) not installed")
-@pytest.mark.parametrize("bitrate,sp_tenths", [(500_000, 750), (250_000, 850), (125_000, 700), (1_000_000, 700), (100_000, 750), (50_000, 833)])
+@pytest.mark.parametrize(
+    "bitrate,sp_tenths",
+    [(500_000, 750), (250_000, 850), (125_000, 700), (1_000_000, 700), (100_000, 750), (50_000, 833)],
+)
 def test_matches_can_calc_bit_timing_with_sample_point(bitrate: int, sp_tenths: int) -> None:
-    out = subprocess.run([CALC, "-q", "-c", "16000000", "-b", str(bitrate), "-s", str(sp_tenths), "sja1000"],
-                         capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [CALC, "-q", "-c", "16000000", "-b", str(bitrate), "-s", str(sp_tenths), "sja1000"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     f = out.split()
     exp = dict(brp=int(f[6]), tseg1=int(f[2]) + int(f[3]), tseg2=int(f[4]), btr0=int(f[12], 16), btr1=int(f[13], 16))
     s = solve(16_000_000, bitrate, sample_point=sp_tenths / 10, sjw=1, legacy=_calc_is_legacy())
@@ -130,8 +148,10 @@ def test_default_sjw_follows_kernel() -> None:
     assert (s.tseg1, s.tseg2, s.sjw) == (11, 4, 2)
 
 
-@pytest.mark.parametrize("bitrate,sp", [(1_000_000, 75.0), (800_001, 75.0), (800_000, 80.0), (500_001, 80.0),
-                                        (500_000, 87.5), (125_000, 87.5)])
+@pytest.mark.parametrize(
+    "bitrate,sp",
+    [(1_000_000, 75.0), (800_001, 75.0), (800_000, 80.0), (500_001, 80.0), (500_000, 87.5), (125_000, 87.5)],
+)
 def test_cia_sample_point(bitrate: int, sp: float) -> None:
     assert cia_sample_point(bitrate) == sp
 
@@ -266,10 +286,30 @@ def test_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
     rc, out, _ = _cli(capsys, "--clock", "16000000", "--bitrate", "500000", "--json")
     assert rc == 0
     d = json.loads(out)
-    assert {k: d[k] for k in ("brp", "tseg1", "tseg2", "sjw", "tq_ns", "sample_point", "bitrate",
-                              "bitrate_error", "oscillator_tolerance")} == dict(
-        brp=2, tseg1=13, tseg2=2, sjw=1, tq_ns=125.0, sample_point=87.5, bitrate=500000.0,
-        bitrate_error=0.0, oscillator_tolerance=0.3125)
+    assert {
+        k: d[k]
+        for k in (
+            "brp",
+            "tseg1",
+            "tseg2",
+            "sjw",
+            "tq_ns",
+            "sample_point",
+            "bitrate",
+            "bitrate_error",
+            "oscillator_tolerance",
+        )
+    } == dict(
+        brp=2,
+        tseg1=13,
+        tseg2=2,
+        sjw=1,
+        tq_ns=125.0,
+        sample_point=87.5,
+        bitrate=500000.0,
+        bitrate_error=0.0,
+        oscillator_tolerance=0.3125,
+    )
     rc, out, _ = _cli(capsys, "--clock", "16000000", "--bitrate", "500000", "--all", "--json")
     rows = json.loads(out)
     assert isinstance(rows, list) and rows[0]["brp"] == 2 and all("oscillator_tolerance" in r for r in rows)

@@ -6,9 +6,8 @@ import json
 
 import pytest
 
-from stack.phy.bittiming import solve
 from stack.cli import main
-from stack.wire.frame import Frame
+from stack.phy.bittiming import solve
 from stack.phy.sync import (
     Node,
     SyncReceiver,
@@ -18,6 +17,7 @@ from stack.phy.sync import (
     receive,
     worst_case_frames,
 )
+from stack.wire.frame import Frame
 
 
 def _hard_sync(rx: SyncReceiver) -> None:
@@ -103,8 +103,12 @@ def test_three_samples_majority() -> None:
 
 def test_nominal_clock_receives_every_frame() -> None:
     s = solve(16_000_000, 500_000)
-    frames = [*worst_case_frames(), Frame(0x123, b"\x01\x02"), Frame(0x1ABCDEF0, b"\xaa" * 8, extended=True),
-              Frame(0x55, b"", remote=True, dlc=4)]
+    frames = [
+        *worst_case_frames(),
+        Frame(0x123, b"\x01\x02"),
+        Frame(0x1ABCDEF0, b"\xaa" * 8, extended=True),
+        Frame(0x55, b"", remote=True, dlc=4),
+    ]
     for fr in frames:
         for phase in (0.0, 0.3, 0.99):
             r = receive(fr, s.timing, phase=phase)
@@ -173,7 +177,15 @@ def test_cli_sync_json(capsys: pytest.CaptureFixture[str]) -> None:
     d = json.loads(out)
     assert d["formula_ppm"] == pytest.approx(3125.0)
     assert d["max_drift_ppm"] >= d["formula_ppm"]
-    assert d["timing"] == {"brp": 2, "tseg1": 13, "tseg2": 2, "sjw": 1, "nbt": 16, "sample_point": 87.5, "nof_samples": 1}
+    assert d["timing"] == {
+        "brp": 2,
+        "tseg1": 13,
+        "tseg2": 2,
+        "sjw": 1,
+        "nbt": 16,
+        "sample_point": 87.5,
+        "nof_samples": 1,
+    }
     ff = d["first_failure"]
     assert ff["kind"] in ("stuff", "crc", "form") and "field" in ff and "bit" in ff
     assert d["max_drift_ppm"] < abs(ff["drift_ppm"]) <= d["max_drift_ppm"] + 10
@@ -204,7 +216,6 @@ def test_cli_sync_errors(capsys: pytest.CaptureFixture[str], argv: list[str], ne
 # ---------------------------------------------------------------------------------------------
 # Two nodes on a bus with propagation delay: ACK round trip, arbitration, max bus length
 
-from stack.wire.coding import Field  # noqa: E402
 from stack.phy.bittiming import BusDelays  # noqa: E402
 from stack.phy.sync import (  # noqa: E402
     BUS_LENGTH_FRAMES,
@@ -213,6 +224,7 @@ from stack.phy.sync import (  # noqa: E402
     arbitration_exchange,
     max_bus_length_simulated,
 )
+from stack.wire.coding import Field  # noqa: E402
 
 # Hand arithmetic per timing (tq = brp / clock; one-way delay = L x cable + node delay):
 # - formula (Prop_Seg rule):   L_f  = (prop_seg x tq / 2 - node) / cable
@@ -232,8 +244,14 @@ BUS_CASES = [
 
 @pytest.mark.parametrize("clock,bitrate,sp,delays,regs,formula_m,sample_point_m,quantum_m", BUS_CASES)
 def test_simulated_bus_length_against_the_formula(
-    clock: int, bitrate: int, sp: float | None, delays: BusDelays, regs: tuple[int, int, int, int],
-    formula_m: float, sample_point_m: float, quantum_m: float,
+    clock: int,
+    bitrate: int,
+    sp: float | None,
+    delays: BusDelays,
+    regs: tuple[int, int, int, int],
+    formula_m: float,
+    sample_point_m: float,
+    quantum_m: float,
 ) -> None:
     s = solve(clock, bitrate, sample_point=sp, delays=delays)
     assert (s.brp, s.tseg1, s.prop_seg, s.phase_seg1) == regs  # the hand figures assume these
@@ -338,7 +356,9 @@ def test_cli_sync_bus_length(capsys: pytest.CaptureFixture[str]) -> None:
     assert d["formula_m"] == pytest.approx(75.0) and d["sample_point_m"] == pytest.approx(175.0)
     assert 162.5 <= d["simulated_m"] <= 175.0
     assert d["ok_at_bus_length"] is False and d["at_bus_length"]["kind"] == "ack"
-    rc = main(["sync", "--bitrate", "125000", "--clock", "16000000", "--bus-length", "100", "--transceiver-delay", "100"])
+    rc = main(
+        ["sync", "--bitrate", "125000", "--clock", "16000000", "--bus-length", "100", "--transceiver-delay", "100"]
+    )
     out, _ = capsys.readouterr()
     # formula (6 x 500 / 2 - 100) / 5 = 280 m; sample point (14 x 500 / 2 - 100) / 5 = 680 m
     assert rc == 0 and "ACK and arbitration work" in out and "280.0 m" in out and "680.0 m" in out
@@ -346,7 +366,11 @@ def test_cli_sync_bus_length(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize(
     "argv,needle",
-    [(["--bus-length", "-1"], "-1"), (["--bus-length", "x"], "x"), (["--bus-length", "1", "--cable-delay", "0"], "cable")],
+    [
+        (["--bus-length", "-1"], "-1"),
+        (["--bus-length", "x"], "x"),
+        (["--bus-length", "1", "--cable-delay", "0"], "cable"),
+    ],
 )
 def test_cli_sync_bus_length_errors(capsys: pytest.CaptureFixture[str], argv: list[str], needle: str) -> None:
     rc = main(["sync", "--bitrate", "500000", "--clock", "16000000", *argv])

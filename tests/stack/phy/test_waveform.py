@@ -15,21 +15,21 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stack.wire.coding import Field, crc15
-from stack.wire.decoder import decode
 from stack.cli import main
-from stack.wire.frame import Frame
 from stack.phy.waveform import (
     BitReceiver,
     decode_file,
-    read_capture,
     decode_samples,
+    read_capture,
     record_to_json,
     render_edges,
     render_samples,
     write_raw,
     write_vcd,
 )
+from stack.wire.coding import Field, crc15
+from stack.wire.decoder import decode
+from stack.wire.frame import Frame
 
 CAPTURES = Path(__file__).resolve().parents[4] / "shared" / "corpus" / "captures"
 MSG_222 = CAPTURES / "mcp2515dm-bm-125kbits_msg_222_5bytes.sr"
@@ -49,7 +49,10 @@ def _frames_of(recs):
 
 frames_st = st.builds(
     lambda ext, ident, data, remote, dlc: Frame(
-        ident & (0x1FFFFFFF if ext else 0x7FF), b"" if remote else data, extended=ext, remote=remote,
+        ident & (0x1FFFFFFF if ext else 0x7FF),
+        b"" if remote else data,
+        extended=ext,
+        remote=remote,
         dlc=dlc if remote else None,
     ),
     st.booleans(),
@@ -61,7 +64,10 @@ frames_st = st.builds(
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(frames_st, min_size=1, max_size=4), st.sampled_from([(500_000, 8_000_000), (125_000, 4_000_000), (250_000, 2_500_000)]))
+@given(
+    st.lists(frames_st, min_size=1, max_size=4),
+    st.sampled_from([(500_000, 8_000_000), (125_000, 4_000_000), (250_000, 2_500_000)]),
+)
 def test_render_decode_round_trip(frames, rates):
     bitrate, samplerate = rates
     samples = render_samples(frames, bitrate, samplerate)
@@ -109,7 +115,9 @@ def test_resynchronisation_is_what_tolerates_drift():
     assert bad and not bad[0].ok
     # and without drift the narrow SJW is enough
     clean = render_samples([frame], 500_000, 16_000_000)
-    assert _frames_of(decode_samples(clean, 16_000_000, 500_000, retry=False, sjw=1, tq_per_bit=25, sample_point=88)) == [frame]
+    assert _frames_of(
+        decode_samples(clean, 16_000_000, 500_000, retry=False, sjw=1, tq_per_bit=25, sample_point=88)
+    ) == [frame]
 
 
 def test_phase_correction_follows_the_can_rule():
@@ -149,7 +157,7 @@ def test_a_frame_right_after_the_capture_starts_is_decoded(idle_bits):
 def test_a_capture_that_starts_inside_a_frame_gives_no_false_record():
     frame = Frame(0x2AA, b"\x11\x22\x33")
     samples = render_samples([frame, frame], 125_000, 4_000_000)
-    cut = samples[(11 + 20) * 32:]  # from bit 20 of the first frame
+    cut = samples[(11 + 20) * 32 :]  # from bit 20 of the first frame
     recs = decode_samples(cut, 4_000_000, 125_000)
     assert _frames_of(recs) == [frame] and all(r.ok for r in recs)
 
@@ -172,7 +180,7 @@ def test_timestamps_round_trip_and_overlap_is_refused():
     samples = render_samples(frames, 500_000, 8_000_000, times=[0.001, 0.0025])
     recs = decode_samples(samples, 8_000_000, 500_000)
     assert [r.t for r in recs] == [0.001, 0.0025]
-    with pytest.raises(ValueError, match="frame 1 at t=0.00101 s starts before"):
+    with pytest.raises(ValueError, match=r"frame 1 at t=0\.00101 s starts before"):
         render_samples(frames, 500_000, 8_000_000, times=[0.001, 0.00101])
 
 
@@ -207,6 +215,7 @@ def test_crc_error_is_reported_with_the_received_crc():
     frame = Frame(0x0C1, bytes([0x40, 0x01, 0x08, 0x75, 0, 0, 0, 0]))
     assert frame.bits.crc == 0x5B40  # the DESIGN example
     bits = frame.bits.bits
+
     # a data bit whose flip keeps the stuffing valid: the bit-level decoder says CRC error
     def flipped(p: int) -> str:
         return bits[:p] + ("1" if bits[p] == "0" else "0") + bits[p + 1 :]
@@ -339,7 +348,9 @@ def test_cli_render_then_decode_json(tmp_path, capsys):
     assert rc == 0, err
     got = [json.loads(line) for line in out.splitlines()]
     assert [(g["id"], g["extended"], g["remote"], g["dlc"], g["data"]) for g in got] == [
-        (0x123, False, False, 2, "abcd"), (0x1FFFFFFF, True, False, 0, ""), (0x7FF, False, True, 4, "")
+        (0x123, False, False, 2, "abcd"),
+        (0x1FFFFFFF, True, False, 0, ""),
+        (0x7FF, False, True, 4, ""),
     ]
     assert got[1]["t"] == 0.002
     assert all(set(g) == {"t", "id", "extended", "remote", "dlc", "data", "crc", "crc_ok", "ack"} for g in got)
@@ -347,11 +358,16 @@ def test_cli_render_then_decode_json(tmp_path, capsys):
     # decode's output renders again (crc is checked against the frame)
     again = tmp_path / "again.jsonl"
     again.write_text(out)
-    rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "r.bin"), str(again)], capsys)
+    rc, _, err = _cli(
+        ["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "r.bin"), str(again)],
+        capsys,
+    )
     assert rc == 0, err
     bad = tmp_path / "bad.jsonl"
     bad.write_text(json.dumps({**got[0], "crc": got[0]["crc"] ^ 1}) + "\n")
-    rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "x.bin"), str(bad)], capsys)
+    rc, _, err = _cli(
+        ["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "x.bin"), str(bad)], capsys
+    )
     assert rc == 2 and "line 1" in err and "does not match" in err
 
 
@@ -403,9 +419,19 @@ def test_mcp2515_bus_load_all_frames_valid(load):
 
 def _sigrok_frames(path: Path, channel: str, bitrate: int) -> list[dict]:
     out = subprocess.run(
-        [SIGROK, "-i", str(path), "-P", f"can:can_rx={channel}:nominal_bitrate={bitrate}", "-A", "can=fields",
-         "--protocol-decoder-samplenum"],
-        capture_output=True, text=True, check=True,
+        [
+            SIGROK,
+            "-i",
+            str(path),
+            "-P",
+            f"can:can_rx={channel}:nominal_bitrate={bitrate}",
+            "-A",
+            "can=fields",
+            "--protocol-decoder-samplenum",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout
     frames: list[dict] = []
     for line in out.splitlines():
@@ -432,7 +458,9 @@ def _sigrok_frames(path: Path, channel: str, bitrate: int) -> list[dict]:
         f["crc_valid"] = False
         if "crc" in f and "dlc" in f:
             try:
-                fr = Frame(f["id"], b"" if f["rtr"] else bytes(f["data"]), extended=f["ext"], remote=f["rtr"], dlc=f["dlc"])
+                fr = Frame(
+                    f["id"], b"" if f["rtr"] else bytes(f["data"]), extended=f["ext"], remote=f["rtr"], dlc=f["dlc"]
+                )
             except ValueError:
                 continue
             f["crc_valid"] = fr.bits.crc == f["crc"]
@@ -511,11 +539,14 @@ def _session(path, metadata: bytes, samples: bytes = b"\x01" * 64):
         zf.writestr("logic-1-1", samples)
 
 
-@pytest.mark.parametrize("metadata,needle", [
-    (b"\xff\x00[x", "metadata is not an ini file (File contains no section headers.)"),
-    (b"[device 1]\ncapturefile=logic-1\nunitsize=two\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "invalid literal"),
-    (b"[device 1]\ncapturefile=logic-1\nunitsize=0\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "unitsize 0 outside 1..8"),
-])
+@pytest.mark.parametrize(
+    "metadata,needle",
+    [
+        (b"\xff\x00[x", "metadata is not an ini file (File contains no section headers.)"),
+        (b"[device 1]\ncapturefile=logic-1\nunitsize=two\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "invalid literal"),
+        (b"[device 1]\ncapturefile=logic-1\nunitsize=0\nsamplerate=1 MHz\nprobe1=CAN_RX\n", "unitsize 0 outside 1..8"),
+    ],
+)
 def test_cli_bad_session_metadata_is_one_line_naming_the_file(tmp_path, capsys, metadata, needle):
     sr = tmp_path / "bad.sr"
     _session(sr, metadata)
@@ -526,13 +557,16 @@ def test_cli_bad_session_metadata_is_one_line_naming_the_file(tmp_path, capsys, 
 def test_cli_render_refuses_a_waveform_too_long_to_build(tmp_path, capsys):
     src = tmp_path / "far.jsonl"
     for t, needle in (("1e300", "span 1e+300 s"), ("1000", "span 1000 s"), ("Infinity", "'t' inf must be")):
-        src.write_text('{"id": 291, "t": %s}\n' % t)
-        rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw",
-                           str(tmp_path / "o.raw"), str(src)], capsys)
+        src.write_text(f'{{"id": 291, "t": {t}}}\n')
+        rc, _, err = _cli(
+            ["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "o.raw"), str(src)],
+            capsys,
+        )
         assert rc == 2 and needle in err and err.count("\n") == 1
     src.write_bytes(b"\xff\xfe{}")
-    rc, _, err = _cli(["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw",
-                       str(tmp_path / "o.raw"), str(src)], capsys)
+    rc, _, err = _cli(
+        ["render", "--bitrate", "500000", "--samplerate", "8000000", "--raw", str(tmp_path / "o.raw"), str(src)], capsys
+    )
     assert rc == 2 and "not a text file of JSON lines" in err
 
 

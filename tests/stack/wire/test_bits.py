@@ -2,20 +2,35 @@
 
 import pytest
 from crccheck.crc import Crc15Can
-from hypothesis import given, settings, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
-from stack.wire.coding import Field, crc15, crc15_bytes, destuff, encode, stuff, unstuffed_length, worst_case_length
+from stack.wire.coding import Field, crc15, crc15_bytes, destuff, stuff, unstuffed_length, worst_case_length
 from stack.wire.decoder import decode
 from stack.wire.frame import Frame
 
 
 def frames():
-    std = st.builds(lambda i, d, r, dlc: Frame(i, remote=True, dlc=dlc) if r else Frame(i, d),
-                    st.integers(0, 0x7FF), st.binary(max_size=8), st.booleans(), st.integers(0, 15))
-    ext = st.builds(lambda i, d, r, dlc: Frame(i, extended=True, remote=True, dlc=dlc) if r else Frame(i, d, extended=True),
-                    st.integers(0, 0x1FFFFFFF), st.binary(max_size=8), st.booleans(), st.integers(0, 15))
-    dlc_hi = st.builds(lambda i, d, dlc: Frame(i, d, dlc=dlc), st.integers(0, 0x7FF), st.binary(min_size=8, max_size=8),
-                       st.integers(9, 15))
+    std = st.builds(
+        lambda i, d, r, dlc: Frame(i, remote=True, dlc=dlc) if r else Frame(i, d),
+        st.integers(0, 0x7FF),
+        st.binary(max_size=8),
+        st.booleans(),
+        st.integers(0, 15),
+    )
+    ext = st.builds(
+        lambda i, d, r, dlc: Frame(i, extended=True, remote=True, dlc=dlc) if r else Frame(i, d, extended=True),
+        st.integers(0, 0x1FFFFFFF),
+        st.binary(max_size=8),
+        st.booleans(),
+        st.integers(0, 15),
+    )
+    dlc_hi = st.builds(
+        lambda i, d, dlc: Frame(i, d, dlc=dlc),
+        st.integers(0, 0x7FF),
+        st.binary(min_size=8, max_size=8),
+        st.integers(9, 15),
+    )
     return st.one_of(std, ext, dlc_hi)
 
 
@@ -73,9 +88,14 @@ def test_unstuffed_and_worst_case_numbers_from_the_spec():
 def test_field_layout_standard_and_extended():
     f = Frame(0x0C1, bytes(8))
     fb = f.bits
-    assert [len(fb.fields[x]) for x in (Field.SOF, Field.ID, Field.RTR, Field.IDE, Field.R0, Field.DLC, Field.DATA, Field.CRC)] == [1, 11, 1, 1, 1, 4, 64, 15]
+    assert [
+        len(fb.fields[x])
+        for x in (Field.SOF, Field.ID, Field.RTR, Field.IDE, Field.R0, Field.DLC, Field.DATA, Field.CRC)
+    ] == [1, 11, 1, 1, 1, 4, 64, 15]
     e = Frame(0x11223344, bytes(7), extended=True).bits
-    assert [len(e.fields[x]) for x in (Field.ID, Field.SRR, Field.IDE, Field.ID_EXT, Field.RTR, Field.R1, Field.R0)] == [11, 1, 1, 18, 1, 1, 1]
+    assert [
+        len(e.fields[x]) for x in (Field.ID, Field.SRR, Field.IDE, Field.ID_EXT, Field.RTR, Field.R1, Field.R0)
+    ] == [11, 1, 1, 18, 1, 1, 1]
     assert e.bits[e.position(Field.SRR)] == "1" and e.bits[e.position(Field.IDE)] == "1"
     assert fb.bits[fb.position(Field.ACK_SLOT)] == "0"
     assert fb.bits[-7:] == "1111111"
@@ -85,12 +105,12 @@ def test_stuff_bits_are_marked_and_opposite_to_the_five_before():
     fb = Frame(0x0C1, bytes.fromhex("4001087500000000")).bits
     assert fb.stuff_count == 10
     for p in fb.stuff_positions:
-        prev = fb.bits[p - 5:p]
+        prev = fb.bits[p - 5 : p]
         assert len(set(prev)) == 1 and fb.bits[p] != prev[0]
 
 
 def _flip(bits: str, i: int) -> str:
-    return bits[:i] + ("1" if bits[i] == "0" else "0") + bits[i + 1:]
+    return bits[:i] + ("1" if bits[i] == "0" else "0") + bits[i + 1 :]
 
 
 def test_decoder_reports_stuff_error_with_field_and_bit():
@@ -150,8 +170,10 @@ def test_position_rejects_unknown_field_and_index():
 
 def _reference_bits(f):
     """A second, bit-list encoder straight from the field layout in ISO 11898-1."""
+
     def ib(v, w):
         return [(v >> (w - 1 - i)) & 1 for i in range(w)]
+
     if f.extended:
         raw = [0] + ib(f.can_id >> 18, 11) + [1, 1] + ib(f.can_id & 0x3FFFF, 18) + [int(f.remote), 0, 0]
     else:

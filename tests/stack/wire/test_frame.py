@@ -70,8 +70,12 @@ def test_arbitration_key_orders_as_on_the_wire():
 
 
 def test_message_round_trip_both_ways():
-    for f in [Frame(0x0C1, bytes.fromhex("4001087500000000")), Frame(0x18FEF100, b"\xff", extended=True),
-              Frame(0x7FF, remote=True, dlc=8), Frame(0, b"")]:
+    for f in [
+        Frame(0x0C1, bytes.fromhex("4001087500000000")),
+        Frame(0x18FEF100, b"\xff", extended=True),
+        Frame(0x7FF, remote=True, dlc=8),
+        Frame(0, b""),
+    ]:
         msg = f.to_message(timestamp=1.5)
         assert msg.arbitration_id == f.can_id and msg.is_extended_id == f.extended
         assert msg.is_remote_frame == f.remote and msg.dlc == f.dlc and bytes(msg.data) == f.data
@@ -84,5 +88,5 @@ def test_message_with_dlc_above_8_is_refused_with_reason():
         Frame.from_message(msg)
     msg = can.Message(arbitration_id=1, data=bytes(8), check=False)
     msg.dlc = 12
-    with pytest.raises(ValueError, match="dlc 12: only dlc 0..8"):
+    with pytest.raises(ValueError, match=r"dlc 12: only dlc 0\.\.8"):
         Frame.from_message(msg)
