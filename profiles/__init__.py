@@ -2,12 +2,12 @@
 
 - `profiles.base` — the profile contract: base class, context, message sources, the recorder;
 - `profiles.csma` — native CSMA/CR (plain CAN arbitration);
-- `profiles.scenario` — scenario files (TOML), checked; `profiles.schema` — their typed tables;
+- `profiles.pipeline.scenario` — scenario files (TOML), checked; `profiles.schema` — their typed tables;
 - `profiles.registry` — the profiles scenario files can name;
-- `profiles.runner` — run a scenario on the simulated bus or a python-can bus;
-- `profiles.metrics` — the metrics and the response-time analysis beside them;
+- `profiles.pipeline.runner` — run a scenario on the simulated bus or a python-can bus;
+- `profiles.pipeline.metrics` — the metrics and the response-time analysis beside them;
 - `profiles.analysis.rta` — CAN schedulability analysis (Davis, Burns, Bril, Lukkien 2007);
-- `profiles.plots` — timeline, response times, bus load (the ``plot`` extra).
+- `profiles.pipeline.plots` — timeline, response times, bus load (the ``plot`` extra).
 
 Profiles act only through the node API (`stack.NodeAPI`), so they run unchanged on the
 simulated bus and on any python-can bus. `profiles` imports `stack`, never `dbc`.

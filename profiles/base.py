@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from stack import Frame, NodeError, QueueFull
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.scenario import MessageDecl, NodeDecl, Scenario
+    from profiles.declarations import MessageDecl, NodeDecl, Scenario
     from stack import NodeAPI, TxRequest
 
 __all__ = [

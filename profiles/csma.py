@@ -22,7 +22,7 @@ from profiles.schema import Key
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
-    from profiles.scenario import MessageDecl, NodeDecl, Scenario
+    from profiles.declarations import MessageDecl, NodeDecl, Scenario
     from stack import Frame, NodeAPI
 
 __all__ = ["CsmaProfile", "Gate"]

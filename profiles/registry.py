@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
     from profiles.base import Context, Profile
-    from profiles.scenario import NodeDecl, Scenario
+    from profiles.declarations import NodeDecl, Scenario
     from profiles.schema import Key
     from stack.controller.api import NodeAPI
 

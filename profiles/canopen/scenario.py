@@ -38,7 +38,7 @@ from profiles.schema import Key, ScenarioError, in_range, where
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context
-    from profiles.scenario import NodeDecl, Scenario
+    from profiles.declarations import NodeDecl, Scenario
     from stack import NodeAPI
 
 __all__ = ["CanopenDeviceProfile", "CanopenMasterProfile", "DEVICE", "MASTER"]

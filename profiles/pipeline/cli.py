@@ -16,9 +16,9 @@ __all__ = ["register"]
 
 
 def _experiment(args: argparse.Namespace) -> int:
-    from profiles.metrics import format_table
-    from profiles.runner import run_on_pycan, run_scenario
-    from profiles.scenario import load_scenario
+    from profiles.pipeline.metrics import format_table
+    from profiles.pipeline.runner import run_on_pycan, run_scenario
+    from profiles.pipeline.scenario import load_scenario
 
     if args.plot:
         check_plot_dir(args.plot)
@@ -41,7 +41,7 @@ def _experiment(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
     if args.plot:
-        from profiles.plots import write_plots
+        from profiles.pipeline.plots import write_plots
 
         files = write_plots(result, args.plot, extra=_profile_plots(scenario))
         print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)

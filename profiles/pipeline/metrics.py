@@ -30,7 +30,7 @@ from profiles.registry import profile_kind
 from stack import arbitration_key
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.scenario import Scenario
+    from profiles.declarations import Scenario
 
 __all__ = ["analyse_scenario", "message_rows", "summary_of", "format_table"]
 

@@ -1,7 +1,7 @@
 """Plots of a run (matplotlib, the optional ``plot`` extra): the bus timeline, response-time
 distributions with their analytic bounds, and the bus load over time.
 
-Each function takes a `profiles.runner.Result` (run with ``record=True`` for the timeline and
+Each function takes a `profiles.pipeline.runner.Result` (run with ``record=True`` for the timeline and
 the load) and writes one image. `write_plots` writes all three into a directory; profiles add
 their own (a TDMA schedule behind the frames, a poll cycle) through ``extra``.
 """
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.runner import Result
+    from profiles.pipeline.runner import Result
 
 __all__ = ["timeline", "response_times", "bus_load", "write_plots", "pyplot", "node_colours"]
 

@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from profiles.base import Context, Profile, Recorder, frame_of
-from profiles.metrics import analyse_scenario, message_rows, summary_of
+from profiles.declarations import FaultDecl, NodeDecl, Scenario, ms_to_ns
+from profiles.pipeline.metrics import analyse_scenario, message_rows, summary_of
 from profiles.registry import profile_kind
-from profiles.scenario import FaultDecl, NodeDecl, Scenario, ScenarioError, ms_to_ns
+from profiles.schema import ScenarioError
 from stack import LocalClock, Received, SimBus
 from stack.cli.runs import run_sliced
 

@@ -34,10 +34,10 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from profiles.declarations import FaultDecl, MessageDecl, NodeDecl, Scenario, ms_to_ns
 from profiles.registry import profile_kind, profile_kinds
 from profiles.schema import (
     REQUIRED,
@@ -58,127 +58,19 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 __all__ = [
-    "Scenario",
-    "NodeDecl",
-    "MessageDecl",
-    "FaultDecl",
     "load_scenario",
     "parse_scenario",
     "ScenarioError",
-    "ms_to_ns",
     "parse_queue",
+    "BUS_KEYS",
+    "NODE_KEYS",
+    "MESSAGE_KEYS",
+    "ANALYSIS_KEYS",
+    "PLOT_KEYS",
 ]
 
 MAX_DURATION_S = 1e6  # 11.6 simulated days: longer is a units mistake
 FAULT_KINDS = ("bit_errors", "flip", "stuck", "disconnect", "babbling_idiot", "never_ack")
-
-
-def ms_to_ns(ms: float) -> int:
-    """Milliseconds (TOML) as integer nanoseconds (the engine's unit)."""
-    return round(ms * 1_000_000)
-
-
-@dataclass
-class MessageDecl:
-    """A message a node sends: identifier and format, length, and its release pattern —
-    periodic (``period_ns``), sporadic (``sporadic_ns`` minimum inter-arrival, ``mean_ns`` mean)
-    or none (the profile decides when, e.g. a TDMA window) — with offset, release jitter and
-    deadline. ``options`` holds keys a profile adds to messages."""
-
-    name: str
-    node: str
-    can_id: int
-    extended: bool
-    dlc: int
-    data: bytes | None
-    remote: bool
-    period_ns: int | None
-    sporadic_ns: int | None
-    mean_ns: int | None
-    offset_ns: int
-    jitter_ns: int
-    deadline_ns: int | None
-    options: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def interval_ns(self) -> int | None:
-        """The period, or the minimum inter-arrival time of a sporadic message."""
-        return self.period_ns if self.period_ns is not None else self.sporadic_ns
-
-    @property
-    def id_text(self) -> str:
-        """The identifier as CAN tools print it (0x100, 0x18FEF100)."""
-        return f"0x{self.can_id:08X}" if self.extended else f"0x{self.can_id:03X}"
-
-
-@dataclass
-class NodeDecl:
-    """A node: its name, profile, controller configuration (queue policy, sizes), oscillator
-    (``drift_ppm``, ``clock_offset_ns``), its messages, an optional application hook
-    (``app = "module:function"``) and the keys its profile adds (``options``)."""
-
-    name: str
-    profile: str
-    queue: str
-    mailboxes: int | None
-    abort: bool
-    tx_queue_size: int
-    rx_fifo_size: int
-    drift_ppm: float
-    clock_offset_ns: int
-    listen_only: bool
-    app: str | None
-    messages: list[MessageDecl]
-    options: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def policy(self) -> str:
-        """The controller's queue policy as `stack` names it: 'priority', 'fifo' or 'mailbox'."""
-        return "mailbox" if self.queue.startswith("mailboxes") else self.queue
-
-    @property
-    def priority_queue(self) -> bool:
-        """True when the controller sends the highest-priority pending frame first (the
-        response-time analysis' assumption)."""
-        return self.queue == "priority"
-
-
-@dataclass
-class FaultDecl:
-    """A fault to inject (`stack.bus.faults.FaultInjector`): its kind and checked parameters."""
-
-    kind: str
-    params: dict[str, Any]
-    index: int
-
-
-@dataclass
-class Scenario:
-    """A checked scenario. ``tables`` holds what profiles parsed from their own top-level tables
-    (e.g. ``tdma``); ``analysis`` and ``plot`` the optional tables of the same names."""
-
-    source: str
-    bitrate: int
-    duration_ns: int
-    seed: int
-    nodes: list[NodeDecl]
-    faults: list[FaultDecl]
-    analysis: dict[str, Any]
-    plot: dict[str, Any]
-    tables: dict[str, Any] = field(default_factory=dict)
-    raw: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def messages(self) -> list[MessageDecl]:
-        """Every declared message, in file order."""
-        return [m for n in self.nodes for m in n.messages]
-
-    def node(self, name: str) -> NodeDecl:
-        """The node named ``name``."""
-        for n in self.nodes:
-            if n.name == name:
-                return n
-        raise KeyError(name)
 
 
 BUS_KEYS = {

@@ -33,8 +33,8 @@ from profiles.registry import ProfileKind, register
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
     from profiles.base import Context, Profile
+    from profiles.declarations import NodeDecl, Scenario
     from profiles.polling.config import Network
-    from profiles.scenario import NodeDecl, Scenario
     from stack import NodeAPI
 
 __all__ = ["Master", "Slave", "MASTER", "SLAVE", "PLOTS", "summarize", "text"]

@@ -94,8 +94,8 @@ from stack import arbitration_key
 from stack.wire.coding import INTERMISSION_BITS
 
 if TYPE_CHECKING:  # pragma: no cover
+    from profiles.declarations import MessageDecl, Scenario
     from profiles.polling.config import MasterConfig, Network, SlaveConfig, Transaction
-    from profiles.scenario import MessageDecl, Scenario
 
 __all__ = [
     "frame_bits",

@@ -61,8 +61,8 @@ from typing import TYPE_CHECKING, Any
 
 import profiles.polling.plan as ids
 from profiles.base import frame_of
+from profiles.declarations import MessageDecl, ms_to_ns
 from profiles.polling.analysis import transaction_bound_ns
-from profiles.scenario import MessageDecl, ms_to_ns
 from profiles.schema import (
     REQUIRED,
     Key,
@@ -77,7 +77,7 @@ from profiles.schema import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.scenario import NodeDecl, Scenario
+    from profiles.declarations import NodeDecl, Scenario
 
 __all__ = [
     "Transaction",

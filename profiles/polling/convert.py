@@ -1,4 +1,4 @@
-"""A message set of the profiles study (`profiles.studies`) as a master/slave network.
+"""A message set of the profiles study (`profiles.sweeps.comparison`) as a master/slave network.
 
 The master polls, every cycle, each message whose period is the set's shortest (the control
 loop: a poll command, the slave's answer carries the message); messages with a longer period are
@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.studies import MessageSet
+    from profiles.message_set import MessageSet
 
 __all__ = ["express_message_set", "free_ids"]
 

@@ -40,8 +40,8 @@ from profiles.polling.events import CycleOverrun, MasterResumed, MasterStopped, 
 from stack import ErrorStateChanged, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
+    from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import CosLink, MasterConfig, Transaction
-    from profiles.scenario import MessageDecl, NodeDecl
     from stack import NodeAPI, Received, Timer, TxRequest
 
 __all__ = ["Master", "SlaveLink", "IDLE", "SENDING", "WAITING", "STOPPED"]

@@ -1,4 +1,4 @@
-"""The poll-cycle plot: the bus timeline (`profiles.plots.timeline`) with each master's cycles
+"""The poll-cycle plot: the bus timeline (`profiles.pipeline.plots.timeline`) with each master's cycles
 behind the frames — a band from the first request's SOF to the end of the cycle's last
 transaction (red when it overran), and a dotted line where the cycle's worst-case bound ends."""
 
@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from profiles.plots import timeline
+from profiles.pipeline.plots import timeline
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.runner import Result
+    from profiles.pipeline.runner import Result
 
 __all__ = ["poll_cycle"]
 

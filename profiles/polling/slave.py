@@ -27,8 +27,8 @@ from profiles.polling.master import rx_filters
 from stack import TxDone
 
 if TYPE_CHECKING:  # pragma: no cover
+    from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import SlaveConfig
-    from profiles.scenario import MessageDecl, NodeDecl
     from stack import Frame, NodeAPI, Received
 
 __all__ = ["Slave", "RUNNING", "MASTER_LOST"]

@@ -1,7 +1,7 @@
 """Speed figures of the experiments (registered under the ``canstack.bench`` entry point group, so
 ``python -m stack.bench`` prints them beside the engine's).
 
-- ``runner_vs_engine``: the wall time of `profiles.runner.run_scenario` on a scenario, divided by
+- ``runner_vs_engine``: the wall time of `profiles.pipeline.runner.run_scenario` on a scenario, divided by
   the wall time of the bare engine carrying the same traffic (the same nodes on a `SimBus`, each
   message a `Node.send_periodic` with its period and offset, no recorder, no analysis). The
   scenario is examples/powertrain_90.toml's network (17 periodic messages, 5 nodes, 500 kbit/s,
@@ -28,7 +28,7 @@ from typing import Any
 
 __all__ = ["benchmark", "runner_overhead", "sweep_parallel", "sweep_overhead"]
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "powertrain_90.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "powertrain_90.toml"
 
 
 def _bare(scenario: Any) -> float:
@@ -46,7 +46,7 @@ def _bare(scenario: Any) -> float:
 
 
 def _runner(scenario: Any) -> float:
-    from profiles.runner import run_scenario
+    from profiles.pipeline.runner import run_scenario
 
     t0 = time.perf_counter()
     run_scenario(scenario, record=False, progress=False)
@@ -56,7 +56,7 @@ def _runner(scenario: Any) -> float:
 def runner_overhead(seconds: float = 4.0, repeat: int = 3) -> dict[str, float]:
     """Best-of-``repeat`` wall times of the runner and of the bare engine on ``seconds`` of
     simulated time of the example network, and their ratio."""
-    from profiles.scenario import load_scenario
+    from profiles.pipeline.scenario import load_scenario
 
     sc = load_scenario(EXAMPLE)
     sc.duration_ns = round(seconds * 1e9)
@@ -66,7 +66,7 @@ def runner_overhead(seconds: float = 4.0, repeat: int = 3) -> dict[str, float]:
 
 
 def _example_raw(seconds: float) -> dict[str, Any]:
-    from profiles.scenario import load_scenario
+    from profiles.pipeline.scenario import load_scenario
 
     raw = copy.deepcopy(load_scenario(EXAMPLE).raw)
     raw["bus"]["duration"] = seconds
@@ -75,8 +75,8 @@ def _example_raw(seconds: float) -> dict[str, Any]:
 
 _ONE_SWEEP = """
 import hashlib, json, sys
-from profiles.bench import _example_raw, EXAMPLE
-from profiles.sweep import run_sweep
+from profiles.sweeps.bench import _example_raw, EXAMPLE
+from profiles.sweeps.sweep import run_sweep
 runs, seconds, kw = json.loads(sys.argv[1])
 res = run_sweep(_example_raw(seconds), str(EXAMPLE), [], seeds=runs, progress=False, **kw)
 digest = hashlib.sha256(json.dumps(res.rows, sort_keys=True).encode()).hexdigest()
@@ -109,7 +109,7 @@ def sweep_parallel(runs: int = 24, seconds: float = 4.0, repeat: int = 3) -> dic
     simulated each), each in a fresh interpreter: in one process, on a process pool of 2, and on a
     Dask LocalCluster of 2 (when dask is installed); rounds interleaved so that a busy moment of the
     machine hits all three; and the speed-ups. Raises AssertionError if a table differs."""
-    from profiles.execute import dask_available
+    from profiles.sweeps.execute import dask_available
 
     engines: dict[str, dict[str, Any]] = {
         "sequential": {"workers": 1},
@@ -148,9 +148,9 @@ def sweep_parallel(runs: int = 24, seconds: float = 4.0, repeat: int = 3) -> dic
 def sweep_overhead(runs: int = 20, seconds: float = 0.25, repeat: int = 3) -> dict[str, float]:
     """Best-of-``repeat`` wall time per run of a sequential sweep against a bare `run_scenario` of
     the same checked scenario with the same seeds (see the module docstring)."""
-    from profiles.runner import run_scenario
-    from profiles.scenario import parse_scenario
-    from profiles.sweep import plan_runs, run_sweep
+    from profiles.pipeline.runner import run_scenario
+    from profiles.pipeline.scenario import parse_scenario
+    from profiles.sweeps.sweep import plan_runs, run_sweep
 
     raw = _example_raw(seconds)
     seeds = [t.seed for t in plan_runs(raw, str(EXAMPLE), [], seeds=runs)]

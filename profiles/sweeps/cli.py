@@ -45,7 +45,7 @@ def check_table_output(path: str, option: str = "--out") -> None:
 
 
 def _check_engine(args: argparse.Namespace) -> None:
-    from profiles.execute import choose_engine
+    from profiles.sweeps.execute import choose_engine
 
     choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
 
@@ -135,7 +135,7 @@ def _sweep_text(res: Any) -> str:
 
 def _expected_metrics(scenario: Any) -> set[str]:
     from profiles.registry import profile_kind
-    from profiles.sweep import FIXED_METRICS, MESSAGE_METRICS
+    from profiles.sweeps.sweep import FIXED_METRICS, MESSAGE_METRICS
 
     names = set(FIXED_METRICS)
     names.update(f"{m.name}.{x}" for m in scenario.messages for x in MESSAGE_METRICS)
@@ -154,8 +154,8 @@ def _check_metrics(metrics: Sequence[str], scenario: Any) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from profiles.scenario import load_scenario
-    from profiles.sweep import parse_vary, resolve_vary, run_sweep, write_table
+    from profiles.pipeline.scenario import load_scenario
+    from profiles.sweeps.sweep import parse_vary, resolve_vary, run_sweep, write_table
 
     if args.out:
         check_table_output(args.out)
@@ -209,7 +209,7 @@ def _sweep(args: argparse.Namespace) -> int:
     else:
         print(_sweep_text(res))
     if args.plot and res.rows:
-        from profiles.sweep_plots import write_sweep_plots
+        from profiles.sweeps.plots import write_sweep_plots
 
         files = write_sweep_plots(res.rows, res.keys, metrics, args.plot)
         print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
@@ -264,7 +264,7 @@ def register_sweep(sub: Any) -> None:
 
 
 def _utilisations(text: str) -> list[float]:
-    from profiles.sweep import SweepError, parse_values
+    from profiles.sweeps.sweep import SweepError, parse_values
 
     try:
         vals = parse_values(text, "utilisation")
@@ -299,8 +299,8 @@ def _study_table(study: Any) -> str:
 
 
 def _schedulability(args: argparse.Namespace) -> int:
-    from profiles.studies import schedulability_study
-    from profiles.sweep import table_columns, write_table
+    from profiles.sweeps.schedulability import schedulability_study
+    from profiles.sweeps.sweep import table_columns, write_table
 
     if args.out:
         check_table_output(args.out)
@@ -346,7 +346,7 @@ def _schedulability(args: argparse.Namespace) -> int:
         for r in study.failed[:5]:
             print(f"set {r['set']} at U = {r['utilisation']:g} failed: {r['error']}", file=sys.stderr)
     if args.plot and study.rows:
-        from profiles.sweep_plots import schedulability_plot
+        from profiles.sweeps.plots import schedulability_plot
 
         d = Path(args.plot)
         d.mkdir(parents=True, exist_ok=True)
@@ -392,8 +392,10 @@ def _fmt3(v: float | None) -> str:
 def _profiles(args: argparse.Namespace) -> int:
     import random
 
-    from profiles.studies import generate_set, message_set_from_scenario, profiles_study
-    from profiles.sweep import run_seed, table_columns, write_table
+    from profiles.sweeps.comparison import profiles_study
+    from profiles.sweeps.converters import message_set_from_scenario
+    from profiles.sweeps.random_sets import generate_set
+    from profiles.sweeps.sweep import run_seed, table_columns, write_table
 
     if args.out:
         check_table_output(args.out)
@@ -401,7 +403,7 @@ def _profiles(args: argparse.Namespace) -> int:
         check_plot_dir(args.plot)
     _check_engine(args)
     if args.scenario:
-        from profiles.scenario import load_scenario
+        from profiles.pipeline.scenario import load_scenario
 
         mset = message_set_from_scenario(load_scenario(args.scenario))
     else:
@@ -457,7 +459,7 @@ def _profiles(args: argparse.Namespace) -> int:
     else:
         print(_profiles_table(study))
     if args.plot and study.rows:
-        from profiles.sweep_plots import profiles_plot
+        from profiles.sweeps.plots import profiles_plot
 
         d = Path(args.plot)
         d.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""Plots of sweeps and studies (matplotlib, the optional ``plot`` extra; `profiles.plots.pyplot`
+"""Plots of sweeps and studies (matplotlib, the optional ``plot`` extra; `profiles.pipeline.plots.pyplot`
 gives the non-interactive backend).
 
 - `sweep_plot`: a metric against one varied key (a line, the mean over seeds with their min..max
@@ -16,10 +16,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from profiles.plots import pyplot
+from profiles.pipeline.plots import pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.studies import ProfilesStudy, SchedulabilityStudy
+    from profiles.sweeps.comparison import ProfilesStudy
+    from profiles.sweeps.schedulability import SchedulabilityStudy
 
 __all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label"]
 

@@ -10,14 +10,14 @@ range whose END is included when it falls on a step (``5:50:5`` is 5, 10, … 50
 0.3, 0.6, 0.9), computed in decimal so that 0.1 steps land exactly.
 
 Each run changes the scenario's raw TOML dictionary and checks it with the scenario's own schema
-(`profiles.scenario.parse_scenario`): a value that breaks a rule fails that run only, with the
+(`profiles.pipeline.scenario.parse_scenario`): a value that breaks a rule fails that run only, with the
 schema's usual one-line error in the ``error`` column. A key the scenario does not have is refused
 before anything runs (`SweepError`).
 
 Runs are independent and deterministic: run k's seed is derived from the sweep seed (the
 scenario's ``bus.seed`` unless given) and the run's parameter values and replicate number by
 SHA-256 (`run_seed`; never Python's salted ``hash``), so the table is the same whether the runs
-went through one process, a process pool or a Dask cluster (`profiles.execute`), and rows come in
+went through one process, a process pool or a Dask cluster (`profiles.sweeps.execute`), and rows come in
 the canonical order — the cartesian product of the values in the order given, the last key
 varying fastest, then the replicates — whatever order they finished in.
 """
@@ -37,19 +37,19 @@ from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
-from profiles.execute import Execution, execute
-from profiles.registry import profile_kind, profile_kinds
-from profiles.scenario import (
+from profiles.declarations import Scenario
+from profiles.pipeline.scenario import (
     ANALYSIS_KEYS,
     BUS_KEYS,
     FAULT_KEYS,
     MESSAGE_KEYS,
     NODE_KEYS,
     PLOT_KEYS,
-    Scenario,
     parse_scenario,
 )
+from profiles.registry import profile_kind, profile_kinds
 from profiles.schema import Key
+from profiles.sweeps.execute import Execution, execute
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -376,7 +376,7 @@ def _flat(prefix: str, value: Any, out: dict[str, Any]) -> None:
 
 
 def summary_row(result: Any) -> dict[str, Any]:
-    """A run's `profiles.runner.Result` as table columns (`FIXED_METRICS`, `MESSAGE_METRICS` per
+    """A run's `profiles.pipeline.runner.Result` as table columns (`FIXED_METRICS`, `MESSAGE_METRICS` per
     message, each profile's own figures flattened under its result key, e.g. ``master_slave.cycles``)."""
     msgs = result.messages
     misses = [m["deadline_misses"] for m in msgs]
@@ -415,7 +415,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
     """Run one task of a sweep on the simulated bus and return its row. Errors propagate (the
     executor records them in the row); a run stopped by Ctrl-C raises KeyboardInterrupt, so that
     a partial run never enters the table as if it were complete."""
-    from profiles.runner import run_scenario
+    from profiles.pipeline.runner import run_scenario
 
     result = run_scenario(scenario_of(task), progress=False)
     if result.interrupted:
@@ -467,7 +467,7 @@ def run_sweep(
 ) -> SweepResult:
     """Run every combination of the varied values × ``seeds`` (see the module docstring) and
     return the table. ``varies`` are resolved here if they are not yet; ``workers``/``scheduler``/
-    ``engine`` choose where the runs go (`profiles.execute.execute`)."""
+    ``engine`` choose where the runs go (`profiles.sweeps.execute.execute`)."""
     resolved = [v if v.path else resolve_vary(raw, v) for v in varies]
     tasks = plan_runs(raw, source, resolved, seeds=seeds, sweep_seed=sweep_seed)
     ex: Execution = execute(

@@ -32,7 +32,7 @@ from profiles.tdma.schedule import check_scenario
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context, Profile
-    from profiles.scenario import NodeDecl, Scenario
+    from profiles.declarations import NodeDecl, Scenario
     from stack import NodeAPI
 
 __all__ = ["TdmaProfile", "KIND", "PLOTS"]

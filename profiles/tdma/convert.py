@@ -1,4 +1,4 @@
-"""A message set of the profiles study (`profiles.studies`) as a TDMA schedule.
+"""A message set of the profiles study (`profiles.sweeps.comparison`) as a TDMA schedule.
 
 The basic cycle is the set's shortest period; each message gets an exclusive window repeating
 every 2^k basic cycles, the largest power of two whose time does not exceed its period (so it is
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from profiles.tdma.schedule import frame_ns_worst
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.studies import MessageSet
+    from profiles.message_set import MessageSet
 
 __all__ = ["express_message_set"]
 

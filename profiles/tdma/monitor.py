@@ -34,7 +34,7 @@ from stack import LocalClock, Received, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context, Profile
-    from profiles.scenario import Scenario
+    from profiles.declarations import Scenario
     from profiles.tdma.schedule import Schedule
 
 __all__ = ["Monitor", "master_clock", "window_bounds", "message_bounds"]

@@ -1,4 +1,4 @@
-"""The TDMA schedule behind the frames: the timeline of a run (`profiles.plots.timeline`) with
+"""The TDMA schedule behind the frames: the timeline of a run (`profiles.pipeline.plots.timeline`) with
 each basic cycle's time windows drawn where the bus put them — exclusive windows in their
 owner's row and colour, arbitrating windows across all rows, free windows hatched, and a dotted
 line at each reference message's start of frame.
@@ -13,7 +13,7 @@ from profiles.tdma.monitor import master_clock, window_bounds
 from profiles.tdma.schedule import ARBITRATING, EXCLUSIVE, decode_reference
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.runner import Result
+    from profiles.pipeline.runner import Result
 
 __all__ = ["tdma_schedule", "cycles_of"]
 
@@ -42,7 +42,7 @@ def tdma_schedule(result: Result, path: str | Path) -> Path:
     ``tdma_schedule.png``)."""
     from matplotlib.patches import Patch, Rectangle
 
-    from profiles.plots import node_colours, timeline
+    from profiles.pipeline.plots import node_colours, timeline
 
     sc = result.scenario
     s = sc.tables["tdma"]

@@ -29,7 +29,7 @@ from profiles.tdma.monitor import Monitor
 from profiles.tdma.schedule import EXCLUSIVE, frame_ns_worst
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.scenario import NodeDecl
+    from profiles.declarations import NodeDecl
     from profiles.tdma.schedule import Schedule, Window
     from stack import Frame, NodeAPI, Timer
 

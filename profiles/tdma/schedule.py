@@ -40,7 +40,7 @@ from profiles.schema import REQUIRED, Key, ScenarioError, in_range, non_negative
 from stack import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.scenario import MessageDecl, NodeDecl, Scenario
+    from profiles.declarations import MessageDecl, NodeDecl, Scenario
 
 __all__ = [
     "Schedule",

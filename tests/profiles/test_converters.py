@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
+from profiles.message_set import MessageSet, StudyMessage
+from profiles.pipeline.runner import run_scenario
+from profiles.pipeline.scenario import parse_scenario
 from profiles.polling.convert import express_message_set as as_master_slave
-from profiles.runner import run_scenario
-from profiles.scenario import parse_scenario
-from profiles.studies import MessageSet, StudyMessage
 from profiles.tdma.convert import express_message_set as as_tdma
 
 MS = 1_000_000

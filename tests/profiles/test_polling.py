@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from profiles.pipeline.runner import run_on_pycan, run_scenario
+from profiles.pipeline.scenario import load_scenario, parse_scenario
 from profiles.polling import plan
 from profiles.polling.events import CycleOverrun, MasterBack, MasterLost, MasterStopped, SlaveBack, SlaveLost
-from profiles.runner import run_on_pycan, run_scenario
-from profiles.scenario import load_scenario, parse_scenario
 from stack import Frame
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

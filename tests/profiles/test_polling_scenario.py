@@ -8,8 +8,9 @@ import copy
 
 import pytest
 
+from profiles.pipeline.scenario import parse_scenario
 from profiles.polling import plan
-from profiles.scenario import ScenarioError, parse_scenario
+from profiles.schema import ScenarioError
 
 # ---------------------------------------------------------------------------------------------- the plan
 

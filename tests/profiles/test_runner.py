@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from profiles.analysis.rta import frame_bits_worst
-from profiles.runner import run_on_pycan, run_scenario
-from profiles.scenario import load_scenario, parse_scenario
+from profiles.pipeline.runner import run_on_pycan, run_scenario
+from profiles.pipeline.scenario import load_scenario, parse_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -243,7 +243,7 @@ def test_the_same_scenario_runs_through_canstack_serve():
 
 
 def test_faults_are_refused_on_a_python_can_bus():
-    from profiles.scenario import ScenarioError
+    from profiles.schema import ScenarioError
 
     sc = _scenario(
         {"a": [{"name": "m", "id": 1, "dlc": 0, "period_ms": 1}]}, faults=[{"kind": "never_ack", "node": "a"}]

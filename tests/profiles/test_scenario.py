@@ -7,7 +7,8 @@ import copy
 
 import pytest
 
-from profiles.scenario import ScenarioError, load_scenario, parse_scenario
+from profiles.pipeline.scenario import load_scenario, parse_scenario
+from profiles.schema import ScenarioError
 
 BASE = {
     "bus": {"bitrate": 500000, "duration": 1.0, "seed": 3},

@@ -1,4 +1,4 @@
-"""The classic studies (`profiles.studies`): UUniFast and the set generators against their
+"""The classic studies (`profiles.sweeps`): UUniFast and the set generators against their
 definitions, the schedulability curves against what theory says of them (the analysis is
 sufficient, its fraction falls with utilisation, nothing is guaranteed at 100 %), FIFO queues,
 and the profiles study's converter hook."""
@@ -15,22 +15,13 @@ import pytest
 
 from profiles import registry
 from profiles.analysis.rta import frame_bits_worst, utilisation
-from profiles.runner import run_scenario
-from profiles.scenario import parse_scenario
-from profiles.studies import (
-    PERIOD_RANGES_MS,
-    MessageSet,
-    StudyMessage,
-    breakdown,
-    converter_for,
-    csma_scenario,
-    generate_set,
-    message_set_from_scenario,
-    profiles_study,
-    register_converter,
-    schedulability_study,
-    uunifast,
-)
+from profiles.message_set import MessageSet, StudyMessage
+from profiles.pipeline.runner import run_scenario
+from profiles.pipeline.scenario import parse_scenario
+from profiles.sweeps.comparison import profiles_study
+from profiles.sweeps.converters import converter_for, csma_scenario, message_set_from_scenario, register_converter
+from profiles.sweeps.random_sets import PERIOD_RANGES_MS, generate_set, uunifast
+from profiles.sweeps.schedulability import breakdown, schedulability_study
 
 # --- UUniFast and the generators ------------------------------------------------------------------
 
@@ -176,7 +167,7 @@ def test_the_study_is_the_same_on_a_process_pool(study):
 
 def test_study_plots(study, tmp_path):
     pytest.importorskip("matplotlib")
-    from profiles.sweep_plots import schedulability_plot
+    from profiles.sweeps.plots import schedulability_plot
 
     for curves in (("analysis", "simulation"), ("simulation", "fifo")):
         p = schedulability_plot(study, tmp_path / f"{curves[1]}.png", curves=curves)
@@ -282,9 +273,9 @@ def test_a_registered_converter_wins_and_a_failing_one_is_a_row(second_profile):
     try:
         res = profiles_study(SMALL_SET)
     finally:
-        from profiles import studies
+        from profiles.sweeps import converters
 
-        studies._CONVERTERS.pop("fake_fifo")
+        converters._CONVERTERS.pop("fake_fifo")
     row = next(r for r in res.rows if r["profile"] == "fake_fifo")
     assert row["error"] == "converter: RuntimeError: no slot for 'fast'"
 
@@ -316,7 +307,7 @@ def test_a_profile_without_a_converter_is_skipped_with_the_reason(monkeypatch):
 
 def test_profiles_plot(tmp_path):
     pytest.importorskip("matplotlib")
-    from profiles.sweep_plots import profiles_plot
+    from profiles.sweeps.plots import profiles_plot
 
     assert profiles_plot(profiles_study(SMALL_SET), tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
 

@@ -1,4 +1,4 @@
-"""Sweeps (`profiles.sweep`, `profiles.execute`): values and ranges, keys into the scenario, derived
+"""Sweeps (`profiles.sweeps.sweep`, `profiles.sweeps.execute`): values and ranges, keys into the scenario, derived
 seeds, the canonical order, the same table from one process, a process pool and a Dask
 LocalCluster, failed runs in the table, and Ctrl-C keeping what is done."""
 
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from profiles.execute import ExecuteError, choose_engine, chunks, dask_available
-from profiles.runner import run_scenario
-from profiles.scenario import parse_scenario
-from profiles.sweep import (
+from profiles.pipeline.runner import run_scenario
+from profiles.pipeline.scenario import parse_scenario
+from profiles.sweeps.execute import ExecuteError, choose_engine, chunks, dask_available
+from profiles.sweeps.sweep import (
     SweepError,
     Vary,
     apply_values,
@@ -263,7 +263,7 @@ def test_a_sweep_on_a_running_scheduler(monkeypatch):
 def test_a_profile_table_key_is_varied_and_keeps_its_column():
     """A profile's own table (here TDMA's [tdma]) is varied by the keys the file has; a profile
     figure of the same name as the varied key gets a column of its own."""
-    from profiles.scenario import load_scenario
+    from profiles.pipeline.scenario import load_scenario
 
     raw = load_scenario(ROOT / "examples" / "tdma.toml").raw
     raw = dict(raw, bus=dict(raw["bus"], duration=0.05))
@@ -336,7 +336,7 @@ def test_engine_choice(monkeypatch):
         choose_engine(0, None)
     with pytest.raises(ExecuteError, match="runs in this process"):
         choose_engine(2, None, "sequential")
-    monkeypatch.setattr("profiles.execute.dask_available", lambda: False)
+    monkeypatch.setattr("profiles.sweeps.execute.dask_available", lambda: False)
     assert choose_engine(2, None) == "processes"  # the standard library's pool without dask
     with pytest.raises(ExecuteError) as exc:
         choose_engine(1, "tcp://127.0.0.1:8786")

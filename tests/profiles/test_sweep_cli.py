@@ -52,8 +52,8 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
 
 def test_pyproject_registers_the_commands_and_the_extras():
     eps = PYPROJECT["project"]["entry-points"]["canstack.commands"]
-    assert eps["sweep"] == "profiles.sweep_cli:register_sweep"
-    assert eps["study"] == "profiles.sweep_cli:register_study"
+    assert eps["sweep"] == "profiles.sweeps.cli:register_sweep"
+    assert eps["study"] == "profiles.sweeps.cli:register_study"
     extras = PYPROJECT["project"]["optional-dependencies"]
     assert extras["dask"] == ["dask[distributed]>=2024.1"]
     assert any(req.startswith("pyarrow") for req in extras["parquet"])
@@ -213,7 +213,7 @@ def test_parquet_without_pyarrow_is_refused_before_running(tmp_path, capsys, mon
 
 
 def test_scheduler_without_dask_names_the_extra(capsys, monkeypatch):
-    monkeypatch.setattr("profiles.execute.dask_available", lambda: False)
+    monkeypatch.setattr("profiles.sweeps.execute.dask_available", lambda: False)
     code, stdout, err = run(
         capsys, "sweep", EXAMPLE, "--vary", "bus.bitrate=250000", "--scheduler", "tcp://127.0.0.1:8786"
     )

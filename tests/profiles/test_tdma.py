@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from profiles.runner import run_scenario
-from profiles.scenario import load_scenario, parse_scenario
+from profiles.pipeline.runner import run_scenario
+from profiles.pipeline.scenario import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 BIT = 2000
@@ -380,7 +380,7 @@ def test_deterministic():
 
 def test_example_schedule_plot(tmp_path):
     pytest.importorskip("matplotlib")
-    from profiles.cli import _profile_plots
+    from profiles.pipeline.cli import _profile_plots
 
     sc = load_scenario(ROOT / "examples" / "tdma.toml")
     res = run_scenario(sc, record=True)

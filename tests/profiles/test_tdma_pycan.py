@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from profiles.runner import run_on_pycan
-from profiles.scenario import load_scenario
+from profiles.pipeline.runner import run_on_pycan
+from profiles.pipeline.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from profiles.scenario import ScenarioError, parse_scenario
+from profiles.pipeline.scenario import parse_scenario
+from profiles.schema import ScenarioError
 from profiles.tdma.monitor import message_bounds
 from profiles.tdma.schedule import (
     MARK_MODULUS,

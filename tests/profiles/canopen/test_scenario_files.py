@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from profiles.runner import run_scenario
-from profiles.scenario import ScenarioError, load_scenario, parse_scenario
+from profiles.pipeline.runner import run_scenario
+from profiles.pipeline.scenario import load_scenario, parse_scenario
+from profiles.schema import ScenarioError
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "canopen.toml"
 
@@ -73,7 +74,7 @@ def test_bad_canopen_tables_are_refused_before_the_run(change, expected):
 
 
 def test_text_table_lists_nodes_and_pdo_latency():
-    from profiles.metrics import format_table
+    from profiles.pipeline.metrics import format_table
 
     text = format_table(run_scenario(parse_scenario(copy.deepcopy(BASE), "co.toml")).to_json())
     assert "CANopen node" in text and "TPDO1 0x181" in text
