@@ -15,7 +15,7 @@ from profiles.analysis.rta import frame_bits_worst
 from profiles.pipeline.runner import run_on_pycan, run_scenario
 from profiles.pipeline.scenario import load_scenario, parse_scenario
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
 def _scenario(messages_by_node, *, bitrate=500_000, duration=0.2, seed=1, analysis=None, faults=None, **node_kw):

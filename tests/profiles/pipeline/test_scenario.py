@@ -169,7 +169,7 @@ def test_files_that_are_not_scenarios_are_refused_naming_the_file(tmp_path):
 def test_the_examples_are_valid_scenarios():
     from pathlib import Path
 
-    examples = Path(__file__).resolve().parents[2] / "examples"
+    examples = Path(__file__).resolve().parents[3] / "examples"
     files = sorted(examples.glob("*.toml"))
     assert files
     for f in files:

@@ -18,7 +18,7 @@ from profiles.polling import plan
 from profiles.polling.events import CycleOverrun, MasterBack, MasterLost, MasterStopped, SlaveBack, SlaveLost
 from stack import Frame
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 BIT = 2000  # ns at 500 kbit/s
 
 
@@ -417,7 +417,7 @@ def test_the_wall_clock_example_runs_on_python_cans_virtual_bus():
 
 def test_plot_of_the_poll_cycle(tmp_path):
     pytest.importorskip("matplotlib")
-    from tests.profiles.test_experiment_cli import canstack
+    from tests.profiles.pipeline.test_experiment_cli import canstack
 
     out = canstack(
         "experiment", str(EXAMPLES / "master_slave.toml"), "--plot", str(tmp_path), "--duration", "0.32", "--json"

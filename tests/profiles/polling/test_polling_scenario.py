@@ -304,7 +304,7 @@ def test_a_poll_request_may_not_reuse_another_messages_identifier():
 
 
 def test_on_the_command_line_a_bad_entry_is_one_line_with_exit_2(tmp_path):
-    from tests.profiles.test_experiment_cli import canstack
+    from tests.profiles.pipeline.test_experiment_cli import canstack
 
     bad = tmp_path / "bad.toml"
     bad.write_text(

@@ -22,7 +22,7 @@ import pytest
 from profiles.pipeline.runner import run_scenario
 from profiles.pipeline.scenario import load_scenario, parse_scenario
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 BIT = 2000
 FIRST_REF = 5_000_000 + 127 * BIT  # 5.254 ms
 CYCLE = 5_000_000

@@ -11,7 +11,7 @@ import pytest
 from profiles.pipeline.runner import run_on_pycan
 from profiles.pipeline.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_wallclock_example_runs_on_the_virtual_bus():
