@@ -1,16 +1,26 @@
 """The profiles a scenario can name, and what each adds to scenario files and results.
 
-A profile module describes itself with a `ProfileKind` and registers it (`register`) when it is
-imported; `profile_kinds()` imports the modules listed in `PROFILE_MODULES` first, so the
-scenario checker and the runner know every profile without importing them by hand.
+One convention for every profile package, built in or not: the package describes what it adds
+in its ``kind`` module, as `ProfileKind` values gathered in a tuple ``KINDS``
+(`profiles.csma.kind`, `profiles.polling.kind`, `profiles.tdma.kind`, `profiles.canopen.kind`).
+Nothing registers itself when imported: on first use `profile_kinds()` reads the ``KINDS`` of
+the built-in packages (`BUILT_IN`) and of every entry of the ``canstack.profiles`` entry point
+group (`ENTRY_POINT_GROUP`), through which an installed distribution adds its own::
+
+    [project.entry-points."canstack.profiles"]
+    mine = "my_profile.kind:KINDS"
+
+An entry may name a `ProfileKind` or a sequence of them. `register` adds one by hand (a test, a
+notebook). The module of a kind's ``build`` is the profile's module: the experiment command
+reads its ``PLOTS`` and the profiles study its ``express_message_set`` there.
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
@@ -19,10 +29,39 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.schema import Key
     from stack.controller.api import NodeAPI
 
-__all__ = ["ProfileKind", "register", "profile_kinds", "profile_kind", "PROFILE_MODULES"]
+__all__ = [
+    "ProfileKind",
+    "register",
+    "profile_kinds",
+    "profile_kind",
+    "BUILT_IN",
+    "ENTRY_POINT_GROUP",
+    "TimelineLayer",
+    "FinishedRun",
+]
 
-PROFILE_MODULES = ["profiles.csma", "profiles.tdma", "profiles.canopen.scenario", "profiles.polling"]
-"""Modules that register a profile when imported (each scheduling layer adds its own)."""
+BUILT_IN = ("profiles.csma.kind", "profiles.tdma.kind", "profiles.canopen.kind", "profiles.polling.kind")
+"""The ``kind`` modules of the profile packages that ship with canstack (each has ``KINDS``)."""
+
+ENTRY_POINT_GROUP = "canstack.profiles"
+"""The entry point group through which installed distributions add profile kinds."""
+
+
+class FinishedRun(Protocol):
+    """What a profile's plot layer reads of a finished run (the pipeline's `Result` has it): the
+    scenario, the bus trace (recorded runs) and the profiles' own figures by result key."""
+
+    scenario: Scenario
+    trace: list[Any]
+    profiles: dict[str, Any]
+
+
+TimelineLayer = Callable[[FinishedRun, Any, int, int, Mapping[str, Any]], None]
+"""What a profile's module lists in ``PLOTS`` (name -> layer): ``layer(run, ax, t0, t1, colours)``
+draws behind the frames of the bus timeline of a finished run, on the matplotlib axes ``ax``
+between bus times ``t0`` and ``t1`` (ns), with the timeline's colour of each node. The experiment
+pipeline draws the timeline around it (``canstack experiment --plot`` writes one image per name),
+so a profile never imports the pipeline."""
 
 
 @dataclass(frozen=True)
@@ -72,13 +111,42 @@ def register(kind: ProfileKind) -> ProfileKind:
     return kind
 
 
+def _kinds_of(value: object, where: str) -> Iterable[ProfileKind]:
+    """The kinds ``value`` holds: one `ProfileKind`, or a sequence of them (ValueError otherwise)."""
+    items = (value,) if isinstance(value, ProfileKind) else value
+    if not isinstance(items, (tuple, list)) or not all(isinstance(k, ProfileKind) for k in items):
+        raise ValueError(f"{where}: {value!r} is not a ProfileKind nor a sequence of them")
+    return items
+
+
+def _load() -> None:
+    """Register the built-in kinds, then those of the ``canstack.profiles`` entry points."""
+    for module in BUILT_IN:
+        for kind in _kinds_of(getattr(importlib.import_module(module), "KINDS", None), f"{module}.KINDS"):
+            register(kind)
+    from importlib.metadata import entry_points
+
+    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        where = f"entry point {ep.name} = {ep.value!r} ({ENTRY_POINT_GROUP})"
+        try:
+            value = ep.load()
+        except Exception as exc:
+            raise ValueError(f"{where}: cannot load it ({type(exc).__name__}: {exc})") from None
+        for kind in _kinds_of(value, where):
+            register(kind)
+
+
 def profile_kinds() -> dict[str, ProfileKind]:
-    """Every registered profile by name (the profile modules are imported on first use)."""
+    """Every registered profile by name (the built-in packages and the entry points are read on
+    first use)."""
     global _loaded
     if not _loaded:
-        _loaded = True
-        for mod in PROFILE_MODULES:
-            importlib.import_module(mod)
+        _loaded = True  # before loading: a kind module that asks for the kinds gets those so far
+        try:
+            _load()
+        except BaseException:
+            _loaded = False
+            raise
     return dict(_KINDS)
 
 

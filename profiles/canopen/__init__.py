@@ -11,7 +11,8 @@ One module per service, as the ``canopen`` library does: `nmt` (with the transit
 `_state`), `heartbeat`, `guarding`, `sync`, `emcy`, `timestamp`, `pdo` (`mapping`, `common`,
 `tpdo`, `rpdo`), `sdo` (`server`, `block`, `client`, `abort`); `dictionary` holds the values,
 `cob` the pre-defined connection set, `options` the constructor options, `cli` the
-``canstack canopen`` command.
+``canstack canopen`` command, `kind` the profiles scenario files name (``profile = "canopen"``,
+``"canopen-master"``).
 """
 
 from profiles.canopen.device import CanopenDevice, RpdoUpdate

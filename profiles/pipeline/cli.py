@@ -49,15 +49,18 @@ def _experiment(args: argparse.Namespace) -> int:
 
 
 def _profile_plots(scenario: Any) -> dict[str, Any]:
-    """Plots that the profiles of this scenario add (their module's ``PLOTS``: name -> function)."""
+    """Plots that the profiles of this scenario add: the timeline with each layer of their
+    module's ``PLOTS`` (name -> `profiles.registry.TimelineLayer`) behind the frames."""
     import importlib
 
+    from profiles.pipeline.plots import with_layer
     from profiles.registry import profile_kind
 
     out: dict[str, Any] = {}
     for kind_name in sorted({n.profile for n in scenario.nodes}):
         mod = importlib.import_module(profile_kind(kind_name).build.__module__)
-        out.update(getattr(mod, "PLOTS", {}))
+        for name, layer in getattr(mod, "PLOTS", {}).items():
+            out[name] = with_layer(layer)
     return out
 
 

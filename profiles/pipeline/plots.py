@@ -3,7 +3,8 @@ distributions with their analytic bounds, and the bus load over time.
 
 Each function takes a `profiles.pipeline.runner.Result` (run with ``record=True`` for the timeline and
 the load) and writes one image. `write_plots` writes all three into a directory; profiles add
-their own (a TDMA schedule behind the frames, a poll cycle) through ``extra``.
+their own (a TDMA schedule behind the frames, a poll cycle) through ``extra``: the layers their
+module lists in ``PLOTS``, each drawn behind a timeline by `with_layer`.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.pipeline.runner import Result
+    from profiles.registry import TimelineLayer
 
-__all__ = ["timeline", "response_times", "bus_load", "write_plots", "pyplot", "node_colours"]
+__all__ = ["timeline", "response_times", "bus_load", "write_plots", "pyplot", "node_colours", "with_layer"]
 
 
 def pyplot() -> Any:
@@ -85,6 +87,17 @@ def timeline(
     ax.set_title(f"{Path(result.scenario.source).name}: frames on the bus (errors in red)")
     ax.grid(axis="x", alpha=0.3)
     return _save(fig, path)
+
+
+def with_layer(layer: TimelineLayer) -> Callable[[Result, str | Path], Path]:
+    """The plot a profile adds (`profiles.registry.TimelineLayer`): the bus timeline of a recorded
+    run with ``layer`` drawn behind its frames in the timeline's node colours."""
+
+    def plot(result: Result, path: str | Path) -> Path:
+        colours = node_colours([n.name for n in result.scenario.nodes])
+        return timeline(result, path, behind=lambda ax, t0, t1: layer(result, ax, t0, t1, colours))
+
+    return plot
 
 
 def response_times(result: Result, path: str | Path) -> Path:

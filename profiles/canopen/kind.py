@@ -30,10 +30,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from profiles.base import Profile
 from profiles.canopen.device import CanopenDevice
 from profiles.canopen.master import CanopenMaster
 from profiles.canopen.options import DeviceOptions, MasterOptions
-from profiles.registry import ProfileKind, register
+from profiles.registry import ProfileKind
 from profiles.schema import Key, ScenarioError, in_range, where
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -41,17 +42,17 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import NodeDecl, Scenario
     from stack import NodeAPI
 
-__all__ = ["CanopenDeviceProfile", "CanopenMasterProfile", "DEVICE", "MASTER"]
+__all__ = ["CanopenDeviceProfile", "CanopenMasterProfile", "DEVICE", "MASTER", "KINDS"]
 
 
-class CanopenDeviceProfile:
+class CanopenDeviceProfile(Profile):
     """A `CanopenDevice` as a scenario profile: built from the node's table, started with the
     others, summarised by its metrics."""
 
     kind = "canopen"
 
     def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
-        self.decl = decl
+        super().__init__(node, decl, context)
         self.device = CanopenDevice(node, decl.options["node_id"], decl.options["eds"], **decl.options["canopen"])
 
     def start(self) -> None:
@@ -63,13 +64,13 @@ class CanopenDeviceProfile:
         return self.device.metrics()
 
 
-class CanopenMasterProfile:
+class CanopenMasterProfile(Profile):
     """A `CanopenMaster` as a scenario profile (NMT master, SYNC producer, heartbeat consumer)."""
 
     kind = "canopen-master"
 
     def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
-        self.decl = decl
+        super().__init__(node, decl, context)
         self.master = CanopenMaster(node, **decl.options["canopen"])
 
     def start(self) -> None:
@@ -116,7 +117,7 @@ def _check(scenario: Scenario, tables: dict[str, Any]) -> None:
             raise ScenarioError(f"{loc}: canopen: {exc}") from None
 
 
-def _summarize(profiles: list[Any], context: Context) -> dict[str, Any]:
+def _summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
     return {p.decl.name: p.summary() for p in profiles}
 
 
@@ -162,28 +163,29 @@ _DEVICE_KEYS = {
     "canopen": Key(dict, {}, doc="device options (heartbeat_ms, sync_window_us, tpdo, rpdo, values, ...)"),
 }
 
-DEVICE = register(
-    ProfileKind(
-        name="canopen",
-        build=CanopenDeviceProfile,
-        node_keys=_DEVICE_KEYS,
-        timed_messages=False,
-        parse=_check,
-        result_key="canopen",
-        summarize=_summarize,
-        text=_text,
-        description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)",
-    )
+DEVICE = ProfileKind(
+    name="canopen",
+    build=CanopenDeviceProfile,
+    node_keys=_DEVICE_KEYS,
+    timed_messages=False,
+    parse=_check,
+    result_key="canopen",
+    summarize=_summarize,
+    text=_text,
+    description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)",
 )
+"""``profile = "canopen"``: a `CanopenDevice` on the node."""
 
-MASTER = register(
-    ProfileKind(
-        name="canopen-master",
-        build=CanopenMasterProfile,
-        node_keys={"canopen": Key(dict, {}, doc="master options (nodes, sync_period_us, heartbeat_consumer_ms, ...)")},
-        timed_messages=False,
-        result_key="canopen",
-        summarize=_summarize,
-        description="CiA 301 NMT master, SYNC producer, heartbeat consumer",
-    )
+MASTER = ProfileKind(
+    name="canopen-master",
+    build=CanopenMasterProfile,
+    node_keys={"canopen": Key(dict, {}, doc="master options (nodes, sync_period_us, heartbeat_consumer_ms, ...)")},
+    timed_messages=False,
+    result_key="canopen",
+    summarize=_summarize,
+    description="CiA 301 NMT master, SYNC producer, heartbeat consumer",
 )
+"""``profile = "canopen-master"``: a `CanopenMaster` on the node."""
+
+KINDS = (DEVICE, MASTER)
+"""The kinds this package adds (the registry reads them: see `profiles.registry`)."""

@@ -17,15 +17,13 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of, source_for
-from profiles.registry import ProfileKind, register
-from profiles.schema import Key
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
-    from profiles.declarations import MessageDecl, NodeDecl, Scenario
+    from profiles.declarations import MessageDecl, NodeDecl
     from stack import Frame, NodeAPI
 
-__all__ = ["CsmaProfile", "Gate"]
+__all__ = ["CsmaProfile", "Gate", "message_specs"]
 
 Gate = Callable[["Frame", int], "tuple[int, int | None] | None"]
 """``gate(frame, now) -> (start_at, not_after)``: when a frame released at ``now`` (node clock)
@@ -77,10 +75,6 @@ class CsmaProfile(Profile):
         return {"queue": self.decl.queue, "gated": self.gate is not None}
 
 
-def _build(node: NodeAPI, decl: NodeDecl, context: Context) -> CsmaProfile:
-    return CsmaProfile(node, decl, context)
-
-
 def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
     """The node's messages as the response-time analysis models them: period (or minimum
     inter-arrival), deadline and release jitter; with ``exact``, each frame's own length (its
@@ -102,24 +96,3 @@ def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
         for m in decl.messages
         if m.interval_ns is not None
     ]
-
-
-def _traffic(decl: NodeDecl, scenario: Scenario) -> list[MessageSpec]:
-    return message_specs(decl, exact=scenario.analysis.get("stuffing") == "exact")
-
-
-KIND = register(
-    ProfileKind(
-        name="csma",
-        build=_build,
-        traffic=_traffic,
-        node_keys={
-            "tdma_gated": Key(
-                bool,
-                True,
-                doc="on a bus with a TDMA schedule: send only inside its arbitrating windows (false: ungated)",
-            )
-        },
-        description="native CSMA/CR (plain CAN arbitration)",
-    )
-)
