@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from profiles.base import Context, Profile, Recorder, frame_of
-from profiles.declarations import FaultDecl, NodeDecl, Scenario, ms_to_ns
+from profiles.declarations import NodeDecl, Scenario
+from profiles.pipeline.faults import inject_faults
 from profiles.pipeline.metrics import analyse_scenario, message_rows, summary_of
 from profiles.registry import profile_kind
 from profiles.schema import ScenarioError
@@ -128,59 +129,6 @@ def _app(spec: str, source: str, node: str) -> Callable[..., Any]:
     if not callable(fn):
         raise ScenarioError(f"{loc}: module {mod_name!r} has no function {fn_name!r}")
     return fn
-
-
-def inject_faults(bus: SimBus, faults: list[FaultDecl]) -> None:
-    """Apply the scenario's ``[[faults]]`` with the simulated bus's fault injector."""
-    if not faults:
-        return
-    from stack import FaultInjector
-
-    fi = FaultInjector(bus)
-    for f in faults:
-        p = f.params
-        if f.kind == "bit_errors":
-            nodes = p["nodes"]
-            start, end = ms_to_ns(p["start_ms"]), p["end_ms"]
-            if start:
-                bus.call_at(start, lambda p=p, nodes=nodes: fi.bit_errors(p["rate"], nodes=nodes))
-            else:
-                fi.bit_errors(p["rate"], nodes=nodes)
-            if end is not None:
-                bus.call_at(ms_to_ns(end), lambda nodes=nodes: fi.bit_errors(0.0, nodes=nodes))
-        elif f.kind == "flip":
-            fi.flip(
-                can_id=p["id"],
-                extended=p["extended"],
-                occurrence=p["occurrence"],
-                field=p["field"],
-                bit=p["bit"],
-                nodes=p["nodes"],
-                every=p["every"],
-            )
-        elif f.kind == "stuck":
-            fi.stuck(
-                p["node"],
-                p["level"],
-                start=ms_to_ns(p["start_ms"]),
-                end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]),
-            )
-        elif f.kind == "disconnect":
-            fi.disconnect(
-                p["node"],
-                at=ms_to_ns(p["at_ms"]),
-                reconnect_at=None if p["reconnect_ms"] is None else ms_to_ns(p["reconnect_ms"]),
-            )
-        elif f.kind == "babbling_idiot":
-            fi.babbling_idiot(
-                p["node"],
-                can_id=p["id"],
-                data=bytes.fromhex(p["data"]),
-                start=ms_to_ns(p["start_ms"]),
-                end=None if p["end_ms"] is None else ms_to_ns(p["end_ms"]),
-            )
-        elif f.kind == "never_ack":
-            fi.never_ack(p["node"])
 
 
 def _desc(scenario: Scenario) -> str:

@@ -22,9 +22,11 @@ what to analyse and plot — read from TOML and checked before anything runs.
     jitter_ms = 0             # release jitter, uniform in [0, jitter], seeded
     deadline_ms = 10          # default: the period
 
-    [[faults]]                # optional: every kind of stack.bus.faults.FaultInjector
+    [[faults]]                # optional: the kinds of `profiles.pipeline.faults`
     kind = "bit_errors"       # bit_errors | flip | stuck | disconnect | babbling_idiot | never_ack
     rate = 1e-5
+
+It reads TOML into the declarations of the profile contract (`profiles.declarations`).
 
 Every error names the file, the table and the key, and the rule it breaks (`ScenarioError`, a
 ValueError: the CLI prints it on one line and exits with status 2).
@@ -37,7 +39,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from profiles.declarations import FaultDecl, MessageDecl, NodeDecl, Scenario, ms_to_ns
+from profiles.declarations import MessageDecl, NodeDecl, Scenario, ms_to_ns
+from profiles.pipeline.faults import read_fault
 from profiles.registry import profile_kind, profile_kinds
 from profiles.schema import (
     REQUIRED,
@@ -70,7 +73,6 @@ __all__ = [
 ]
 
 MAX_DURATION_S = 1e6  # 11.6 simulated days: longer is a units mistake
-FAULT_KINDS = ("bit_errors", "flip", "stuck", "disconnect", "babbling_idiot", "never_ack")
 
 
 BUS_KEYS = {
@@ -142,43 +144,6 @@ PLOT_KEYS = {
     "bin_ms": Key(float, 10.0, positive("the bus-load bin")),
 }
 
-FAULT_KEYS: dict[str, dict[str, Key]] = {
-    "bit_errors": {
-        "rate": Key(float, REQUIRED, in_range(0, 0.5, "a bit-error rate")),
-        "nodes": Key(list, None),
-        "start_ms": Key(float, 0.0, non_negative()),
-        "end_ms": Key(float, None, non_negative()),
-    },
-    "flip": {
-        "id": Key(int, None, non_negative()),
-        "extended": Key(bool, None),
-        "occurrence": Key(int, 1, positive()),
-        "field": Key(str, "data"),
-        "bit": Key(int, 0, non_negative()),
-        "nodes": Key(list, None),
-        "every": Key(bool, False),
-    },
-    "stuck": {
-        "node": Key(str, REQUIRED),
-        "level": Key(str, REQUIRED, one_of("dominant", "recessive")),
-        "start_ms": Key(float, 0.0, non_negative()),
-        "end_ms": Key(float, None, non_negative()),
-    },
-    "disconnect": {
-        "node": Key(str, REQUIRED),
-        "at_ms": Key(float, REQUIRED, non_negative()),
-        "reconnect_ms": Key(float, None, non_negative()),
-    },
-    "babbling_idiot": {
-        "node": Key(str, REQUIRED),
-        "id": Key(int, 0, non_negative()),
-        "data": Key(str, "ffffffffffffffff"),
-        "start_ms": Key(float, 0.0, non_negative()),
-        "end_ms": Key(float, None, non_negative()),
-    },
-    "never_ack": {"node": Key(str, REQUIRED)},
-}
-
 
 def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
     """'priority' | 'fifo' | 'mailboxes:N' | 'mailboxes-abort:N' as (policy, mailboxes, abort)."""
@@ -234,7 +199,7 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
     for i, rn in enumerate(t["nodes"], 1):
         nodes.append(_node(rn, i, source))
     _check_unique(nodes, source)
-    faults = [_fault(rf, i, source, {n.name for n in nodes}) for i, rf in enumerate(t["faults"], 1)]
+    faults = [read_fault(rf, i, source, {n.name for n in nodes}) for i, rf in enumerate(t["faults"], 1)]
     analysis = read_table(t["analysis"], ANALYSIS_KEYS, where(source, "[analysis]"))
     plot = read_table(t["plot"], PLOT_KEYS, where(source, "[plot]"))
     w = plot["window_ms"]
@@ -373,38 +338,3 @@ def _check_unique(nodes: list[NodeDecl], source: str) -> None:
                     "of one identifier collide on the bus (each identifier has one sender)"
                 )
             ids[key] = m.name
-
-
-def _fault(rf: Any, i: int, source: str, node_names: set[str]) -> FaultDecl:
-    loc = where(source, f"[[faults]] #{i}")
-    if not isinstance(rf, Mapping):
-        raise ScenarioError(f"{loc}: expected a table, got {rf!r}")
-    kind = rf.get("kind")
-    if kind not in FAULT_KINDS:
-        raise ScenarioError(f"{loc}: kind: {kind!r} is not one of {', '.join(map(repr, FAULT_KINDS))}")
-    schema = dict(FAULT_KEYS[kind])
-    schema["kind"] = Key(str, REQUIRED)
-    d = read_table(rf, schema, loc)
-    for key in ("node",):
-        if key in d and d[key] not in node_names:
-            raise ScenarioError(f"{loc}: {key}: {d[key]!r} is not a node of this scenario")
-    if d.get("nodes") is not None:
-        bad = [x for x in d["nodes"] if x not in node_names]
-        if bad:
-            raise ScenarioError(f"{loc}: nodes: {bad[0]!r} is not a node of this scenario")
-    for a, b in (("start_ms", "end_ms"), ("at_ms", "reconnect_ms")):
-        if d.get(b) is not None and d.get(a) is not None and d[b] <= d[a]:
-            raise ScenarioError(f"{loc}: {b}: {d[b]!r} must be after {a} {d[a]!r}")
-    if kind == "babbling_idiot":
-        try:
-            data = bytes.fromhex(d["data"])
-        except ValueError:
-            raise ScenarioError(f"{loc}: data: {d['data']!r} is not hex bytes") from None
-        if len(data) > 8:
-            raise ScenarioError(f"{loc}: data: {len(data)} bytes: a CAN 2.0 frame carries at most 8")
-    if kind == "flip" and d["id"] is not None:
-        rule = identifier_rule(bool(d["extended"]))(d["id"])
-        if rule is not None:
-            raise ScenarioError(f"{loc}: id: {rule}")
-    del d["kind"]
-    return FaultDecl(kind=kind, params=d, index=i)

@@ -38,10 +38,10 @@ from pathlib import Path
 from typing import Any
 
 from profiles.declarations import Scenario
+from profiles.pipeline.faults import FAULT_KEYS
 from profiles.pipeline.scenario import (
     ANALYSIS_KEYS,
     BUS_KEYS,
-    FAULT_KEYS,
     MESSAGE_KEYS,
     NODE_KEYS,
     PLOT_KEYS,

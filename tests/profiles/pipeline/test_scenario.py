@@ -175,3 +175,37 @@ def test_the_examples_are_valid_scenarios():
     for f in files:
         sc = load_scenario(f)
         assert sc.nodes and sc.duration_ns > 0
+
+
+def test_each_fault_kind_reaches_the_injector_method_of_its_name(monkeypatch):
+    """The table dispatches: each kind's checked values reach `FaultInjector`'s method of the same
+    name, with times in ns (a spy stands in for each method)."""
+    from profiles.pipeline.faults import FAULT_KINDS, inject_faults
+    from stack import FaultInjector, SimBus
+
+    minimal = {
+        "bit_errors": {"rate": 1e-4},
+        "flip": {"id": 0x100},
+        "stuck": {"node": "body", "level": "dominant", "start_ms": 1.5, "end_ms": 2},
+        "disconnect": {"node": "body", "at_ms": 3, "reconnect_ms": 4.25},
+        "babbling_idiot": {"node": "body", "id": 0x10, "data": "aa55"},
+        "never_ack": {"node": "engine"},
+    }
+    assert set(minimal) == set(FAULT_KINDS)
+    calls = []
+    for name in FAULT_KINDS:
+        monkeypatch.setattr(FaultInjector, name, lambda self, *a, _n=name, **kw: calls.append((_n, a, kw)))
+    raw = copy.deepcopy(BASE)
+    raw["faults"] = [{"kind": k, **v} for k, v in minimal.items()]
+    sc = parse_scenario(raw, "f.toml")
+    inject_faults(SimBus(500_000), sc.faults)
+    by_kind = {c[0]: c for c in calls}
+    assert [c[0] for c in calls] == list(FAULT_KINDS)
+    assert by_kind["bit_errors"][1:] == ((1e-4,), {"nodes": None})
+    assert by_kind["stuck"][1:] == (("body", "dominant"), {"start": 1_500_000, "end": 2_000_000})
+    assert by_kind["disconnect"][1:] == (("body",), {"at": 3_000_000, "reconnect_at": 4_250_000})
+    assert by_kind["babbling_idiot"][1:] == (
+        ("body",),
+        {"can_id": 0x10, "data": b"\xaa\x55", "start": 0, "end": None},
+    )
+    assert by_kind["flip"][2]["can_id"] == 0x100 and by_kind["never_ack"][1] == ("engine",)
