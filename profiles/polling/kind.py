@@ -127,14 +127,14 @@ def summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
                     "response_ms_max": _ms(measured),
                     # from the cycle's start (the master queues its first request): when the
                     # request's data reached the slave(s), and when the last answer came back
-                    "request_end_ms_max": _ms(p.offsets[tx.request.name][0] or None),
+                    "request_end_ms_max": _ms(p.stats.offsets[tx.request.name][0] or None),
                     "request_end_bound_ms": None if offsets is None else _ms(offsets[0]),
-                    "end_ms_max": _ms(p.offsets[tx.request.name][1] or None),
+                    "end_ms_max": _ms(p.stats.offsets[tx.request.name][1] or None),
                     "end_bound_ms": None if offsets is None else _ms(offsets[1]),
                 }
             )
         fig["transactions"] = txs
-        fig["window_cycles_ms"] = _in_window(sc, p.windows)
+        fig["window_cycles_ms"] = _in_window(sc, p.stats.windows)
         out["masters"][cfg.name] = fig
         for s in cfg.slaves:
             row = {"master": cfg.name}

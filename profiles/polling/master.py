@@ -1,8 +1,11 @@
 """The master of a master/slave network: it runs its poll list as a cycle and is the only node
 that starts a transaction.
 
-States (h11 style, ``state``): ``idle`` between cycles, ``sending`` while a request waits for the
-bus, ``waiting`` for the answer(s) once it went out, ``stopped`` after bus off.
+`PollMaster` is the sans-IO master, built from its `MasterConfig` (as the TDMA FSE is built from
+its `Schedule`): its states and what each event does in each are the transition table of
+`profiles.polling._state` (``idle``, ``sending``, ``waiting``, ``stopped``), what it measures is
+kept apart in `profiles.polling.stats`, and it sends through the callable it is given. `Master`
+is the scenario profile that builds one on its node, with the node's frames and tracks.
 
 A cycle starts ``cycle_ms`` after the previous one started, or — an *overrun*, reported as
 `CycleOverrun` — as soon as the previous one ends if that is later: the schedule moves, openly,
@@ -31,22 +34,29 @@ callbacks of the node API, so the master runs unchanged on the simulated bus and
 
 from __future__ import annotations
 
-from array import array
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from profiles.base import Context, Profile, frame_of, stats_ms
+from profiles.base import Context, Profile, frame_of
+from profiles.polling._state import MasterEvent, MasterState, next_state
 from profiles.polling.config import NETWORK_TABLE
 from profiles.polling.events import CycleOverrun, MasterResumed, MasterStopped, Reporter, SlaveBack, SlaveLost
+from profiles.polling.stats import CycleStats, SlaveLink
 from stack import ErrorStateChanged, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
+    from array import array
+
     from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import CosLink, MasterConfig, Transaction
     from stack import NodeAPI, Received, Timer, TxRequest
 
-__all__ = ["Master", "SlaveLink", "IDLE", "SENDING", "WAITING", "STOPPED"]
+__all__ = ["PollMaster", "Master", "Send", "rx_filters"]
 
-IDLE, SENDING, WAITING, STOPPED = "idle", "sending", "waiting", "stopped"
+Send = Callable[["MessageDecl", "int | None"], "TxRequest | None"]
+"""``send(message, not_after)``: queue one of the master's messages (a request with its latest
+start, an acknowledgement with None) and return its request, or None when the node could not
+take it (queue full, bus off)."""
 
 
 def rx_filters(messages: list[MessageDecl]) -> list[dict[str, Any]]:
@@ -56,115 +66,57 @@ def rx_filters(messages: list[MessageDecl]) -> list[dict[str, Any]]:
     ]
 
 
-class SlaveLink:
-    """The master's view of one slave: polls sent (requests that reached the bus), answers and
-    their response times (request SOF to response end, master's clock) and period jitter (max −
-    min distance between the ends of answers to consecutive polls), timeouts (attempts
-    without an answer in time), missed polls (all attempts of a transaction), the lost state with
-    its periods, late answers (after the timeout, or from a lost slave between its slow polls),
-    and COS/cyclic messages consumed and acknowledged."""
+class PollMaster(Reporter):
+    """A poll-list master on ``node``, built from its ``config`` (see the module docstring);
+    ``send`` queues its frames. ``state`` follows `profiles.polling._state`; ``stats`` and
+    ``links`` hold what it measured."""
 
-    __slots__ = (
-        "name",
-        "polls",
-        "responses",
-        "timeouts",
-        "missed",
-        "in_a_row",
-        "lost",
-        "lost_cycle",
-        "lost_periods",
-        "response_ns",
-        "late",
-        "cos",
-        "acks",
-        "last_end",
-        "gap_min",
-        "gap_max",
-    )
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self.polls = 0
-        self.responses = 0
-        self.timeouts = 0
-        self.missed = 0
-        self.in_a_row = 0
-        self.lost = False
-        self.lost_cycle = 0
-        self.lost_periods: list[list[int | None]] = []
-        self.response_ns: array[int] = array("q")
-        self.late = 0
-        self.cos = 0
-        self.acks = 0
-        self.last_end: int | None = None  # end of the last answer, if the poll before it was answered
-        self.gap_min: int | None = None
-        self.gap_max: int | None = None
-
-    def answered(self, t_end: int) -> None:
-        """An answer ended at ``t_end``: the distance from the previous one (when that one answered
-        the previous poll) makes the answers' period jitter."""
-        if self.last_end is not None:
-            gap = t_end - self.last_end
-            self.gap_min = gap if self.gap_min is None else min(self.gap_min, gap)
-            self.gap_max = gap if self.gap_max is None else max(self.gap_max, gap)
-        self.last_end = t_end
-
-    def due(self, cycle: int, every: int) -> bool:
-        """Polled in this cycle: always, or every ``every`` cycles from the one it was lost in."""
-        return not self.lost or (cycle - self.lost_cycle) % every == 0
-
-
-class Master(Profile, Reporter):
-    """A poll-list master on one node (see the module docstring)."""
-
-    kind = "master"
-
-    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
-        super().__init__(node, decl, context)
-        self.config: MasterConfig = context.scenario.tables[NETWORK_TABLE].masters[decl.name]
-        self.frames = {m.name: frame_of(m) for m in decl.messages}
-        self._track = {m.name: context.recorder.track(m) for m in decl.messages}
-        self.links = {s: SlaveLink(s) for s in self.config.slaves}
+    def __init__(self, node: NodeAPI, config: MasterConfig, *, send: Send) -> None:
+        Reporter.__init__(self)
+        self.node = node
+        self.config = config
+        self.send = send
+        self.state = MasterState.IDLE
+        self.links = {s: SlaveLink(s) for s in config.slaves}
+        self.stats = CycleStats(config)
         self._answers: dict[int, tuple[Transaction, str]] = {}
         watched: list[MessageDecl] = []
-        for tx in self.config.transactions:
+        for tx in config.transactions:
             for s, r in zip(tx.slaves, tx.responses):
                 self._answers[frame_of(r).key] = (tx, s)
                 watched.append(r)
         self._cos: dict[int, CosLink] = {}
-        for link in self.config.cos:
+        for link in config.cos:
             for m in link.messages:
                 self._cos[frame_of(m).key] = link
                 watched.append(m)
         self._filters = rx_filters(watched)
-        self.state = IDLE
-        Reporter.__init__(self)
         # the cycle
         self.cycle = 0
         self.cycle_start = 0
         self.first_sof: int | None = None
         self.first_sof_bus: int | None = None
         self.ran = 0  # transactions run in this cycle
-        self.cycle_ns: array[int] = array("q")
-        self.clean_ns: array[int] = array("q")  # cycles in which every slave due answered in time
-        self.clean = True
-        self.overruns = 0
-        self.windows: list[tuple[int, int, bool]] = []  # (first SOF, end) bus ns, overrun — for the plot
-        self.unsent = 0
-        # per transaction, the latest end of its request and of its last answer after the cycle's start
-        self.offsets: dict[str, list[int]] = {t.request.name: [0, 0] for t in self.config.transactions}
+        self.clean = True  # every slave due answered in time so far
         # the transaction in progress
         self._idx = 0
         self._tx: Transaction | None = None
         self._attempt = 0
         self._req: TxRequest | None = None
         self._queued_at = 0
-        self._sof: int | None = None
+        self._sof = 0
         self._awaiting: set[str] = set()
         self._timer: Timer | None = None
         self._cycle_timer: Timer | None = None
-        self.stopped_at: list[int] = []
+
+    def _to(self, event: MasterEvent) -> bool:
+        """Take ``event`` through the transition table; False (and no change) when the state
+        ignores it."""
+        nxt = next_state(self.state, event)
+        if nxt is None:
+            return False
+        self.state = nxt
+        return True
 
     # ------------------------------------------------------------------ wiring
     def start(self) -> None:
@@ -177,15 +129,10 @@ class Master(Profile, Reporter):
         self.node.listen(ErrorStateChanged, self._on_state)
         self._cycle_timer = self.node.call_at(self.node.now() + self.config.offset_ns, self._begin_cycle)
 
-    def set_data(self, name: str, data: bytes) -> None:
-        """Application hook: the output data the next requests of message ``name`` carry."""
-        old = self.frames[name]
-        self.frames[name] = type(old)(old.can_id, data, extended=old.extended)
-
     # ------------------------------------------------------------------ the cycle
     def _begin_cycle(self) -> None:
         self._cycle_timer = None
-        if self.state == STOPPED:
+        if not self._to(MasterEvent.CYCLE_START):
             return
         self.cycle += 1
         self.cycle_start = self.node.now()
@@ -207,24 +154,19 @@ class Master(Profile, Reporter):
                 self._tx = tx
                 self._attempt = 0
                 self.ran += 1
-                self._send(set(due))
+                self._send(tx, set(due))
                 return
         self._end_cycle(t)
 
-    def _send(self, awaiting: set[str]) -> None:
-        tx = self._tx
-        assert tx is not None
+    def _send(self, tx: Transaction, awaiting: set[str]) -> None:
         self._awaiting = awaiting
-        self._sof = None
         now = self._queued_at = self.node.now()
-        self.state = SENDING
-        self._req = self.queue(
-            self.frames[tx.request.name], self._track[tx.request.name], not_after=now + tx.timeout_ns
-        )
+        self._to(MasterEvent.REQUEST)
+        self._req = self.send(tx.request, now + tx.timeout_ns)
         if self._req is None:  # queue full, or bus off (then the state listener stops the master)
-            self.unsent += 1
+            self.stats.unsent += 1
             self.clean = False
-            if self.state != STOPPED:
+            if self.state is not MasterState.STOPPED:
                 self._arm(now + tx.timeout_ns)
 
     def _arm(self, at: int) -> None:
@@ -233,7 +175,8 @@ class Master(Profile, Reporter):
         self._timer = self.node.call_at(at, self._timeout)
 
     def _on_done(self, ev: TxDone) -> None:
-        if ev.request is not self._req or self.state != SENDING:
+        tx = self._tx
+        if ev.request is not self._req or tx is None or not self._to(MasterEvent.SENT):
             return
         self._sof = ev.sof if ev.sof >= 0 else self._queued_at
         if self.first_sof is None:
@@ -241,16 +184,14 @@ class Master(Profile, Reporter):
             self.first_sof_bus = ev.request.sof if ev.request.sof >= 0 else None
         for s in self._awaiting:
             self.links[s].polls += 1
-        off = self.offsets[self._tx.request.name]  # type: ignore[union-attr]
-        off[0] = max(off[0], ev.time - self.cycle_start)
-        self.state = WAITING
-        self._arm(self._sof + self._tx.timeout_ns)  # type: ignore[union-attr]
+        self.stats.request_end(tx.request.name, ev.time - self.cycle_start)
+        self._arm(self._sof + tx.timeout_ns)
 
     def _on_failed(self, ev: TxFailed) -> None:
-        if ev.request is not self._req or self.state != SENDING:
+        if ev.request is not self._req or not self._to(MasterEvent.UNSENT):
             return
         # not started by its latest start time (a bus too busy), or dropped: no answer can come
-        self.unsent += 1
+        self.stats.unsent += 1
         self.clean = False
         self._req = None
         self._timeout()
@@ -263,17 +204,16 @@ class Master(Profile, Reporter):
             link = self.links[slave]
             # only an answer to the request that went out counts; one that comes while a retry is
             # still queued answers the attempt that timed out: late
-            if tx is self._tx and slave in self._awaiting and self.state == WAITING:
+            if tx is self._tx and slave in self._awaiting and self._to(MasterEvent.ANSWER):
                 link.responses += 1
-                link.response_ns.append(ev.time - self._sof)  # type: ignore[operator]
+                link.response_ns.append(ev.time - self._sof)
                 link.answered(ev.time)
                 link.in_a_row = 0
                 if link.lost:
                     self._back(link, ev.time)
                 self._awaiting.discard(slave)
                 if not self._awaiting:
-                    off = self.offsets[tx.request.name]
-                    off[1] = max(off[1], ev.time - self.cycle_start)
+                    self.stats.answers_end(tx.request.name, ev.time - self.cycle_start)
                     if self._timer is not None:
                         self._timer.cancel()
                         self._timer = None
@@ -290,21 +230,21 @@ class Master(Profile, Reporter):
             link.cos += 1
             if link.lost:
                 self._back(link, ev.time)
-            if cos.ack is not None and self.state != STOPPED:
-                if self.queue(self.frames[cos.ack.name], self._track[cos.ack.name]) is not None:
+            if cos.ack is not None and self._to(MasterEvent.COS):
+                if self.send(cos.ack, None) is not None:
                     link.acks += 1
 
     def _timeout(self) -> None:
         self._timer = None
         tx = self._tx
-        if tx is None or self.state == STOPPED:
+        if tx is None or not self._to(MasterEvent.TIMEOUT):
             return
         for s in self._awaiting:
             self.links[s].timeouts += 1
         self.clean = False
         if self._attempt < tx.retries:
             self._attempt += 1
-            self._send(set(self._awaiting))
+            self._send(tx, set(self._awaiting))
             return
         now = self.node.now()
         for s in sorted(self._awaiting):
@@ -321,37 +261,32 @@ class Master(Profile, Reporter):
             link.lost = True
             link.lost_cycle = self.cycle
             link.lost_periods.append([t, None])
-            self._emit(SlaveLost(t, self.decl.name, link.name, link.in_a_row))
+            self._emit(SlaveLost(t, self.config.name, link.name, link.in_a_row))
 
     def _back(self, link: SlaveLink, t: int) -> None:
         link.lost = False
         link.in_a_row = 0
         if link.lost_periods and link.lost_periods[-1][1] is None:
             link.lost_periods[-1][1] = t
-        self._emit(SlaveBack(t, self.decl.name, link.name))
+        self._emit(SlaveBack(t, self.config.name, link.name))
 
     def _end_cycle(self, t: int) -> None:
         self._tx = None
-        self.state = IDLE
+        self._to(MasterEvent.CYCLE_END)
         start = self.first_sof if self.first_sof is not None else self.cycle_start
         due = self.cycle_start + self.config.cycle_ns
         overrun = t > due
         if self.ran:
-            self.cycle_ns.append(t - start)
-            if self.clean:
-                self.clean_ns.append(t - start)
-            if self.first_sof_bus is not None:
-                self.windows.append((self.first_sof_bus, self.first_sof_bus + (t - start), overrun))
+            self.stats.cycle(t - start, self.clean, self.first_sof_bus, overrun)
         if overrun:
-            self.overruns += 1
-            self._emit(CycleOverrun(t, self.decl.name, self.cycle, t - start))
+            self.stats.overruns += 1
+            self._emit(CycleOverrun(t, self.config.name, self.cycle, t - start))
         self._cycle_timer = self.node.call_at(max(due, t), self._begin_cycle)
 
     # ------------------------------------------------------------------ fault confinement
     def _on_state(self, ev: ErrorStateChanged) -> None:
-        if ev.new == "bus-off" and self.state != STOPPED:
-            self.state = STOPPED
-            self.stopped_at.append(ev.time)
+        if ev.new == "bus-off" and self._to(MasterEvent.BUS_OFF):
+            self.stats.stopped_at.append(ev.time)
             for timer in (self._timer, self._cycle_timer):
                 if timer is not None:
                     timer.cancel()
@@ -359,52 +294,86 @@ class Master(Profile, Reporter):
             req, self._req, self._tx = self._req, None, None
             if req is not None:
                 self.node.abort(req)
-            self._emit(MasterStopped(ev.time, self.decl.name, "bus off"))
-        elif ev.new == "error-active" and self.state == STOPPED and self.config.restart_after_bus_off:
-            self.state = IDLE
-            self._emit(MasterResumed(ev.time, self.decl.name))
+            self._emit(MasterStopped(ev.time, self.config.name, "bus off"))
+        elif ev.new == "error-active" and self.config.restart_after_bus_off and self._to(MasterEvent.RECOVERED):
+            self._emit(MasterResumed(ev.time, self.config.name))
             self._begin_cycle()
 
     # ------------------------------------------------------------------ results
+    def figures(self) -> dict[str, Any]:
+        """The master's figures (`CycleStats.figures`): its cycles, its state and its events."""
+        return self.stats.figures(self.cycle, self.state.value, self.events)
+
+
+class Master(Profile):
+    """The ``master`` profile: a `PollMaster` on the node, built from the scenario's network,
+    sending the node's declared frames (requests, acknowledgements) through its tracks."""
+
+    kind = "master"
+
+    def __init__(self, node: NodeAPI, decl: NodeDecl, context: Context) -> None:
+        super().__init__(node, decl, context)
+        self.config: MasterConfig = context.scenario.tables[NETWORK_TABLE].masters[decl.name]
+        self.frames = {m.name: frame_of(m) for m in decl.messages}
+        self._track = {m.name: context.recorder.track(m) for m in decl.messages}
+        self.poller = PollMaster(node, self.config, send=self._send)
+
+    def _send(self, m: MessageDecl, not_after: int | None) -> TxRequest | None:
+        if not_after is None:
+            return self.queue(self.frames[m.name], self._track[m.name])
+        return self.queue(self.frames[m.name], self._track[m.name], not_after=not_after)
+
+    def start(self) -> None:
+        """Start polling (`PollMaster.start`)."""
+        self.poller.start()
+
+    def set_data(self, name: str, data: bytes) -> None:
+        """Application hook: the output data the next requests of message ``name`` carry."""
+        old = self.frames[name]
+        self.frames[name] = type(old)(old.can_id, data, extended=old.extended)
+
+    @property
+    def state(self) -> MasterState:
+        """The master's state (`profiles.polling._state.MasterState`)."""
+        return self.poller.state
+
+    @property
+    def events(self) -> list[Any]:
+        """Every event the master reported, in order (`profiles.polling.events`)."""
+        return self.poller.events
+
+    def listen(self, callback: Callable[[Any], Any]) -> None:
+        """Call ``callback(event)`` for every event the master reports from now on."""
+        self.poller.listen(callback)
+
+    @property
+    def links(self) -> dict[str, SlaveLink]:
+        """The master's view of each slave."""
+        return self.poller.links
+
+    @property
+    def stats(self) -> CycleStats:
+        """What the master measured of its cycles."""
+        return self.poller.stats
+
+    @property
+    def cycle_ns(self) -> array[int]:
+        """The measured length of every cycle (ns)."""
+        return self.poller.stats.cycle_ns
+
+    @property
+    def clean_ns(self) -> array[int]:
+        """The measured length of the cycles in which every slave due answered in time (ns)."""
+        return self.poller.stats.clean_ns
+
     def summary(self) -> dict[str, Any]:
         """The master's own figures (the runner's per-node ``summary``)."""
-        return {"state": self.state, "cycles": self.cycle, "overruns": self.overruns}
+        return {"state": self.state.value, "cycles": self.poller.cycle, "overruns": self.stats.overruns}
 
     def figures(self) -> dict[str, Any]:
-        """cycles started, the measured cycle (first request's SOF to the end of the last
-        transaction: min/mean/p99/max ms) — of every cycle, and of the *clean* ones, in which
-        every slave due answered in time (no timeout, no request the bus could not take) —
-        overruns, requests the bus could not take, bus-off stops, and how many times each event
-        happened."""
-        counts: dict[str, int] = {}
-        for e in self.events:
-            counts[type(e).__name__] = counts.get(type(e).__name__, 0) + 1
-        return {
-            "cycles": self.cycle,
-            "cycle_ms": stats_ms(self.cycle_ns),
-            "clean_cycle_ms": stats_ms(self.clean_ns),
-            "overruns": self.overruns,
-            "unsent": self.unsent,
-            "state": self.state,
-            "stopped_ms": [t / 1e6 for t in self.stopped_at],
-            "events": counts,
-        }
+        """The master's figures (`PollMaster.figures`)."""
+        return self.poller.figures()
 
     def link_figures(self, slave: str) -> dict[str, Any]:
         """The master's view of one slave (see `SlaveLink`) as JSON."""
-        ln = self.links[slave]
-        return {
-            "polls": ln.polls,
-            "responses": ln.responses,
-            "timeouts": ln.timeouts,
-            "missed": ln.missed,
-            "lost": ln.lost,
-            "lost_ms": [
-                [a / 1e6 if a is not None else None, b / 1e6 if b is not None else None] for a, b in ln.lost_periods
-            ],
-            "late": ln.late,
-            "response_ms": stats_ms(ln.response_ns),
-            "jitter_ms": None if ln.gap_min is None else (ln.gap_max - ln.gap_min) / 1e6,  # type: ignore[operator]
-            "cos": ln.cos,
-            "acks": ln.acks,
-        }
+        return self.links[slave].figures()
