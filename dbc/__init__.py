@@ -10,7 +10,8 @@
   ``canstack restbus`` (``dbc.cli``);
 - ``dbc.bench``: the ECU's transmit overhead against cantools' encode.
 
-Sample databases live in ``dbc/databases/``. Imports `profiles` and `stack`.
+Sample databases live in ``dbc/databases/``. Imports `stack` only: `dbc` and `profiles` are
+independent of each other (an import-linter contract keeps it so).
 """
 
 from pathlib import Path
