@@ -66,13 +66,13 @@ def register(subparsers: Any) -> None:
 
 
 def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
-    """The python-can driver of `stack.driver` on ``interface``/``channel``: ``open_bus`` if the
+    """The python-can driver of `stack.io.driver` on ``interface``/``channel``: ``open_bus`` if the
     module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node; ``bitrate`` (None:
     the interface's default) is passed to every connection."""
     try:
         from stack.io import driver  # imported here: the simulated bus needs no python-can driver
     except ImportError:
-        raise CliError("python-can driver not available yet (stack.driver)") from None
+        raise CliError("python-can driver not available yet (stack.io.driver)") from None
     if interface == "canstack":
         from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     kw: dict[str, Any] = {} if bitrate is None else {"bitrate": bitrate}
