@@ -250,6 +250,8 @@ class _Placement:
         if self.byte is not None:
             return data[self.byte]
         v = self.msg.decode(data, decode_choices=False, scaling=False, allow_truncated=True)[self.sig_name]
+        if not isinstance(v, (int, float)):  # without choices and scaling cantools gives raw numbers
+            raise DbcError(f"signal {self.sig_name}: raw value {v!r} is not a number")
         return int(v) & self.value_mask
 
 
@@ -349,7 +351,10 @@ class _BoundE2E:
         pass
 
     def tx_data(self, data: bytes) -> bytes:
-        return bytes(self._apply(data, self.ref))
+        protected = self._apply(data, self.ref)
+        if protected is None:  # cantools gives None where it cannot protect the payload
+            raise DbcError(f"{self.name}: cantools cannot protect a payload of {len(data)} bytes")
+        return bytes(protected)
 
     def rx(self, data: bytes, decoded: dict[str, Any]) -> str | None:
         ok = self._check(data, self.ref)

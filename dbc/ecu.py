@@ -374,9 +374,10 @@ class _TxMessage:
         self.spont_timer = None
         self.transmit()
         t = self.timing
-        if self.if_active and self.active and self.cycle_timer is None and self.running:
+        last = self.last_tx  # set by transmit
+        if last is not None and self.if_active and self.active and self.cycle_timer is None and self.running:
             # the spontaneous frame opened the active phase: the fast cycle follows it
-            self._start_cycle(self.last_tx + t.fast_period_ns, t.fast_period_ns)
+            self._start_cycle(last + t.fast_period_ns, t.fast_period_ns)
         if self._repeat and t.repetitions and t.fast_period_ns:
             if self.rep_timer is not None:
                 self.rep_timer.cancel()
@@ -808,15 +809,15 @@ class Ecu:
                 prev = None if old is None else old.get(s)
                 if s in decoded and (old is None or prev != new):
                     ch = SignalChanged(ev.time, rx.name, s, prev, new)
-                    for cb in cbs:
-                        cb(ch)
-        cbs = self._msg_cbs.get(rx.name)
-        if cbs or self._any_cbs:
+                    for sig_cb in cbs:
+                        sig_cb(ch)
+        msg_cbs = self._msg_cbs.get(rx.name)
+        if msg_cbs or self._any_cbs:
             mr = MessageReceived(ev.time, rx.name, decoded, frame, failures)
-            for cb in cbs or ():
-                cb(mr)
-            for cb in self._any_cbs:
-                cb(mr)
+            for msg_cb in msg_cbs or ():
+                msg_cb(mr)
+            for any_cb in self._any_cbs:
+                any_cb(mr)
 
     def __repr__(self) -> str:
         return f"<Ecu {self.name} tx={len(self._tx)} rx={len(self._rx)}>"

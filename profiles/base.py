@@ -269,6 +269,7 @@ class PeriodicSource:
     ) -> None:
         if decl.period_ns is None and type(self) is PeriodicSource:
             raise ValueError(f"message {decl.name!r} has no period")
+        self.period = decl.period_ns or 0  # a sporadic source steps by its own gaps
         self.node = node
         self.decl = decl
         self.on_release = on_release
@@ -286,7 +287,7 @@ class PeriodicSource:
 
     def _fire(self) -> None:
         self.on_release(self.decl)
-        self.nominal += self.decl.period_ns  # type: ignore[operator]
+        self.nominal += self.period
         self._arm()
 
 
@@ -301,6 +302,7 @@ class SporadicSource(PeriodicSource):
         if decl.sporadic_ns is None:
             raise ValueError(f"message {decl.name!r} is not sporadic")
         super().__init__(node, decl, on_release, rng)
+        self.gap = decl.sporadic_ns
         self.extra_mean = (decl.mean_ns if decl.mean_ns is not None else 2 * decl.sporadic_ns) - decl.sporadic_ns
 
     def start(self) -> None:
@@ -313,7 +315,7 @@ class SporadicSource(PeriodicSource):
 
     def _fire(self) -> None:
         self.on_release(self.decl)
-        self.nominal += self.decl.sporadic_ns + self._gap_extra()  # type: ignore[operator]
+        self.nominal += self.gap + self._gap_extra()
         self._arm()
 
 

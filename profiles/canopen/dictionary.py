@@ -79,7 +79,9 @@ class EdsError(ValueError):
 
 def type_name(data_type: int | None) -> str:
     """The CiA 301 name of a data type code (0x0007 -> 'UNSIGNED32')."""
-    return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}" if isinstance(data_type, int) else "no type")
+    if data_type is None:
+        return "no type"
+    return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}")
 
 
 def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionary:
@@ -273,10 +275,11 @@ class ObjectStore:
         if reader is not None:
             self.variable(index, sub)
             return reader(sub)
-        data = self.values.get((index, sub))
-        if data is None:
-            self.variable(index, sub)  # raises the right abort
-        return data  # type: ignore[return-value]
+        try:
+            return self.values[(index, sub)]
+        except KeyError:
+            self.variable(index, sub)  # raises the right abort (every sub-object has a value)
+            raise
 
     def get(self, index: int, sub: int = 0) -> Any:
         """The sub-object's value, decoded by its data type (int, float, str or bytes)."""
@@ -300,7 +303,7 @@ class ObjectStore:
         key = (index, sub)
         var = self.vars.get(key)
         if var is None:
-            self.variable(index, sub)  # raises the right abort
+            var = self.variable(index, sub)  # raises the right abort
         if sdo and not var.writable:
             raise SdoAbort(abort.READ_ONLY, f"0x{index:04X}:{sub} ({var.name}) is {var.access_type}")
         size = self._sizes.get(key, -1)
@@ -313,7 +316,7 @@ class ObjectStore:
         limited = var.min is not None or var.max is not None
         if validator is not None or limited:  # decoding costs ~1 us: only when someone looks
             value = var.decode_raw(data) if size is not None else data
-            if limited and var.data_type in datatypes.NUMBER_TYPES:
+            if limited and var.data_type in datatypes.NUMBER_TYPES and isinstance(value, (int, float)):
                 if var.max is not None and value > var.max:
                     raise SdoAbort(abort.VALUE_HIGH, f"0x{index:04X}:{sub}: {value} above HighLimit {var.max}")
                 if var.min is not None and value < var.min:

@@ -301,9 +301,10 @@ class CanopenMaster:
         fc, nid = can_id & 0x780, can_id & 0x7F
         if nid in self.nodes:
             if fc == cob.HEARTBEAT:
-                g = self.guarding.nodes.get(nid) if self.guarding is not None else None
-                if g is not None and g.waiting and f.data != b"\x00":  # 00 is a boot-up, never a reply
-                    self.guarding.on_reply(nid, f.data)  # type: ignore[union-attr]
+                guarding = self.guarding
+                g = None if guarding is None else guarding.nodes.get(nid)
+                if guarding is not None and g is not None and g.waiting and f.data != b"\x00":  # 00: a boot-up
+                    guarding.on_reply(nid, f.data)
                 else:
                     self.consumer.on_heartbeat(nid, f.data, ev.time)
                 return

@@ -229,19 +229,17 @@ def _count_receptions(built: Built) -> None:
         for tr in tracks.values():
             tr.received = tr.sent
         return
-    by_key = {}
-    for tr in tracks.values():
-        by_key[frame_of(tr.decl).key] = tr
-        tr.received = 0
+    received = {frame_of(tr.decl).key: 0 for tr in tracks.values()}
     for rec in bus.trace:
-        tr = by_key.get(rec.frame.key)
-        if tr is None:
+        key = rec.frame.key
+        if key not in received:
             continue
         d = rec.detail or {}
-        if rec.kind == "frame" and not d.get("accepted_by") and "error" not in d:
-            tr.received += 1  # a clean frame: everyone received it
-        elif d.get("accepted_by"):
-            tr.received += 1
+        # a clean frame (everyone received it), or an attempt some receivers accepted
+        if (rec.kind == "frame" and not d.get("accepted_by") and "error" not in d) or d.get("accepted_by"):
+            received[key] += 1
+    for tr in tracks.values():
+        tr.received = received[frame_of(tr.decl).key]
 
 
 def run_on_pycan(

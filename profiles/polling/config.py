@@ -407,7 +407,9 @@ class _Parser:
                     f"{key}: 0x{given:X} is not the DeviceNet {what} 0x{wanted:03X} "
                     '(leave it out, or set plan = "custom")',
                 )
-            return wanted  # type: ignore[return-value]
+            if wanted is None:  # the slave has no MAC ID (`mac` refuses that first under DeviceNet)
+                raise self.err(loc, f"{key}: the DeviceNet {what} needs the slave's mac_id")
+            return wanted
         if given is None:
             raise self.err(loc, f'key {key!r} is required with plan = "custom" ({what})')
         rule = identifier_rule(e["extended"])(given)
@@ -500,7 +502,8 @@ class _Parser:
             slaves = [self.claim(d, n, j, loc, "slaves") for n in names]
             macs = [self.mac(s, cfg, loc) for s in slaves]
             if cfg.plan == "devicenet":
-                resp_ids = [ids.bit_strobe_response(m) for m in macs]  # type: ignore[arg-type]
+                # every strobed slave has a MAC ID here: `mac` refuses one without under DeviceNet
+                resp_ids = [ids.bit_strobe_response(m) for m in macs if m is not None]
                 if e["response_ids"] is not None and list(e["response_ids"]) != resp_ids:
                     raise self.err(
                         loc,
@@ -589,10 +592,11 @@ class _Parser:
         s = self.claim(d, e["slave"], j, loc, "slave")
         mac = self.mac(s, cfg, loc)
         timed = [m for m in self.sc.node(s.name).messages if m.interval_ns is not None]
+        cos_id = None if mac is None else ids.cos_message(mac)  # mac is set under DeviceNet (self.mac)
         if cfg.plan == "devicenet":
-            timed = [m for m in timed if m.can_id == ids.cos_message(mac)]  # type: ignore[arg-type]
+            timed = [m for m in timed if m.can_id == cos_id]
         if not timed:
-            want = f" 0x{ids.cos_message(mac):03X}" if cfg.plan == "devicenet" else ""  # type: ignore[arg-type]
+            want = f" 0x{cos_id:03X}" if cfg.plan == "devicenet" and cos_id is not None else ""
             raise self.err(
                 loc,
                 f"slave {s.name!r} produces no change-of-state / cyclic message{want} (a message with "
@@ -648,11 +652,13 @@ class _Parser:
                 if m.extended:
                     raise self.err(loc, "extended: the DeviceNet plan uses 11-bit identifiers")
                 mac = s.mac_id
+                if mac is None:  # its master's entry refused a DeviceNet slave without one (`mac`)
+                    raise self.err(self.loc(d), "no mac_id: the DeviceNet plan derives its identifiers from it")
                 roles = {
                     ids.poll_response(mac): "poll response",
-                    ids.bit_strobe_response(mac): "bit-strobe response",  # type: ignore[arg-type]
+                    ids.bit_strobe_response(mac): "bit-strobe response",
                     ids.cos_message(mac): "change of state / cyclic",
-                }  # type: ignore[arg-type]
+                }
                 role = roles.get(m.can_id)
                 if role is None:
                     listed = ", ".join(f"{v} 0x{k:03X}" for k, v in roles.items())

@@ -109,6 +109,7 @@ def summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
             alone = float(transaction_bound_ns(tx, net.slaves, sc.bitrate, stuffing))
             start = done + (3 * tau if done else 0.0)
             done = start + alone
+            offsets: tuple[float, float] | None
             if why is None:
                 offsets = (start + frame_bits(tx.request, stuffing) * tau, done)
             else:

@@ -175,13 +175,13 @@ class PollMaster(Reporter):
         self._timer = self.node.call_at(at, self._timeout)
 
     def _on_done(self, ev: TxDone) -> None:
-        tx = self._tx
-        if ev.request is not self._req or tx is None or not self._to(MasterEvent.SENT):
+        req, tx = self._req, self._tx
+        if req is None or ev.request is not req or tx is None or not self._to(MasterEvent.SENT):
             return
         self._sof = ev.sof if ev.sof >= 0 else self._queued_at
         if self.first_sof is None:
             self.first_sof = self._sof
-            self.first_sof_bus = ev.request.sof if ev.request.sof >= 0 else None
+            self.first_sof_bus = req.sof if req.sof >= 0 else None
         for s in self._awaiting:
             self.links[s].polls += 1
         self.stats.request_end(tx.request.name, ev.time - self.cycle_start)

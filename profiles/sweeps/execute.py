@@ -70,7 +70,10 @@ class ExecuteError(ValueError):
 class Task(Protocol):
     """What the executor needs of a task: its canonical index and its identifying columns."""
 
-    index: int
+    @property
+    def index(self) -> int:
+        """The task's place in the canonical order."""
+        ...
 
     def head(self) -> dict[str, Any]:
         """The columns that identify the run (index, parameters, seed)."""
@@ -219,9 +222,9 @@ def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], worke
                 row["error"] = error_text(exc)
                 out.add(t.index, row)
                 continue
-            row = fut.result()
-            if row is not None:
-                out.add(t.index, row)
+            done = fut.result()
+            if done is not None:
+                out.add(t.index, done)
     except KeyboardInterrupt:
         interrupted = True
         stop.set()

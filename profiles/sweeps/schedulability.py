@@ -172,7 +172,7 @@ def schedulability_study(
     if priorities not in PRIORITIES:
         raise ValueError(f"--priorities {priorities!r}: one of {', '.join(PRIORITIES)}")
     lo, hi = period_range_ms or PERIOD_RANGES_MS[generator]
-    tasks = []
+    tasks: list[SchedTask] = []
     for u in utilisations:
         for s in range(sets):
             tasks.append(

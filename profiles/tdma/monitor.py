@@ -326,18 +326,18 @@ class Monitor:
                 }
             )
         messages = []
-        for name, st in self.messages.items():
+        for name, ms in self.messages.items():
             rta, latency, note = message_bounds(s, name)
-            off = st.offsets
+            off = ms.offsets
             row: dict[str, Any] = {
                 "name": name,
                 "node": s.owners[name],
                 "windows": [s.windows[i].index for i in s.message_windows[name]],
-                "frames": st.frames,
-                "late_starts": st.late_starts,
-                "failed": st.failed,
-                "lost_arbitration": st.lost_arbitration,
-                "outside": st.outside,
+                "frames": ms.frames,
+                "late_starts": ms.late_starts,
+                "failed": ms.failed,
+                "lost_arbitration": ms.lost_arbitration,
+                "outside": ms.outside,
                 "start_offset_us": None if not off else _stats_us(off),
                 "jitter_us": None if not off else (max(off) - min(off)) / 1000,
                 "rta_ms": None if rta is None else rta / 1e6,

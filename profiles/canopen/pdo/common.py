@@ -111,6 +111,14 @@ class Pdo:
         self.size = sum(x.size for x in self.mapped)
         self.valid = not word & NOT_VALID and self.can_id != 0 and bool(self.mapped)
 
+    def start(self) -> None:
+        """Entering operational (each kind of PDO does its own)."""
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        """Leaving operational (each kind of PDO does its own)."""
+        raise NotImplementedError
+
     @property
     def configured_valid(self) -> bool:
         """The COB-ID says valid (bit 31 clear) — even if the mapping made it unusable."""

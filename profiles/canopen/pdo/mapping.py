@@ -11,7 +11,7 @@ marked ``PDOMapping=1``; an RPDO objects that are writable and mappable.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 from profiles.canopen.dictionary import ObjectStore
 from profiles.canopen.sdo import abort
@@ -31,8 +31,11 @@ __all__ = [
 MAX_PDO_BYTES = 8
 
 
-class MappedObject(NamedTuple):
-    """One mapping entry: ``index:sub`` over ``size`` bytes (a dummy when ``dummy``)."""
+@dataclass(frozen=True, slots=True)
+class MappedObject:
+    """One mapping entry: ``index:sub`` over ``size`` bytes (a dummy when ``dummy``). (A frozen
+    dataclass rather than a NamedTuple: its ``index``, CiA 301's word, would shadow
+    ``tuple.index``.)"""
 
     index: int
     sub: int

@@ -13,7 +13,8 @@ from __future__ import annotations
 import struct
 from collections import deque
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import Any
 
 from profiles.canopen.sdo import abort
 
@@ -22,8 +23,11 @@ __all__ = ["SdoClient", "SdoResult"]
 _HEADER = struct.Struct("<BHB")
 
 
-class SdoResult(NamedTuple):
-    """How a transfer ended: ``data`` for an upload, ``abort_code`` None on success."""
+@dataclass(frozen=True, slots=True)
+class SdoResult:
+    """How a transfer ended: ``data`` for an upload, ``abort_code`` None on success. (A frozen
+    dataclass rather than a NamedTuple: its ``index``, CiA 301's word, would shadow
+    ``tuple.index``.)"""
 
     index: int
     sub: int
@@ -43,9 +47,10 @@ class SdoResult(NamedTuple):
 
     def __str__(self) -> str:
         what = f"{'upload' if self.upload else 'download'} 0x{self.index:04X}:{self.sub}"
-        if self.ok:
+        code = self.abort_code
+        if code is None:
             return f"{what}: ok" + (f" {self.data.hex()}" if self.data is not None else "")
-        return f"{what}: abort 0x{self.abort_code:08X} ({abort.ABORT_TEXT.get(self.abort_code, 'unknown')})"
+        return f"{what}: abort 0x{code:08X} ({abort.ABORT_TEXT.get(code, 'unknown')})"
 
 
 class _Transfer:

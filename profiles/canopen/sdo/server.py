@@ -190,7 +190,9 @@ class SdoServer:
             var = self.store.check_sdo_access(index, sub, upload=False)
             size = struct.unpack_from("<L", req, 4)[0] if cmd & 0x02 else None
             _check_size(self.store, index, sub, size, var)
-            t = BlockDownload(self, index, sub, size, crc=bool(cmd & CRC_SUPPORTED), block_size=self.block_size)
+            t: Transfer = BlockDownload(
+                self, index, sub, size, crc=bool(cmd & CRC_SUPPORTED), block_size=self.block_size
+            )
             self.send(bytes([0xA0 | CRC_SUPPORTED]) + req[1:4] + bytes([self.block_size, 0, 0, 0]))
             return t
         if ccs == 0xA0 and cmd & 0x03 == 0:
@@ -219,10 +221,10 @@ class SdoServer:
             self.send(bytes([0x60]) + req[1:4] + bytes(4))
             self.completed["expedited download"] += 1
             return None
-        size = struct.unpack_from("<L", req, 4)[0] if cmd & 0x01 else None
-        _check_size(self.store, index, sub, size, var)
+        total = struct.unpack_from("<L", req, 4)[0] if cmd & 0x01 else None
+        _check_size(self.store, index, sub, total, var)
         self.send(bytes([0x60]) + req[1:4] + bytes(4))
-        return SegmentedDownload(self, index, sub, size)
+        return SegmentedDownload(self, index, sub, total)
 
     def _initiate_upload(self, index: int, sub: int, data: bytes) -> Transfer | None:
         head = struct.pack("<HB", index, sub)
