@@ -115,9 +115,10 @@ def benchmark(seconds: float = 20.0, repeat: int = 3) -> dict[str, float]:
         if not samples:
             for e in ecus:
                 for name in e.tx_messages:
-                    tx = e._tx[name]
-                    if tx.sent:
-                        samples.append((tx.message, dict(tx.message.gather_signals(tx.values)), tx.sent))
+                    sent = e.sent(name)
+                    if sent:
+                        m = db.get_message_by_name(name)
+                        samples.append((m, dict(m.gather_signals(e.values(name))), sent))
         return dt
 
     t_ecu = _best(with_ecus, repeat)

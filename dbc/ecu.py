@@ -304,7 +304,7 @@ class _TxMessage:
         t = self.timing
         fire = kind == "OnWrite" or (kind == "OnChange" and self.changed(name, old, new))
         if t.if_active and name in self.active_signals:
-            self._activity(fire)
+            self.activity(fire)
         if fire:
             self.trigger(st.with_repetition or t.with_repetition)
 
@@ -333,7 +333,7 @@ class _TxMessage:
                 return True
         return False
 
-    def _activity(self, spontaneous: bool) -> None:
+    def activity(self, spontaneous: bool) -> None:
         """Re-evaluate activity after a write; ``spontaneous``: the write also triggers a
         spontaneous transmission (CyclicIfActiveAndSpontaneous, or a signal's own OnWrite or
         OnChange send type), which then is the one frame of
@@ -631,7 +631,7 @@ class Ecu:
                 fired = True
                 rep = rep or st.with_repetition or t.with_repetition
         if t.if_active:
-            tx._activity(fired)
+            tx.activity(fired)
         if fired:
             tx.trigger(rep)
 
