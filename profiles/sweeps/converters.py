@@ -1,7 +1,8 @@
-"""Converters: a `MessageSet` in one profile's terms, for the profiles study.
+"""Converters: a `MessageSet` in one profile's terms, for the profiles study
+(`profiles.sweeps.comparison.profiles_study`).
 
-**Profiles** (`profiles_study`). One message set expressed in each registered profile
-(`profiles.registry.profile_kinds`) that knows how: a *converter* takes the `MessageSet` and
+The study runs one message set in each registered profile (`profiles.registry.profile_kinds`)
+that knows how to express it: a *converter* takes the `MessageSet` and
 returns a scenario dictionary (what a TOML file reads as) in that profile's terms. CSMA/CR's is
 `csma_scenario`. Another profile provides its own in one of two ways:
 

@@ -1,6 +1,6 @@
 """Random message sets for the studies.
 
-**Random message sets** (`generate_set`). Deadlines equal periods, identifiers are distinct random
+`generate_set`: deadlines equal periods, identifiers are distinct random
 11-bit values (priority by identifier, as CAN arbitrates) handed out in deadline-monotonic order
 unless ``priorities="random"``, DLCs uniform in 0..8, messages dealt
 to nodes ``per_node`` at a time in random order. The utilisation U counts worst-case frames

@@ -1,6 +1,6 @@
 """The schedulability study: random message sets against utilisation, each analysed and simulated.
 
-**Schedulability** (`schedulability_study`). For each utilisation point and each set: does the
+For each utilisation point and each set (`schedulability_study`): does the
 response-time analysis (`profiles.analysis.rta.analyse`, via the experiments' own
 `profiles.pipeline.metrics.analyse_scenario`) guarantee every message, and does a simulation with
 priority queues, and one with FIFO queues, see no deadline miss? Release is synchronous (every
