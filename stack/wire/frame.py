@@ -1,7 +1,14 @@
-"""The CAN 2.0A/B frame value type and its rules (ISO 11898-1 data and remote frames).
+"""The frame value type and its rules: CAN 2.0A/B data and remote frames and CAN FD data frames
+(ISO 11898-1:2015).
 
 `Frame` is immutable and validated on construction. At the library boundary it converts to and
 from `can.Message`, the type users already hold; inside the engine it is the unit of arbitration.
+
+CAN FD (``fd=True``) frames carry 0..8, 12, 16, 20, 24, 32, 48 or 64 bytes (DLC 9..15 mean 12..64
+bytes); ``brs`` (bit rate switch) and ``esi`` (error state indicator, recessive = the transmitter is
+error passive) exist only in FD frames. FD has no remote frames: its RRS bit is always dominant, so
+an FD frame arbitrates exactly like a classical data frame with the same identifier (FDF comes
+after the arbitration field) and `arbitration_key` is the same function for both.
 """
 
 from __future__ import annotations
@@ -9,6 +16,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .coding import FrameBits, encode
+from .fd import FD_LENGTHS, encode_fd
 
 if TYPE_CHECKING:  # pragma: no cover
     import can  # imported where a Message is built: `canstack decode` starts without python-can
@@ -17,18 +25,50 @@ __all__ = [
     "Frame",
     "STANDARD_ID_MAX",
     "EXTENDED_ID_MAX",
+    "FD_LENGTHS",
     "arbitration_key",
     "data_length",
+    "len_to_dlc",
+    "pad_to_fd_length",
     "id_text",
 ]
 
 STANDARD_ID_MAX = 0x7FF
 EXTENDED_ID_MAX = 0x1FFFFFFF
 
+_FD_DLC = {n: dlc for dlc, n in enumerate(FD_LENGTHS)}
+_FD_LENGTHS_TEXT = "0..8, 12, 16, 20, 24, 32, 48 or 64"
 
-def data_length(dlc: int) -> int:
-    """Bytes carried by a data frame with this DLC: min(DLC, 8) (DLC 9..15 mean 8, CAN 2.0)."""
+
+def data_length(dlc: int, fd: bool = False) -> int:
+    """Bytes carried by a data frame with this DLC: min(DLC, 8) for a classical frame (DLC 9..15
+    mean 8, CAN 2.0); for a CAN FD frame DLC 9..15 mean 12, 16, 20, 24, 32, 48, 64 bytes."""
+    if fd:
+        return FD_LENGTHS[dlc]
     return dlc if dlc < 8 else 8
+
+
+def len_to_dlc(length: int) -> int:
+    """The DLC of a data field of ``length`` bytes (the smallest DLC meaning that many bytes):
+    0..8 for 0..8 bytes, 9..15 for the CAN FD lengths 12..64; any other length is a ValueError
+    naming it and the valid lengths (no padding: see `pad_to_fd_length`)."""
+    dlc = _FD_DLC.get(length) if isinstance(length, int) and not isinstance(length, bool) else None
+    if dlc is None:
+        raise ValueError(f"data of {length!r} bytes is not a CAN FD length: one of {_FD_LENGTHS_TEXT}")
+    return dlc
+
+
+def pad_to_fd_length(data: bytes | bytearray, fill: int = 0x00) -> bytes:
+    """``data`` padded with ``fill`` bytes to the next CAN FD length (12 bytes -> 12, 13 -> 16,
+    ..., at most 64). `Frame` never pads by itself: a length that is not an FD length is an error,
+    and padding (and its value: 0x00 here, 0xCC in ISO 15765-2 transport) is the caller's choice."""
+    if not 0 <= fill <= 0xFF:
+        raise ValueError(f"fill byte {fill!r} out of range: must be 0..255")
+    n = len(data)
+    if n > 64:
+        raise ValueError(f"data of {n} bytes: a CAN FD frame carries at most 64")
+    target = next(x for x in FD_LENGTHS if x >= n)
+    return bytes(data) + bytes([fill]) * (target - n)
 
 
 def arbitration_key(can_id: int, extended: bool, remote: bool) -> int:
@@ -56,17 +96,25 @@ def _hex(v: int) -> str:
 
 
 class Frame:
-    """A CAN 2.0 data or remote frame: identifier, format, DLC 0..15 and data.
+    """A CAN 2.0 data or remote frame, or a CAN FD data frame: identifier, format, DLC and data.
 
-    Rules enforced (ISO 11898-1 / CAN 2.0A/B):
+    Rules enforced (ISO 11898-1:2015, CAN 2.0A/B):
     - identifier 0..0x7FF (standard, 11 bits) or 0..0x1FFFFFFF (extended, 29 bits);
-    - DLC 0..15; a data frame carries min(DLC, 8) bytes, DLC 9..15 are kept and sent as given;
-    - a remote frame carries no data; its DLC is the length it requests.
+    - classical (``fd=False``): DLC 0..15; a data frame carries min(DLC, 8) bytes, DLC 9..15 are
+      kept and sent as given; a remote frame carries no data, its DLC is the length it requests;
+    - CAN FD (``fd=True``): 0..8, 12, 16, 20, 24, 32, 48 or 64 data bytes, the DLC follows from the
+      length (9..15 for 12..64); no remote frames (RRS is always dominant); ``brs`` switches to the
+      data bit rate, ``esi`` is sent recessive by an error-passive transmitter. ``brs`` and ``esi``
+      exist only in FD frames.
 
-    ``dlc`` defaults to ``len(data)`` for a data frame and 0 for a remote frame.
+    ``dlc`` defaults to ``len(data)`` for a classical data frame, 0 for a remote frame and the DLC
+    of the length for an FD frame.
+
+    ``bits`` (the `FrameBits` on the wire) and ``nbits`` (their number, SOF..EOF) are computed on
+    first use and then read as plain slots: the engine reads them once per frame on its hot path.
     """
 
-    __slots__ = ("can_id", "extended", "remote", "dlc", "data", "key", "_bits", "_nbits")
+    __slots__ = ("can_id", "extended", "remote", "dlc", "data", "key", "fd", "brs", "esi", "bits", "nbits")
 
     can_id: int
     extended: bool
@@ -74,6 +122,11 @@ class Frame:
     dlc: int
     data: bytes
     key: int
+    fd: bool
+    brs: bool
+    esi: bool
+    bits: FrameBits
+    nbits: int
 
     def __init__(
         self,
@@ -83,6 +136,9 @@ class Frame:
         extended: bool = False,
         remote: bool = False,
         dlc: int | None = None,
+        fd: bool = False,
+        brs: bool = False,
+        esi: bool = False,
     ) -> None:
         if isinstance(can_id, bool) or not isinstance(can_id, int):
             raise TypeError(f"identifier must be an int, got {can_id!r}")
@@ -94,19 +150,28 @@ class Frame:
             payload = bytes(data)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"data {data!r} is not a sequence of bytes 0..255: {exc}") from None
-        if remote and payload:
-            raise ValueError(
-                f"a remote frame carries no data (got {len(payload)} byte{'s' if len(payload) != 1 else ''}); "
-                "give the requested length as dlc"
-            )
-        if len(payload) > 8:
-            raise ValueError(f"data of {len(payload)} bytes: a CAN 2.0 frame carries at most 8")
-        if dlc is None:
-            dlc = 0 if remote else len(payload)
-        if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
-            raise ValueError(f"DLC {dlc!r} out of range: must be 0..15")
-        if not remote and len(payload) != data_length(dlc):
-            raise ValueError(f"DLC {dlc} means {data_length(dlc)} data bytes, but {len(payload)} were given")
+        if fd:
+            dlc = _fd_dlc(payload, remote, dlc)
+        else:
+            if brs or esi:
+                raise ValueError(
+                    f"{'BRS' if brs else 'ESI'} exists only in CAN FD frames (ISO 11898-1:2015): give fd=True"
+                )
+            if remote and payload:
+                raise ValueError(
+                    f"a remote frame carries no data (got {len(payload)} byte{'s' if len(payload) != 1 else ''}); "
+                    "give the requested length as dlc"
+                )
+            if len(payload) > 8:
+                raise ValueError(
+                    f"data of {len(payload)} bytes: a CAN 2.0 frame carries at most 8 (a CAN FD frame up to 64: fd=True)"
+                )
+            if dlc is None:
+                dlc = 0 if remote else len(payload)
+            if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
+                raise ValueError(f"DLC {dlc!r} out of range: must be 0..15")
+            if not remote and len(payload) != data_length(dlc):
+                raise ValueError(f"DLC {dlc} means {data_length(dlc)} data bytes, but {len(payload)} were given")
         sa = object.__setattr__
         sa(self, "can_id", can_id)
         sa(self, "extended", bool(extended))
@@ -114,8 +179,19 @@ class Frame:
         sa(self, "dlc", dlc)
         sa(self, "data", payload)
         sa(self, "key", arbitration_key(can_id, extended, remote))
-        sa(self, "_bits", None)
-        sa(self, "_nbits", 0)
+        sa(self, "fd", bool(fd))
+        sa(self, "brs", bool(brs))
+        sa(self, "esi", bool(esi))
+        # ``bits`` and ``nbits`` stay unset until first read (see __getattr__)
+
+    def __getattr__(self, name: str) -> Any:
+        # called only for an unset slot: encode once, then both are plain slot reads
+        if name == "bits" or name == "nbits":
+            fb = encode_fd(self) if self.fd else encode(self)
+            object.__setattr__(self, "bits", fb)
+            object.__setattr__(self, "nbits", len(fb.bits))
+            return fb if name == "bits" else len(fb.bits)
+        raise AttributeError(f"'Frame' object has no attribute {name!r}")
 
     # -- immutability -------------------------------------------------------------------------
     def __setattr__(self, name: str, value: Any) -> None:
@@ -132,9 +208,14 @@ class Frame:
             and self.dlc == other.dlc
             and self.data == other.data
             and self.extended == other.extended
+            and self.fd == other.fd
+            and self.brs == other.brs
+            and self.esi == other.esi
         )
 
     def __hash__(self) -> int:
+        if self.fd:
+            return hash((self.key, self.extended, self.dlc, self.data, True, self.brs, self.esi))
         return hash((self.key, self.extended, self.dlc, self.data))
 
     def __repr__(self) -> str:
@@ -146,11 +227,19 @@ class Frame:
             parts.append(f"dlc={self.dlc}")
         else:
             parts.append(f"data={self.data.hex()!r}" if self.data else "data=b''")
-            if self.dlc > 8:
+            if self.dlc > 8 and not self.fd:
                 parts.append(f"dlc={self.dlc}")
+        if self.fd:
+            parts.append("fd=True")
+            if self.brs:
+                parts.append("brs=True")
+            if self.esi:
+                parts.append("esi=True")
         return f"Frame({', '.join(parts)})"
 
     def __reduce__(self) -> tuple[Any, ...]:
+        if self.fd:
+            return (_rebuild, (self.can_id, self.data, self.extended, self.remote, self.dlc, True, self.brs, self.esi))
         return (_rebuild, (self.can_id, self.data, self.extended, self.remote, self.dlc))
 
     # -- derived values ---------------------------------------------------------------------
@@ -160,19 +249,10 @@ class Frame:
         return len(self.data)
 
     @property
-    def bits(self) -> FrameBits:
-        """The frame's exact bit sequence on the wire, computed once (see `stack.bits`)."""
-        b = self._bits
-        if b is None:
-            b = encode(self)
-            object.__setattr__(self, "_bits", b)
-            object.__setattr__(self, "_nbits", len(b.bits))
-        return b
-
-    @property
     def wire_bits(self) -> int:
-        """Exact length in bits from SOF to the end of EOF, stuff bits included."""
-        return self.bits.length
+        """Exact length in bits from SOF to the end of EOF, stuff bits included (FD: dynamic and
+        fixed stuff bits)."""
+        return self.nbits
 
     # -- python-can boundary ------------------------------------------------------------------
     def to_message(self, timestamp: float = 0.0, channel: Any = None) -> can.Message:
@@ -212,5 +292,34 @@ class Frame:
         return cls(msg.arbitration_id, data, extended=msg.is_extended_id)
 
 
-def _rebuild(can_id: int, data: bytes, extended: bool, remote: bool, dlc: int) -> Frame:
-    return Frame(can_id, data, extended=extended, remote=remote, dlc=dlc)
+def _fd_dlc(payload: bytes, remote: bool, dlc: int | None) -> int:
+    """The DLC of an FD frame's data (the rules of `Frame` for ``fd=True``)."""
+    if remote:
+        raise ValueError(
+            "CAN FD has no remote frames (its RRS bit is always dominant, ISO 11898-1:2015): "
+            "send a classical remote frame (fd=False)"
+        )
+    n = len(payload)
+    fd_dlc = _FD_DLC.get(n)
+    if fd_dlc is None:
+        raise ValueError(f"data of {n} bytes is not a CAN FD length: one of {_FD_LENGTHS_TEXT} (pad_to_fd_length pads)")
+    if dlc is None:
+        return fd_dlc
+    if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
+        raise ValueError(f"DLC {dlc!r} out of range: must be 0..15")
+    if dlc == fd_dlc:
+        return fd_dlc
+    raise ValueError(f"DLC {dlc} means {FD_LENGTHS[dlc]} data bytes in a CAN FD frame, but {n} were given")
+
+
+def _rebuild(
+    can_id: int,
+    data: bytes,
+    extended: bool,
+    remote: bool,
+    dlc: int,
+    fd: bool = False,
+    brs: bool = False,
+    esi: bool = False,
+) -> Frame:
+    return Frame(can_id, data, extended=extended, remote=remote, dlc=dlc, fd=fd, brs=brs, esi=esi)
