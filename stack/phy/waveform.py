@@ -46,7 +46,7 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-from stack.wire.coding import INTERMISSION_BITS, Field
+from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.decoder import BitDecoder, BitError, DecodedFrame
 from stack.wire.frame import Frame
 
@@ -1053,7 +1053,7 @@ def decode_samples(
         t = sof / samplerate
         if res is None:
             # the capture ended inside the frame
-            err = BitError("truncated", dec.field, dec._field_index, dec.position)
+            err = BitError("truncated", dec.field, dec.field_index, dec.position)
             out.append(_record(t, sof, None, err, dec))
             break
         if not res.ok and retry:
@@ -1099,15 +1099,13 @@ def _record(
     if res is None:
         # truncated: what the decoder had collected when the samples ran out
         assert dec is not None
-        can_id = dec._id if Field.RTR in dec._done else None
-        dlc = dec._dlc if Field.DLC in dec._done else None
         return RxRecord(
             t,
             sof,
-            can_id,
-            dec._ext,
-            bool(dec._rtr),
-            dlc,
+            dec.can_id,
+            dec.extended,
+            dec.remote,
+            dec.dlc,
             dec.received_data,
             dec.received_crc,
             False,
