@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.bus.sim import SimBus
-from stack.cli import CliError, parse_bitrate, parse_int, plural, seconds_type
+from stack.cli import CliError, int_type, parse_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (
     MAX_SIM_SECONDS,
     check_output,
@@ -20,7 +20,8 @@ from stack.cli.runs import (
     trc_dropped,
     writing,
 )
-from stack.wire.coding import INTERMISSION_BITS, worst_case_length
+from stack.wire.coding import INTERMISSION_BITS, Field
+from stack.wire.fd import worst_case_bits
 from stack.wire.frame import Frame
 
 __all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json"]
@@ -236,38 +237,103 @@ def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
     return len(recs)
 
 
+#: A CAN FD data-phase bit rate (ISO 11898-1:2015 sets no upper limit; transceivers of ISO
+#: 11898-2:2016 are specified for 2 and 5 Mbit/s, SIC ones up to 8).
+parse_data_bitrate = int_type(
+    1_000, 16_000_000, "a whole number of bit/s", "a CAN FD data phase runs at 1000..16000000 bit/s"
+)
+
+
 def _frame_from_args(args: argparse.Namespace) -> Frame:
     try:
         data = bytes.fromhex(args.data.replace(" ", "")) if args.data else b""
     except ValueError:
         raise CliError(f"--data {args.data!r} is not hex bytes (e.g. 4001087500000000)") from None
-    return Frame(args.id, data, extended=args.extended, remote=args.remote, dlc=args.dlc)
+    if not args.fd:
+        for flag in ("brs", "esi"):
+            if getattr(args, flag):
+                raise CliError(f"--{flag} needs --fd: {flag.upper()} exists only in CAN FD frames")
+        if len(data) > 8:
+            raise CliError(f"--data of {len(data)} bytes: a CAN 2.0 frame carries at most 8 (up to 64 with --fd)")
+    elif args.remote:
+        raise CliError("--remote with --fd: CAN FD has no remote frames (its RRS bit is always dominant)")
+    if args.data_bitrate is not None:
+        if args.bitrate is None:
+            raise CliError("--data-bitrate needs --bitrate (the nominal bit rate)")
+        if args.data_bitrate < args.bitrate:
+            raise CliError(
+                f"--data-bitrate {args.data_bitrate} below --bitrate {args.bitrate}: "
+                "the data phase is at least as fast as the arbitration phase"
+            )
+    frame = Frame(
+        args.id, data, extended=args.extended, remote=args.remote, dlc=args.dlc, fd=args.fd, brs=args.brs, esi=args.esi
+    )
+    if frame.brs and args.bitrate is not None and args.data_bitrate is None:
+        raise CliError("--brs with --bitrate needs --data-bitrate: the bits after BRS go at the data bit rate")
+    return frame
 
 
 def _frame(args: argparse.Namespace) -> int:
     frame = _frame_from_args(args)
     fb = frame.bits
+    duration = fb.duration_ns(args.bitrate, args.data_bitrate) if args.bitrate is not None else None
     if args.json:
-        print(json.dumps({"bits": fb.bits, "crc": fb.crc, "length": fb.length, "stuff_bits": fb.stuff_count}))
+        out: dict[str, Any] = {"bits": fb.bits, "crc": fb.crc, "length": fb.length, "stuff_bits": fb.stuff_count}
+        if frame.fd:
+            out.update(
+                stuff_count=fb.stuff_count % 8,
+                stuff_count_bits=f"{fb.stuff_count_bits:04b}",
+                fixed_stuff_bits=len(fb.fixed_stuff_positions),
+                crc_bits=fb.crc_width,
+                nominal_bits=fb.nominal_bits,
+                data_bits=fb.data_bits,
+            )
+        if duration is not None:
+            out["duration_ns"] = duration
+        print(json.dumps(out))
         return 0
     stuff = set(fb.stuff_positions)
+    fixed = set(fb.fixed_stuff_positions)
+    worst = worst_case_bits(frame.length, frame.extended, fd=frame.fd, brs=frame.brs).total
     print(f"frame       {frame!r}")
-    print(f"CRC         0x{fb.crc:04X}")
-    print(
-        f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
-        f"worst case {worst_case_length(frame.length, frame.extended)}"
-    )
-    print("bits        (stuff bits in [ ])")
+    if frame.fd:
+        print(f"CRC         0x{fb.crc:0{(fb.crc_width + 3) // 4}X} (CRC-{fb.crc_width})")
+        print(
+            f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits, {len(fixed)} fixed stuff bits), "
+            f"+{INTERMISSION_BITS} intermission; worst case {worst}"
+        )
+        print(
+            f"stuff count {fb.stuff_count % 8} ({fb.stuff_count} mod 8), sent as {fb.stuff_count_bits:04b} (Gray code, parity)"
+        )
+        if frame.brs:
+            print(
+                f"bit rates   {fb.nominal_bits} bits at the nominal rate, {fb.data_bits} at the data rate "
+                "(after BRS up to the CRC delimiter)"
+            )
+        else:
+            print(f"bit rates   all {fb.length} bits at the nominal rate (no BRS)")
+    else:
+        print(f"CRC         0x{fb.crc:04X}")
+        print(
+            f"length      {fb.length} bits SOF..EOF ({fb.stuff_count} stuff bits), +{INTERMISSION_BITS} intermission; "
+            f"worst case {worst}"
+        )
+    if duration is not None:
+        rates = f"{args.bitrate} / {args.data_bitrate} bit/s" if frame.brs else f"{args.bitrate} bit/s"
+        print(f"duration    {duration / 1000:.3f} us SOF..EOF at {rates}")
+    print("bits        (stuff bits in [ ], fixed stuff bits in { })" if frame.fd else "bits        (stuff bits in [ ])")
     for fld, positions in fb.fields.items():
-        if not positions:
+        if not positions or fld is Field.FIXED_STUFF:
             continue
-        out = []
+        out_bits = []
         for p in range(positions[0], positions[-1] + 2):
             if p in stuff:
-                out.append(f"[{fb.bits[p]}]")
+                out_bits.append(f"[{fb.bits[p]}]")
+            elif p in fixed:
+                out_bits.append(f"{{{fb.bits[p]}}}")
             elif p in positions:
-                out.append(fb.bits[p])
-        print(f"  {fld.value:<10}{''.join(out)}")
+                out_bits.append(fb.bits[p])
+        print(f"  {fld.value:<{14 if frame.fd else 10}}{''.join(out_bits)}")
     print(f"stuffed     {fb.bits}")
     return 0
 
@@ -325,15 +391,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "frame",
         help="show a frame's bits on the wire: stuffing, CRC, length",
-        description="Build a CAN 2.0 frame and show its bit stream SOF..EOF field by field with the stuff "
-        "bits marked, its CRC-15, its exact stuffed length and the worst case for its data length.",
+        description="Build a CAN 2.0 or CAN FD frame and show its bit stream SOF..EOF field by field with the "
+        "stuff bits marked, its CRC (CRC-15; FD: CRC-17/21 and the stuff count, ISO 11898-1:2015), its exact "
+        "stuffed length and the worst case for its data length; FD frames also the bits at the data bit rate, "
+        "and with --bitrate (and --data-bitrate) the frame's duration.",
     )
     p.add_argument("--id", type=parse_int, required=True, help="identifier (0x hex or decimal)")
-    p.add_argument("--data", default="", help="data bytes as hex, e.g. 4001087500000000 (spaces allowed)")
+    p.add_argument(
+        "--data", default="", help="data bytes as hex, e.g. 4001087500000000 (spaces allowed); FD: 0..8, 12..64"
+    )
     p.add_argument("--extended", action="store_true", help="29-bit identifier")
-    p.add_argument("--remote", action="store_true", help="remote frame (give --dlc)")
+    p.add_argument("--remote", action="store_true", help="remote frame (give --dlc; not with --fd)")
     p.add_argument("--dlc", type=parse_int, default=None, help="DLC 0..15 (default: data length)")
-    p.add_argument("--json", action="store_true", help="print bits, crc, length and stuff bits as JSON")
+    p.add_argument("--fd", action="store_true", help="a CAN FD frame (ISO 11898-1:2015)")
+    p.add_argument("--brs", action="store_true", help="FD: bit rate switch (the data phase at --data-bitrate)")
+    p.add_argument("--esi", action="store_true", help="FD: error state indicator recessive (transmitter error passive)")
+    p.add_argument("--bitrate", type=parse_bitrate, default=None, help="nominal bit/s: print the frame's duration")
+    p.add_argument("--data-bitrate", type=parse_data_bitrate, default=None, help="FD with --brs: the data-phase bit/s")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print bits, crc, length and stuff bits as JSON (FD: also stuff count, fixed stuff bits, CRC bits, "
+        "bits at the nominal and data rates; duration_ns with --bitrate)",
+    )
     p.set_defaults(func=_frame)
 
 

@@ -302,7 +302,7 @@ def _fd_dlc(payload: bytes, remote: bool, dlc: int | None) -> int:
     n = len(payload)
     fd_dlc = _FD_DLC.get(n)
     if fd_dlc is None:
-        raise ValueError(f"data of {n} bytes is not a CAN FD length: one of {_FD_LENGTHS_TEXT} (pad_to_fd_length pads)")
+        raise ValueError(f"data of {n} bytes is not a CAN FD length: one of {_FD_LENGTHS_TEXT}")
     if dlc is None:
         return fd_dlc
     if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
