@@ -427,7 +427,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 if heap and heap[0][0] == req.key:
                     heappush(heap, (req.key, req.seq, req))
                     break
-                nbits = frame.nbits
+                nbits = frame.nbits or frame.wire_bits
                 end = t0 + dur[nbits]
                 if end >= bound:
                     heappush(heap, (req.key, req.seq, req))
@@ -642,7 +642,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         if self._arb_watch:
             self._notify_losers(now, r, txs)
         frame = winner.frame
-        fb = frame.bits
+        fb = frame.encoded or frame.bits
         spec = self._faults.attempt(self, now, txs) if self._faults is not None else None
         if len(txs) > 1:
             # several nodes send the same arbitration field: replayed bit by bit, a collision if
