@@ -34,6 +34,11 @@ __all__ = ["BitError", "DecodedFrame", "BitDecoder", "decode", "MODES"]
 #: What a receiver can be (see the module docstring).
 MODES = ("classic", "tolerant", "fd")
 
+_SOF, _ID, _RTR, _IDE, _ID_EXT = Field.SOF, Field.ID, Field.RTR, Field.IDE, Field.ID_EXT
+_R0, _R1, _RES, _BRS, _ESI, _DLC, _DATA = Field.R0, Field.R1, Field.RES, Field.BRS, Field.ESI, Field.DLC, Field.DATA
+_STUFF_COUNT, _CRC, _CRC_DELIM = Field.STUFF_COUNT, Field.CRC, Field.CRC_DELIM
+_ACK_SLOT, _ACK_DELIM, _EOF = Field.ACK_SLOT, Field.ACK_DELIM, Field.EOF
+
 
 @dataclass(frozen=True)
 class BitError:
@@ -111,6 +116,7 @@ class BitDecoder:
         if mode not in MODES:
             raise ValueError(f"receiver mode {mode!r}: one of {', '.join(MODES)}")
         self._mode = mode
+        self._collect = mode == "fd"
         self.reset()
 
     def reset(self) -> None:
@@ -294,13 +300,14 @@ class BitDecoder:
         pos = self._pos
         self._pos = pos + 1
         if self._stuffing:
-            self._sraw = (self._sraw << 1) | bit
+            if self._collect:  # an FD receiver keeps every bit for the CRC-17/21 (stuff bits included)
+                self._sraw = (self._sraw << 1) | bit
             if self._expect_stuff:
                 if bit == self._last:
                     return self._result(BitError("stuff", self._field, self._field_index, pos))
                 self._last, self._run, self._expect_stuff = bit, 1, False
                 self._stuff_count += 1
-                if self._field == Field.CRC_DELIM:
+                if self._field is _CRC_DELIM:
                     self._stuffing = False
                 return None
             if bit == self._last:
@@ -326,7 +333,7 @@ class BitDecoder:
                 self._li += 1
             if self._li < len(self._layout):
                 self._field = self._layout[self._li][0]
-                if self._field is Field.STUFF_COUNT:
+                if self._field is _STUFF_COUNT:
                     # end of the FD data field: fixed stuffing from here (a pending dynamic stuff
                     # bit is replaced by the first fixed stuff bit)
                     self._stuffing = False
@@ -334,32 +341,55 @@ class BitDecoder:
                     self._fixed = True
                     self._dyn_len = self._pos
             else:
-                self._field = Field.CRC_DELIM
+                self._field = _CRC_DELIM
                 self._fixed = False
                 if not self._expect_stuff:
                     self._stuffing = False
 
     def _stuffed_bit(self, bit: int, pos: int) -> DecodedFrame | None:
+        # fields by how often their bits come (data first); module-level names and `is`: an
+        # attribute of the Enum class costs ~4x a global read on CPython 3.11
         f = self._field
-        if f != Field.CRC:
+        if f is not _CRC:
             self._crc = ((self._crc << 1) & 0x7FFF) ^ (CRC15_POLY if bit ^ (self._crc >> 14) else 0)
-        if f == Field.ID:
+        if f is _DATA:
+            self._data = (self._data << 1) | bit
+        elif f is _CRC:
+            self._crc_rx = (self._crc_rx << 1) | bit
+        elif f is _ID or f is _ID_EXT:
             self._id = (self._id << 1) | bit
-        elif f == Field.RTR:
+        elif f is _DLC:
+            self._dlc = (self._dlc << 1) | bit
+            if self._field_index == 3:
+                if self._fd:
+                    n = data_length(self._dlc, True)
+                    self._layout += [
+                        (_DATA, 8 * n),
+                        (_STUFF_COUNT, 3),
+                        (Field.STUFF_PARITY, 1),
+                        (_CRC, 17 if n <= 16 else 21),
+                    ]
+                else:
+                    n = 0 if self._rtr else data_length(self._dlc)
+                    self._layout += [(_DATA, 8 * n), (_CRC, 15)]
+        elif f is _SOF:
+            if self._li == 0:
+                self._layout.insert(3, (Field.IDE, 1))
+        elif f is _RTR:
             # in a standard frame this is RTR; if IDE turns out 1 it was SRR
             self._rtr = bit
             if self._ext:
                 self._layout.append((Field.R1, 1))
                 self._id_ok = True
-        elif f == Field.IDE and self._li == 3:
+        elif f is _IDE and self._li == 3:
             if bit:
                 self._ext = True
                 self._layout[2] = (Field.SRR, 1)
-                self._layout += [(Field.ID_EXT, 18), (Field.RTR, 1)]
+                self._layout += [(_ID_EXT, 18), (_RTR, 1)]
             else:
-                self._layout.append((Field.R0, 1))
+                self._layout.append((_R0, 1))
                 self._id_ok = True
-        elif f == Field.R1 or (f == Field.R0 and not self._ext):
+        elif f is _R1 or (f is _R0 and not self._ext):
             # standard r0 / extended r1: FDF in an ISO 11898-1:2015 frame
             if bit and self._mode != "classic":
                 if self._mode == "tolerant":
@@ -368,43 +398,18 @@ class BitDecoder:
                 self._layout[self._li] = (Field.FDF, 1)
                 self._layout[5 if self._ext else 2] = (Field.RRS, 1)  # it was RRS, not RTR
                 self._done.add(Field.RRS)
-                self._layout += [(Field.RES, 1), (Field.BRS, 1), (Field.ESI, 1), (Field.DLC, 4)]
-            elif f == Field.R1:
-                self._layout += [(Field.R0, 1), (Field.DLC, 4)]
+                self._layout += [(_RES, 1), (_BRS, 1), (_ESI, 1), (_DLC, 4)]
+            elif f is _R1:
+                self._layout += [(_R0, 1), (_DLC, 4)]
             else:
-                self._layout.append((Field.DLC, 4))
-        elif f == Field.RES:
+                self._layout.append((_DLC, 4))
+        elif f is _RES:
             if bit:  # protocol exception event (ISO 11898-1:2015): no error frame, bus integration
-                return self._result(BitError("exception", Field.RES, 0, pos))
-        elif f == Field.BRS:
+                return self._result(BitError("exception", _RES, 0, pos))
+        elif f is _BRS:
             self._brs = bit
-        elif f == Field.ESI:
+        elif f is _ESI:
             self._esi = bit
-        elif f == Field.SRR:
-            pass
-        elif f == Field.ID_EXT:
-            self._id = (self._id << 1) | bit
-        elif f == Field.DLC:
-            self._dlc = (self._dlc << 1) | bit
-            if self._field_index == 3:
-                if self._fd:
-                    n = data_length(self._dlc, True)
-                    width = 17 if n <= 16 else 21
-                    self._layout += [
-                        (Field.DATA, 8 * n),
-                        (Field.STUFF_COUNT, 3),
-                        (Field.STUFF_PARITY, 1),
-                        (Field.CRC, width),
-                    ]
-                else:
-                    n = 0 if self._rtr else data_length(self._dlc)
-                    self._layout += [(Field.DATA, 8 * n), (Field.CRC, 15)]
-        elif f == Field.DATA:
-            self._data = (self._data << 1) | bit
-        elif f == Field.CRC:
-            self._crc_rx = (self._crc_rx << 1) | bit
-        if f == Field.SOF and self._li == 0:
-            self._layout.insert(3, (Field.IDE, 1))
         self._advance()
         return None
 
@@ -420,12 +425,12 @@ class BitDecoder:
             return None
         self._last = bit
         f = self._field
-        if f == Field.CRC:
+        if f is _CRC:
             self._crc_rx = (self._crc_rx << 1) | bit
         else:  # STUFF_COUNT, STUFF_PARITY: covered by the CRC
             self._sc_rx = (self._sc_rx << 1) | bit
             self._sraw = (self._sraw << 1) | bit
-            if f == Field.STUFF_PARITY:
+            if f is Field.STUFF_PARITY:
                 width = self._layout[-1][1]
                 self._crc = crc_fd_int(self._sraw, self._dyn_len + 4, width)
                 self._sc_ok = self._sc_rx == stuff_count_bits(self._stuff_count)
@@ -434,22 +439,7 @@ class BitDecoder:
 
     def _fixed_bit(self, bit: int, pos: int) -> DecodedFrame | None:
         f = self._field
-        if f == Field.CRC_DELIM:
-            self._crc_ok = self._crc == self._crc_rx and self._sc_ok
-            if not bit:
-                return self._result(BitError("form", f, 0, pos))
-            self._field, self._field_index = Field.ACK_SLOT, 0
-        elif f == Field.ACK_SLOT:
-            self._ack = bit == 0
-            self._field = Field.ACK_DELIM
-        elif f == Field.ACK_DELIM:
-            if not bit:
-                return self._result(BitError("form", f, 0, pos))
-            if not self._crc_ok:
-                # a CRC error (FD: or stuff count error) is signalled after the ACK delimiter
-                return self._result(BitError("crc", Field.CRC if self._sc_ok else Field.STUFF_COUNT, 0, pos))
-            self._field, self._field_index = Field.EOF, 0
-        elif f == Field.EOF:
+        if f is _EOF:
             i = self._field_index
             if not bit:
                 if i < 6:
@@ -458,6 +448,21 @@ class BitDecoder:
             if i == 6:
                 return self._result(None)
             self._field_index = i + 1
+        elif f is _CRC_DELIM:
+            self._crc_ok = self._crc == self._crc_rx and self._sc_ok
+            if not bit:
+                return self._result(BitError("form", f, 0, pos))
+            self._field, self._field_index = _ACK_SLOT, 0
+        elif f is _ACK_SLOT:
+            self._ack = bit == 0
+            self._field = _ACK_DELIM
+        elif f is _ACK_DELIM:
+            if not bit:
+                return self._result(BitError("form", f, 0, pos))
+            if not self._crc_ok:
+                # a CRC error (FD: or stuff count error) is signalled after the ACK delimiter
+                return self._result(BitError("crc", _CRC if self._sc_ok else _STUFF_COUNT, 0, pos))
+            self._field, self._field_index = _EOF, 0
         return None
 
 
