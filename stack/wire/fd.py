@@ -17,12 +17,20 @@ Design note (the API later layers build on)
   `worst_case_bits(n, extended, fd=..., brs=...)` -> `WorstCase(nominal, data)` (classical:
   ``(stack.wire.coding.worst_case_length(n, extended), 0)``), `worst_case_duration_ns(...)`, and
   `worst_case_fields` for a frame that is that long.
-- Receiving: `stack.wire.decoder.BitDecoder` decodes both kinds; errors are `BitError` with kind
+- `Frame` slots ``encoded`` (the FrameBits once computed, else None) and ``nbits`` (0 until then):
+  hot paths read ``frame.nbits or frame.wire_bits`` and ``frame.encoded or frame.bits``.
+- Receiving: `stack.wire.decoder.BitDecoder(mode)` with mode 'classic' (CAN 2.0, the default: the
+  behaviour before FD), 'tolerant' or 'fd' (see `stack.wire.decoder`); what it has received is
+  public (``can_id``, ``extended``, ``remote``, ``dlc``, ``fd``, ``brs``, ``esi``, ``field``,
+  ``field_index``, ``received_data``, ``received_crc``); `DecodedFrame` adds ``fd``, ``brs``,
+  ``esi`` and ``stuff_count_bits``. Errors are `BitError` with kind
   'stuff' (dynamic stuff bits), 'form' (fixed-form bits and FD fixed stuff bits, field
   FIXED_STUFF), 'crc' (field CRC, or STUFF_COUNT when the stuff count or its parity mismatched:
   both are CRC errors, signalled after the ACK delimiter) and 'exception' (the protocol exception
   event: an FD node that sees res recessive, or a "tolerant" classical node that sees FDF
-  recessive, goes bus integrating without an error frame).
+  recessive, goes bus integrating without an error frame). Not modelled: the tolerance of ISO
+  16845-1 test 8.2.7 for a CRC delimiter or ACK stretched to 2 bits by the switch back to the
+  nominal rate (all nodes of the simulated bus sample the same bits).
 
 The rules (ISO 11898-1:2015; 0 = dominant, 1 = recessive)
 ----------------------------------------------------------
@@ -409,10 +417,18 @@ def worst_case_bits(n: int, extended: bool = False, *, fd: bool = False, brs: bo
 
     Classical frames: `stack.wire.coding.worst_case_length` (Davis et al. 2007). CAN FD, derived
     from ISO 11898-1:2015: the fixed bits SOF..DLC (22 standard, 41 extended) + 8n data bits + the
-    most dynamic stuff bits any identifier, ESI and data can cause (exact, see `_max_stuff`), then
-    the CRC field: 4 stuff-count bits, the CRC (17 bits up to 16 bytes, 21 above) and its fixed
-    stuff bits (6 or 7), then the CRC delimiter, ACK slot, ACK delimiter and EOF(7). With BRS the
-    bits after BRS up to the CRC delimiter count at the data rate (see `FrameBits.data_bits`).
+    most dynamic stuff bits any identifier, ESI and data can cause, then the CRC field: 4
+    stuff-count bits, the CRC (17 bits up to 16 bytes, 21 above) and its fixed stuff bits (6 or 7),
+    then the CRC delimiter, ACK slot, ACK delimiter and EOF(7). With BRS the bits after BRS up to
+    the CRC delimiter count at the data rate (see `FrameBits.data_bits`).
+
+    The stuff bits are exact, not a bound: the dynamic region mixes free bits (identifier, ESI,
+    data) with fixed ones (SOF, SRR, IDE, RRS, FDF, res, BRS, the DLC of n bytes), so the closed
+    forms of the literature (e.g. the Linux kernel's can_frame_bits: L + (L - 1) // 4 over the
+    L bits SOF..data) over-count by 1 to 4 bits; `_max_stuff` finds the maximum over all frames
+    by dynamic programming on the stuffing state. At most 3 stuff bits before BRS (standard,
+    SOF..IDE) or 7 (extended); after it, e.g. 16 for 8 bytes and 128 for 64 bytes. Standard, 64
+    bytes, BRS: 29 bits at the nominal rate, 678 at the data rate.
     """
     if not fd:
         if brs:

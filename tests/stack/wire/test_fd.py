@@ -551,6 +551,19 @@ def test_worst_case_is_reached_by_a_frame(ext, brs):
         assert fb.bits == reference_encode(f)["bits"]
 
 
+def test_worst_case_within_the_linux_kernel_closed_form():
+    # include/linux/can/length.h (can_frame_bits, 2023): header SOF..DLC 22 / 41 bits, L + (L - 1) // 4
+    # over header + data for the dynamic stuffing, CRC field incl. stuff count, fixed stuff bits and
+    # CRC delimiter 28 / 33 bits, then ACK slot, ACK delimiter, EOF 9: a bound, never below the exact one
+    for n in FD_LENGTHS:
+        for ext in (False, True):
+            body = (41 if ext else 22) + 8 * n
+            kernel = body + (body - 1) // 4 + (28 if n <= 16 else 33) + 9
+            for brs in (False, True):
+                exact = worst_case_bits(n, ext, fd=True, brs=brs).total
+                assert kernel - 4 <= exact <= kernel, (n, ext, brs, exact, kernel)
+
+
 def test_worst_case_figures():
     # the unstuffed parts by hand (standard, 64 bytes, BRS): SOF..BRS 17 at the nominal rate and
     # ACK slot..EOF 9; ESI, DLC, 512 data bits, stuff count 4, CRC 21, fixed stuff 7, CRC delimiter 1
