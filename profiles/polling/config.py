@@ -29,6 +29,7 @@ lists), each slave's connections, and the frames they use — read from ``[[node
     style = "cos"
     slave = "door9"
     ack = true                # the master acknowledges each one
+    epr_ms = 50               # expected packet rate: the slave's heartbeat when nothing changes
 
     [[nodes]]
     name = "valve1"
@@ -36,12 +37,24 @@ lists), each slave's connections, and the frames they use — read from ``[[node
     mac_id = 1
     processing_ms = 0.05      # longest time from the request's end to queuing the answer
     processing_min_ms = 0.02  # shortest (default: processing_ms); drawn uniformly, seeded
-    watchdog_ms = 20          # loss of master when not polled for this long (default 4 cycles)
+    watchdog_ms = 20          # loss of master when not polled for this long (default 4 x epr_ms)
+    ack_timeout_ms = 16       # an acknowledged COS/cyclic message is sent again after this ...
+    retry_limit = 1           # ... at most this many times (DeviceNet's Acknowledge Handler)
 
     [[nodes.messages]]        # untimed: released by the poll; timed: COS/cyclic production
     name = "valve1_in"
     id = 0x3C1                # DeviceNet: 0x3C0|MAC poll response, 0x380|MAC strobe response,
     dlc = 4                   #            0x340|MAC change of state / cyclic (timed)
+
+Connections (DeviceNet's I/O connections, CIP Vol. 3 ch. 3 and the Connection object's attributes
+as device manuals reprint them): every connection has an expected packet rate (EPR, attribute 9)
+and each end a watchdog of 4 × EPR over what it consumes. The poll and bit-strobe connections'
+EPR is the master's ``epr_ms`` (default: ``cycle_ms``); the slave's watchdog over the requests is
+``watchdog_ms`` (default 4 × that EPR). A change-of-state connection's EPR is its entry's
+``epr_ms`` (required: the slave sends its data at that rate when nothing changes — the heartbeat —
+and never faster than the message's ``sporadic_ms``, its production inhibit time); a cyclic
+connection's is its message's period. The master's watchdog over a COS/cyclic connection is 4 ×
+its EPR; the slave's over the acknowledgements, when the connection is acknowledged, too.
 
 Under the custom plan an entry names its identifiers: ``id`` (the request; a bit-strobe command),
 ``response_id`` (polled, remote), ``response_ids`` (bit-strobe, one per slave), ``ack_id`` (cos).
@@ -91,9 +104,13 @@ __all__ = [
     "POLL_KEYS",
     "STYLES",
     "NETWORK_TABLE",
+    "WATCHDOG_EPRS",
 ]
 
 STYLES = ("polled", "remote", "bit_strobe", "cos")
+WATCHDOG_EPRS = 4
+"""A connection times out after 4 × its expected packet rate without a packet (DeviceNet: the
+inactivity/watchdog timer; Rockwell 1769-SDN manual, "Expected Packet Rate")."""
 NETWORK_TABLE = "master_slave"
 """Where the parsed network lives in ``scenario.tables``."""
 
@@ -113,6 +130,12 @@ MASTER_KEYS = {
     "lost_after": Key(int, 3, positive("missed polls"), "missed polls in a row that make a slave lost"),
     "lost_poll_every": Key(int, 10, positive("cycles"), "a lost slave is polled every this many cycles"),
     "restart_after_bus_off": Key(bool, True, doc="resume polling when the controller recovers (rule 12)"),
+    "epr_ms": Key(
+        float,
+        None,
+        positive("an expected packet rate"),
+        "expected packet rate of the poll and bit-strobe connections (default: cycle_ms)",
+    ),
 }
 
 SLAVE_KEYS = {
@@ -125,7 +148,19 @@ SLAVE_KEYS = {
         float,
         None,
         positive("a watchdog time"),
-        "loss of master after this long without a request (default: 4 poll cycles)",
+        "loss of master after this long without a request (default: 4 x the master's epr_ms)",
+    ),
+    "ack_timeout_ms": Key(
+        float,
+        16.0,
+        positive("an acknowledge timer"),
+        "an acknowledged COS/cyclic message unacknowledged this long is sent again (DeviceNet default 16 ms)",
+    ),
+    "retry_limit": Key(
+        int,
+        1,
+        in_range(0, 255, "retries (the Acknowledge Handler's Retry Limit is a USINT)"),
+        "times an unacknowledged COS/cyclic message is sent again (DeviceNet default 1)",
     ),
 }
 
@@ -144,6 +179,7 @@ POLL_KEYS = {
     "retries": Key(int, None, non_negative("retries")),
     "ack": Key(bool, True, doc="cos: the master acknowledges each COS/cyclic message"),
     "ack_id": Key(int, None, non_negative()),
+    "epr_ms": Key(float, None, positive("an expected packet rate"), "cos: the connection's expected packet rate"),
 }
 
 # keys that mean something only for some styles (the others refuse them)
@@ -151,7 +187,7 @@ _STYLE_KEYS = {
     "polled": {"slave", "name", "dlc", "data", "id", "extended", "response_id", "timeout_ms", "retries"},
     "remote": {"slave", "name", "extended", "response_id", "timeout_ms", "retries"},
     "bit_strobe": {"slaves", "name", "dlc", "data", "id", "extended", "response_ids", "timeout_ms"},
-    "cos": {"slave", "name", "extended", "ack", "ack_id"},
+    "cos": {"slave", "name", "extended", "ack", "ack_id", "epr_ms"},
 }
 _WHY_NOT = {
     ("bit_strobe", "retries"): "a bit-strobe command is a broadcast: repeating it makes every strobed slave answer "
@@ -183,12 +219,20 @@ class Transaction:
 @dataclass(frozen=True)
 class CosLink:
     """A change-of-state / cyclic connection: the slave produces ``messages`` on its own; the
-    master consumes them and acknowledges each with ``ack`` (None: no acknowledgement)."""
+    master consumes them and acknowledges each with ``ack`` (None: no acknowledgement).
+    ``epr_ns`` is each message's expected packet rate (a COS message's heartbeat, a cyclic
+    message's period); the master's watchdog over the connection is 4 × the longest."""
 
     index: int
     slave: str
     messages: tuple[MessageDecl, ...]
     ack: MessageDecl | None
+    epr_ns: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def watchdog_ns(self) -> int:
+        """The consumer's inactivity/watchdog timeout: 4 × the connection's EPR."""
+        return WATCHDOG_EPRS * max(self.epr_ns.values(), default=0)
 
 
 @dataclass
@@ -201,6 +245,7 @@ class MasterConfig:
     plan: str
     cycle_ns: int
     offset_ns: int
+    epr_ns: int
     lost_after: int
     lost_poll_every: int
     restart_after_bus_off: bool
@@ -223,7 +268,11 @@ class SlaveConfig:
     """A slave: its master, MAC ID, processing delays and watchdog, and its connections —
     ``answers`` (request arbitration key -> the message it queues after its processing delay),
     ``mailbox`` (messages its controller answers remote frames with), ``cos`` (produced on its
-    own) and ``requests`` (every key of a frame of its master addressed to it: the watchdog's)."""
+    own), ``polls`` (the keys of its master's requests to it: the poll connection's watchdog,
+    ``watchdog_ns``), ``acks`` (the key of the acknowledgement of its COS/cyclic connection) and
+    ``requests`` (every key of a frame of its master addressed to it). ``cos_link`` is its
+    COS/cyclic connection; an acknowledged one is sent again ``retry_limit`` times after
+    ``ack_timeout_ns`` without an acknowledgement."""
 
     name: str
     master: str
@@ -231,10 +280,15 @@ class SlaveConfig:
     processing_min_ns: int
     processing_max_ns: int
     watchdog_ns: int
+    ack_timeout_ns: int = 16_000_000
+    retry_limit: int = 1
     answers: dict[int, MessageDecl] = field(default_factory=dict)
     mailbox: list[MessageDecl] = field(default_factory=list)
     cos: list[MessageDecl] = field(default_factory=list)
+    polls: set[int] = field(default_factory=set)
+    acks: set[int] = field(default_factory=set)
     requests: set[int] = field(default_factory=set)
+    cos_link: CosLink | None = None
 
 
 @dataclass
@@ -311,7 +365,16 @@ class _Parser:
                     "remote: a slave answers with data frames (the master sends the remote frames)",
                 )
         wd = None if o["watchdog_ms"] is None else ms_to_ns(o["watchdog_ms"])
-        return SlaveConfig(d.name, "", o["mac_id"], lo, hi, wd or 0)
+        return SlaveConfig(
+            d.name,
+            "",
+            o["mac_id"],
+            lo,
+            hi,
+            wd or 0,
+            ack_timeout_ns=ms_to_ns(o["ack_timeout_ms"]),
+            retry_limit=o["retry_limit"],
+        )
 
     def master(self, d: NodeDecl) -> MasterConfig:
         o = d.options
@@ -326,6 +389,7 @@ class _Parser:
             plan=o["plan"],
             cycle_ns=ms_to_ns(o["cycle_ms"]),
             offset_ns=ms_to_ns(o["offset_ms"]),
+            epr_ns=ms_to_ns(o["epr_ms"] if o["epr_ms"] is not None else o["cycle_ms"]),
             lost_after=o["lost_after"],
             lost_poll_every=o["lost_poll_every"],
             restart_after_bus_off=o["restart_after_bus_off"],
@@ -550,6 +614,7 @@ class _Parser:
             for s in slaves:
                 s.answers[frame_of(req).key] = responses[slaves.index(s)]
                 s.requests.add(frame_of(req).key)
+                s.polls.add(frame_of(req).key)
             timeout, retries = self.timing(e, d, loc, style)
             return Transaction(j, style, tuple(s.name for s in slaves), req, tuple(responses), timeout, retries)
         if e["slave"] is None:
@@ -572,6 +637,7 @@ class _Parser:
             req = self.new_message(d, loc, name, req_id, ext, dlc, data, False, poll=j, style=style)
             s.answers[frame_of(req).key] = resp
         s.requests.add(frame_of(req).key)
+        s.polls.add(frame_of(req).key)
         timeout, retries = self.timing(e, d, loc, style)
         return Transaction(j, style, (s.name,), req, (resp,), timeout, retries)
 
@@ -617,7 +683,45 @@ class _Parser:
                 d, loc, e["name"] or f"ack_{s.name}", ack_id, e["extended"], 0, b"", False, poll=j, style="cos"
             )
             s.requests.add(frame_of(ack).key)
-        return CosLink(j, s.name, tuple(timed), ack)
+            s.acks.add(frame_of(ack).key)
+        link = CosLink(j, s.name, tuple(timed), ack, self.eprs(timed, e, loc))
+        s.cos_link = link
+        return link
+
+    def eprs(self, timed: list[MessageDecl], e: dict[str, Any], loc: str) -> dict[str, int]:
+        """Each message's expected packet rate: a cyclic message's period (``epr_ms``, when
+        given, must be it), a change-of-state message's ``epr_ms`` (required; its heartbeat, no
+        faster than its production inhibit time ``sporadic_ms``)."""
+        given = None if e["epr_ms"] is None else ms_to_ns(e["epr_ms"])
+        out: dict[str, int] = {}
+        for m in timed:
+            if m.period_ns is not None:
+                if given is not None and given != m.period_ns:
+                    raise self.err(
+                        loc,
+                        f"epr_ms: {e['epr_ms']:g} is not the period of the cyclic message {m.name!r} "
+                        f"({m.period_ns / 1e6:g} ms): a cyclic connection's expected packet rate is its period "
+                        "(leave epr_ms out)",
+                    )
+                out[m.name] = m.period_ns
+                continue
+            pit = m.sporadic_ns or 0
+            if given is None:
+                raise self.err(
+                    loc,
+                    f"key 'epr_ms' is required for the change-of-state message {m.name!r}: the connection's "
+                    "expected packet rate, at which the slave sends its data when nothing changes (the "
+                    f"heartbeat; the watchdogs are {WATCHDOG_EPRS} x it), at least its sporadic_ms "
+                    f"{pit / 1e6:g} (the production inhibit time)",
+                )
+            if given < pit:
+                raise self.err(
+                    loc,
+                    f"epr_ms: {e['epr_ms']:g} is below the production inhibit time of {m.name!r} (its "
+                    f"sporadic_ms {pit / 1e6:g}): the heartbeat cannot come sooner than new data may",
+                )
+            out[m.name] = given
+        return out
 
     # -- checks across nodes
     def check_macs(self, masters: list[NodeDecl], slaves: list[NodeDecl]) -> None:
@@ -643,7 +747,7 @@ class _Parser:
         s = self.net.slaves[d.name]
         master = self.net.masters[s.master]
         if s.watchdog_ns == 0:
-            s.watchdog_ns = 4 * master.cycle_ns  # DeviceNet: a connection times out after 4 x its packet rate
+            s.watchdog_ns = WATCHDOG_EPRS * master.epr_ns  # DeviceNet: 4 x the connection's EPR
         answering = {id(m) for m in list(s.answers.values()) + s.mailbox}
         for j, m in enumerate(d.messages, 1):
             loc = self.loc(d, f"[[nodes.messages]] #{j} {m.name!r}")

@@ -16,7 +16,15 @@ __all__ = [
     "MasterResumed",
     "MasterLost",
     "MasterBack",
+    "RetryLimitReached",
+    "POLL",
+    "COS",
 ]
+
+POLL = "poll"
+"""The ``connection`` of events about the poll / bit-strobe connection."""
+COS = "cos"
+"""The ``connection`` of events about the change-of-state / cyclic connection."""
 
 
 class CycleOverrun(NamedTuple):
@@ -30,21 +38,25 @@ class CycleOverrun(NamedTuple):
 
 
 class SlaveLost(NamedTuple):
-    """A slave missed ``missed`` polls in a row (each with its retries): from now on it is polled
-    at the slower rate until it answers."""
+    """The master lost a slave's connection: on the poll connection, the slave missed ``missed``
+    polls in a row (each with its retries) and is polled at the slower rate from now on until it
+    answers; on the COS/cyclic connection (``connection`` "cos", ``missed`` 0), nothing came for
+    4 × its expected packet rate (the connection timed out)."""
 
     time: int
     master: str
     slave: str
     missed: int
+    connection: str = POLL
 
 
 class SlaveBack(NamedTuple):
-    """A lost slave answered again."""
+    """A lost slave answered again (``connection``: the one that had been lost)."""
 
     time: int
     master: str
     slave: str
+    connection: str = POLL
 
 
 class MasterStopped(NamedTuple):
@@ -63,20 +75,34 @@ class MasterResumed(NamedTuple):
 
 
 class MasterLost(NamedTuple):
-    """A slave's watchdog expired: no request from its master for ``watchdog`` ns."""
+    """A slave's watchdog expired: nothing of its master on ``connection`` for ``watchdog`` ns
+    (the poll connection: no request; an acknowledged COS/cyclic connection: no acknowledgement)."""
 
     time: int
     slave: str
     master: str
     watchdog: int
+    connection: str = POLL
 
 
 class MasterBack(NamedTuple):
-    """A slave that had lost its master is addressed by it again."""
+    """A slave that had lost its master is addressed by it again on ``connection``."""
 
     time: int
     slave: str
     master: str
+    connection: str = POLL
+
+
+class RetryLimitReached(NamedTuple):
+    """An acknowledged COS/cyclic message was sent ``retries`` times more without an
+    acknowledgement (DeviceNet's Acknowledge Handler: RetryLimit_Reached); the slave waits for its
+    next production. The connection itself stays (its watchdog decides)."""
+
+    time: int
+    slave: str
+    message: str
+    retries: int
 
 
 class Reporter:

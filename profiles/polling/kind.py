@@ -179,7 +179,7 @@ def text(figures: dict[str, Any]) -> list[str]:
             r = s["response_ms"] or {}
             lines.append(
                 f"{name[:12]:<12} {s['polls']:>6} {s['responses']:>7} {s['timeouts']:>8} {s['missed']:>6} "
-                f"{'yes' if s['lost'] else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
+                f"{'yes' if s['lost'] or s.get('cos_lost') else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
                 f"{s.get('master_lost', 0):>11}"
             )
     return lines

@@ -24,7 +24,9 @@ poll list in order:
    (`SlaveBack`; any answer of a lost slave, even a late one, brings it back).
 
 A slave's change-of-state / cyclic messages are consumed whenever they arrive and acknowledged at
-once when the link says so. Bus off stops the master (`MasterStopped`; its slaves' watchdogs
+once when the link says so; the master's watchdog over each COS/cyclic connection (4 × its
+expected packet rate, restarted by every message of it) reports the connection timed out
+(`SlaveLost`, connection "cos") and back at its next message (`SlaveBack`). Bus off stops the master (`MasterStopped`; its slaves' watchdogs
 fire); with ``restart_after_bus_off`` it starts a new cycle when its controller is error active
 again (rule 12; `MasterResumed`).
 
@@ -35,12 +37,14 @@ callbacks of the node API, so the master runs unchanged on the simulated bus and
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of
 from profiles.polling._state import MasterEvent, MasterState, next_state
 from profiles.polling.config import NETWORK_TABLE
-from profiles.polling.events import CycleOverrun, MasterResumed, MasterStopped, Reporter, SlaveBack, SlaveLost
+from profiles.polling.connection import Watchdog
+from profiles.polling.events import COS, CycleOverrun, MasterResumed, MasterStopped, Reporter, SlaveBack, SlaveLost
 from profiles.polling.stats import CycleStats, SlaveLink
 from stack import ErrorStateChanged, TxDone, TxFailed
 
@@ -86,10 +90,12 @@ class PollMaster(Reporter):
                 self._answers[frame_of(r).key] = (tx, s)
                 watched.append(r)
         self._cos: dict[int, CosLink] = {}
+        self.cos_watchdogs: dict[str, Watchdog] = {}
         for link in config.cos:
             for m in link.messages:
                 self._cos[frame_of(m).key] = link
                 watched.append(m)
+            self.cos_watchdogs[link.slave] = Watchdog(node, link.watchdog_ns, partial(self._cos_lost, link.slave))
         self._filters = rx_filters(watched)
         # the cycle
         self.cycle = 0
@@ -127,7 +133,10 @@ class PollMaster(Reporter):
         self.node.listen(TxDone, self._on_done)
         self.node.listen(TxFailed, self._on_failed)
         self.node.listen(ErrorStateChanged, self._on_state)
-        self._cycle_timer = self.node.call_at(self.node.now() + self.config.offset_ns, self._begin_cycle)
+        now = self.node.now()
+        for w in self.cos_watchdogs.values():
+            w.start(now)
+        self._cycle_timer = self.node.call_at(now + self.config.offset_ns, self._begin_cycle)
 
     # ------------------------------------------------------------------ the cycle
     def _begin_cycle(self) -> None:
@@ -228,8 +237,9 @@ class PollMaster(Reporter):
         if cos is not None:
             link = self.links[cos.slave]
             link.cos += 1
-            if link.lost:
-                self._back(link, ev.time)
+            if self.cos_watchdogs[cos.slave].kick(ev.time):
+                link.cos_back(ev.time)
+                self._emit(SlaveBack(ev.time, self.config.name, link.name, COS))
             if cos.ack is not None and self._to(MasterEvent.COS):
                 if self.send(cos.ack, None) is not None:
                     link.acks += 1
@@ -263,6 +273,11 @@ class PollMaster(Reporter):
             link.lost_periods.append([t, None])
             self._emit(SlaveLost(t, self.config.name, link.name, link.in_a_row))
 
+    def _cos_lost(self, slave: str, t: int) -> None:
+        """The watchdog of ``slave``'s COS/cyclic connection expired: the connection timed out."""
+        self.links[slave].cos_lost_at(t)
+        self._emit(SlaveLost(t, self.config.name, slave, 0, COS))
+
     def _back(self, link: SlaveLink, t: int) -> None:
         link.lost = False
         link.in_a_row = 0
@@ -294,9 +309,13 @@ class PollMaster(Reporter):
             req, self._req, self._tx = self._req, None, None
             if req is not None:
                 self.node.abort(req)
+            for w in self.cos_watchdogs.values():  # a stopped master consumes nothing: no verdicts
+                w.stop()
             self._emit(MasterStopped(ev.time, self.config.name, "bus off"))
         elif ev.new == "error-active" and self.config.restart_after_bus_off and self._to(MasterEvent.RECOVERED):
             self._emit(MasterResumed(ev.time, self.config.name))
+            for w in self.cos_watchdogs.values():
+                w.start(ev.time)
             self._begin_cycle()
 
     # ------------------------------------------------------------------ results

@@ -6,30 +6,41 @@
   the answer — so the response time the master measures includes it.
 - A remote frame for a message of its remote-reply mailbox is answered by the controller itself
   (`NodeAPI.set_remote_reply`), without the application and so without its delay.
-- Its change-of-state / cyclic messages are released by their own periodic or sporadic source,
-  outside the poll; the master may acknowledge them.
-- Watchdog: every frame of its master addressed to it (requests, acknowledgements) restarts it;
-  when ``watchdog_ms`` passes without one the slave reports loss of master (`MasterLost`) and, at
-  the next request, that the master is back (`MasterBack`). It keeps answering throughout (what an
-  I/O device does with its outputs meanwhile is its own business).
+- Its change-of-state / cyclic messages are produced outside the poll by a `CosProducer` each
+  (`profiles.polling.connection`): a cyclic message every period, a COS message at each change
+  of its sporadic source (never sooner than ``sporadic_ms``, its production inhibit time, after
+  the last) and, when nothing changed for the connection's expected packet rate, again (the
+  heartbeat). An acknowledged one is sent again ``retry_limit`` times ``ack_timeout_ms`` after it
+  went out without its acknowledgement (`RetryLimitReached` after the last).
+- Watchdogs, one per connection it consumes on (DeviceNet's inactivity/watchdog timer): the poll
+  connection's — restarted by every request addressed to it, ``watchdog_ms`` (default 4 × the
+  master's ``epr_ms``) — and, when its COS/cyclic connection is acknowledged, that connection's —
+  restarted by every acknowledgement, 4 × its EPR. When one expires the slave reports loss of
+  master on that connection (`MasterLost`) and, at its next frame, that the master is back
+  (`MasterBack`). A slave with only an unacknowledged COS/cyclic connection consumes nothing and
+  so cannot notice its master's loss. It keeps answering throughout (what an I/O device does with
+  its outputs meanwhile is its own business; DeviceNet's connection would stay timed out until
+  the master allocates it again — see the package docstring).
 
-States (``state``): ``running``, or ``master lost`` while the watchdog has expired.
+States (``state``): ``running``, or ``master lost`` while a watchdog has expired.
 """
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, frame_of, source_for
 from profiles.polling.config import NETWORK_TABLE
-from profiles.polling.events import MasterBack, MasterLost, Reporter
+from profiles.polling.connection import CosProducer, Watchdog
+from profiles.polling.events import COS, POLL, MasterBack, MasterLost, Reporter, RetryLimitReached
 from profiles.polling.master import rx_filters
 from stack import TxDone
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import SlaveConfig
-    from stack import Frame, NodeAPI, Received
+    from stack import Frame, NodeAPI, Received, TxRequest
 
 __all__ = ["Slave", "RUNNING", "MASTER_LOST"]
 
@@ -49,15 +60,35 @@ class Slave(Profile, Reporter):
         self._answer_of = {k: m.name for k, m in self.config.answers.items()}
         self._mailbox = {frame_of(m).key: m.name for m in self.config.mailbox}
         self._rng = context.rng("processing", decl.name)
+        cfg = self.config
+        link = cfg.cos_link
+        self.producers: dict[str, CosProducer] = {}
+        for m in cfg.cos:
+            epr = link.epr_ns.get(m.name, m.interval_ns or 0) if link is not None else (m.interval_ns or 0)
+            self.producers[m.name] = CosProducer(
+                node,
+                m,
+                epr,
+                self._produce,
+                acked=link is not None and link.ack is not None,
+                ack_timeout_ns=cfg.ack_timeout_ns,
+                retry_limit=cfg.retry_limit,
+                on_retry_limit=partial(self._retry_limit, m.name),
+            )
         self.sources = [
             s
-            for m in self.config.cos
-            if (s := source_for(node, m, self._produce, context.rng("release", decl.name, m.name)))
+            for m in cfg.cos
+            if (s := source_for(node, m, self.producers[m.name].change, context.rng("release", decl.name, m.name)))
         ]
+        self._producing = {frame_of(m).key: self.producers[m.name] for m in cfg.cos}
         self.state = RUNNING
         Reporter.__init__(self)
-        self._deadline = 0
-        self._armed = False
+        # one watchdog per connection the slave consumes on
+        self.watchdogs: dict[str, Watchdog] = {}
+        if cfg.polls:
+            self.watchdogs[POLL] = Watchdog(node, cfg.watchdog_ns, partial(self._lost, POLL))
+        if link is not None and link.ack is not None:
+            self.watchdogs[COS] = Watchdog(node, link.watchdog_ns, partial(self._lost, COS))
         self.requests = 0
         self.acks = 0
         self.master_lost_at: list[int] = []
@@ -72,12 +103,16 @@ class Slave(Profile, Reporter):
             self.node.subscribe(self._on_frame, rx_filters(wanted))
         for m in self.config.mailbox:
             self.node.set_remote_reply(self.frames[m.name])
-        if self._mailbox:
-            # the controller queues the reply itself: account for it when it is sent
-            self.node.listen(TxDone, self._on_done)
+        # the controller queues a mailbox's reply itself (accounted for when it is sent); an
+        # acknowledged COS/cyclic message's Acknowledge Timer runs from its end
+        self.node.listen(TxDone, self._on_done)
+        now = self.node.now()
+        for w in self.watchdogs.values():
+            w.start(now)
+        for p in self.producers.values():
+            p.start()
         for s in self.sources:
             s.start()
-        self._kick(self.node.now())
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry (a mailbox
@@ -90,14 +125,19 @@ class Slave(Profile, Reporter):
     # ------------------------------------------------------------------ requests
     def _on_frame(self, ev: Received) -> None:
         key = ev.frame.key
-        if key not in self.config.requests:
+        cfg = self.config
+        if key not in cfg.requests:
+            return
+        if key in cfg.acks:  # the acknowledgement of the COS/cyclic connection
+            self.acks += 1
+            self._kick(COS, ev.time)
+            for p in self.producers.values():
+                p.acked()
             return
         self.requests += 1
-        self._kick(ev.time)
+        self._kick(POLL, ev.time)
         name = self._answer_of.get(key)
         if name is None:
-            if not ev.frame.remote:
-                self.acks += 1  # a COS/cyclic acknowledgement
             return  # a remote frame: the controller's mailbox answers it
         cfg = self.config
         lo, hi = cfg.processing_min_ns, cfg.processing_max_ns
@@ -111,35 +151,36 @@ class Slave(Profile, Reporter):
         self.queue(self.frames[name], self._track[name])
 
     def _on_done(self, ev: TxDone) -> None:
-        name = self._mailbox.get(ev.frame.key)
+        key = ev.frame.key
+        name = self._mailbox.get(key)
         if name is not None and ev.request.state == "sent":
             self._track[name].release(ev.request)
+        producer = self._producing.get(key)
+        if producer is not None:
+            producer.sent(ev.request, ev.time)
 
-    def _produce(self, m: MessageDecl) -> None:
-        self.queue(self.frames[m.name], self._track[m.name])
+    def _produce(self, m: MessageDecl) -> TxRequest | None:
+        return self.queue(self.frames[m.name], self._track[m.name])
 
-    # ------------------------------------------------------------------ watchdog
-    def _kick(self, t: int) -> None:
-        """Restart the watchdog. One timer at a time: it re-arms itself at the latest deadline
-        when it fires early, instead of a cancel and a new timer per request."""
-        self._deadline = t + self.config.watchdog_ns
-        if self.state == MASTER_LOST:
-            self.state = RUNNING
+    # ------------------------------------------------------------------ watchdogs
+    def _kick(self, connection: str, t: int) -> None:
+        """A frame of the master on ``connection``: restart its watchdog (the master is back on
+        it if it had expired)."""
+        w = self.watchdogs.get(connection)
+        if w is not None and w.kick(t):
             self.master_back_at.append(t)
-            self._emit(MasterBack(t, self.decl.name, self.config.master))
-        if not self._armed:
-            self._armed = True
-            self.node.call_at(self._deadline, self._watchdog)
+            self._emit(MasterBack(t, self.decl.name, self.config.master, connection))
+            if not any(x.expired for x in self.watchdogs.values()):
+                self.state = RUNNING
 
-    def _watchdog(self) -> None:
-        now = self.node.now()
-        if now < self._deadline:
-            self.node.call_at(self._deadline, self._watchdog)
-            return
-        self._armed = False
+    def _retry_limit(self, message: str, t: int, retries: int) -> None:
+        self._emit(RetryLimitReached(t, self.decl.name, message, retries))
+
+    def _lost(self, connection: str, now: int) -> None:
         self.state = MASTER_LOST
         self.master_lost_at.append(now)
-        self._emit(MasterLost(now, self.decl.name, self.config.master, self.config.watchdog_ns))
+        timeout = self.watchdogs[connection].timeout_ns
+        self._emit(MasterLost(now, self.decl.name, self.config.master, timeout, connection))
 
     # ------------------------------------------------------------------ results
     def summary(self) -> dict[str, Any]:
@@ -147,8 +188,11 @@ class Slave(Profile, Reporter):
         return self.figures()
 
     def figures(self) -> dict[str, Any]:
-        """Requests and acknowledgements received, watchdog expiries (loss of master) and returns,
-        and the processing delay it was given."""
+        """Requests and acknowledgements received, watchdog expiries (loss of master, on any
+        connection) and returns, the processing delay it was given, its watchdogs (ms, by
+        connection), and what its COS/cyclic producers sent: heartbeats (productions without a
+        change), retransmissions for want of an acknowledgement, retry limits reached."""
+        ps = self.producers.values()
         return {
             "state": self.state,
             "requests": self.requests,
@@ -157,5 +201,8 @@ class Slave(Profile, Reporter):
             "master_lost_ms": [t / 1e6 for t in self.master_lost_at],
             "master_back_ms": [t / 1e6 for t in self.master_back_at],
             "processing_ms": [self.config.processing_min_ns / 1e6, self.config.processing_max_ns / 1e6],
-            "watchdog_ms": self.config.watchdog_ns / 1e6,
+            "watchdog_ms": {c: w.timeout_ns / 1e6 for c, w in self.watchdogs.items()},
+            "heartbeats": sum(p.heartbeats for p in ps),
+            "retransmissions": sum(p.retransmissions for p in ps),
+            "retry_limit_reached": sum(p.retry_limits for p in ps),
         }

@@ -24,7 +24,8 @@ class SlaveLink:
     min distance between the ends of answers to consecutive polls), timeouts (attempts
     without an answer in time), missed polls (all attempts of a transaction), the lost state with
     its periods, late answers (after the timeout, or from a lost slave between its slow polls),
-    and COS/cyclic messages consumed and acknowledged."""
+    COS/cyclic messages consumed and acknowledged, and the COS/cyclic connection's time-outs (its
+    watchdog, 4 × EPR) with their periods."""
 
     __slots__ = (
         "name",
@@ -43,6 +44,8 @@ class SlaveLink:
         "last_end",
         "gap_min",
         "gap_max",
+        "cos_lost",
+        "cos_lost_periods",
     )
 
     def __init__(self, name: str) -> None:
@@ -62,6 +65,19 @@ class SlaveLink:
         self.last_end: int | None = None  # end of the last answer, if the poll before it was answered
         self.gap_min: int | None = None
         self.gap_max: int | None = None
+        self.cos_lost = False
+        self.cos_lost_periods: list[list[int | None]] = []
+
+    def cos_lost_at(self, t: int) -> None:
+        """The COS/cyclic connection timed out at ``t``."""
+        self.cos_lost = True
+        self.cos_lost_periods.append([t, None])
+
+    def cos_back(self, t: int) -> None:
+        """A message of the timed-out COS/cyclic connection came at ``t``."""
+        self.cos_lost = False
+        if self.cos_lost_periods and self.cos_lost_periods[-1][1] is None:
+            self.cos_lost_periods[-1][1] = t
 
     def answered(self, t_end: int) -> None:
         """An answer ended at ``t_end``: the distance from the previous one (when that one answered
@@ -93,6 +109,11 @@ class SlaveLink:
             "jitter_ms": jitter,
             "cos": self.cos,
             "acks": self.acks,
+            "cos_lost": self.cos_lost,
+            "cos_lost_ms": [
+                [a / 1e6 if a is not None else None, b / 1e6 if b is not None else None]
+                for a, b in self.cos_lost_periods
+            ],
         }
 
 

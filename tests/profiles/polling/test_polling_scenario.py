@@ -80,7 +80,7 @@ def base() -> dict:
                     {"slave": "s1", "data": "0102"},
                     {"style": "remote", "slave": "s2"},
                     {"style": "bit_strobe", "slaves": ["s3"]},
-                    {"style": "cos", "slave": "s4"},
+                    {"style": "cos", "slave": "s4", "epr_ms": 10},
                 ],
             },
             {
@@ -179,7 +179,7 @@ def node(raw, name):
         ),
         (
             lambda r: node(r, "m")["poll"][0].update(speed=3),
-            "[[nodes.poll]] #1: unknown key 'speed' (allowed: ack, ack_id, data, dlc, extended, id, name, response_id, "
+            "[[nodes.poll]] #1: unknown key 'speed' (allowed: ack, ack_id, data, dlc, epr_ms, extended, id, name, response_id, "
             "response_ids, retries, slave, slaves, style, timeout_ms)",
         ),
         (
