@@ -5,7 +5,7 @@ Like `profiles.canopen._state` (and h11's ``_state.py``): a pure transition tabl
 
 States: ``idle`` between cycles (and in a cycle before its first request), ``sending`` while a
 request waits for the bus, ``waiting`` for the answer(s) once it went out, ``stopped`` after bus
-off. Events, and what each means in each state (an event a state has no entry for is ignored
+off, ``communication fault`` after its duplicate MAC ID check found another node with its MAC ID. Events, and what each means in each state (an event a state has no entry for is ignored
 there — an answer that comes while the request is still queued, a timeout after bus off):
 
     CYCLE_START  idle                    -> idle      a cycle begins (its slaves due are chosen)
@@ -20,6 +20,10 @@ there — an answer that comes while the request is still queued, a timeout afte
     BUS_OFF      idle, sending, waiting  -> stopped   the controller went bus off (rule 10)
     RECOVERED    stopped                 -> idle      error active again (rule 12) and the master
                                                       restarts after bus off
+    COMM_FAULT   idle, sending, waiting  -> faulted   a duplicate of its MAC ID (DeviceNet's
+                                                      communication fault: for good)
+
+``faulted`` ignores every event: only a power cycle (a new run) leaves it.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ class MasterState(str, Enum):
     SENDING = "sending"
     WAITING = "waiting"
     STOPPED = "stopped"
+    FAULTED = "communication fault"
 
 
 class MasterEvent(str, Enum):
@@ -51,6 +56,7 @@ class MasterEvent(str, Enum):
     CYCLE_END = "cycle end"
     BUS_OFF = "bus off"
     RECOVERED = "recovered"
+    COMM_FAULT = "communication fault"
 
 
 _S = MasterState
@@ -72,6 +78,7 @@ for _state in _RUNNING:
     TRANSITIONS[(_state, _E.COS)] = _state
     TRANSITIONS[(_state, _E.CYCLE_END)] = _S.IDLE
     TRANSITIONS[(_state, _E.BUS_OFF)] = _S.STOPPED
+    TRANSITIONS[(_state, _E.COMM_FAULT)] = _S.FAULTED
 del _state
 
 

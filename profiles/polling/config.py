@@ -12,6 +12,8 @@ lists), each slave's connections, and the frames they use — read from ``[[node
     retries = 1               # default retries after a timeout (polled and remote entries)
     lost_after = 3            # a slave that misses this many polls in a row is lost ...
     lost_poll_every = 10      # ... and polled every 10th cycle until it answers
+    dup_mac_check = false     # DeviceNet's duplicate MAC ID check at power-up (masters and slaves):
+                              # online after two requests 1 s apart (vendor_id, serial_number)
 
     [[nodes.poll]]            # polled I/O: poll command -> poll response (a data frame)
     slave = "valve1"
@@ -68,6 +70,7 @@ per-message metrics and the response-time analysis cover them like any other.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -114,6 +117,18 @@ inactivity/watchdog timer; Rockwell 1769-SDN manual, "Expected Packet Rate")."""
 NETWORK_TABLE = "master_slave"
 """Where the parsed network lives in ``scenario.tables``."""
 
+DUP_MAC_KEYS = {
+    "dup_mac_check": Key(
+        bool, False, doc="DeviceNet's duplicate MAC ID check at power-up: online after two requests 1 s apart"
+    ),
+    "vendor_id": Key(int, 0, in_range(0, 0xFFFF, "a vendor ID (UINT)"), "the Duplicate MAC ID message's vendor ID"),
+    "serial_number": Key(
+        int,
+        None,
+        in_range(0, 0xFFFF_FFFF, "a serial number (UDINT)"),
+        "the Duplicate MAC ID message's serial number (default: one made from the node's name)",
+    ),
+}
 MASTER_KEYS = {
     "cycle_ms": Key(float, REQUIRED, positive("the poll cycle"), "the poll cycle, ms"),
     "poll": Key(
@@ -130,6 +145,7 @@ MASTER_KEYS = {
     "lost_after": Key(int, 3, positive("missed polls"), "missed polls in a row that make a slave lost"),
     "lost_poll_every": Key(int, 10, positive("cycles"), "a lost slave is polled every this many cycles"),
     "restart_after_bus_off": Key(bool, True, doc="resume polling when the controller recovers (rule 12)"),
+    **DUP_MAC_KEYS,
     "epr_ms": Key(
         float,
         None,
@@ -137,6 +153,7 @@ MASTER_KEYS = {
         "expected packet rate of the poll and bit-strobe connections (default: cycle_ms)",
     ),
 }
+
 
 SLAVE_KEYS = {
     "mac_id": Key(int, None, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
@@ -162,6 +179,7 @@ SLAVE_KEYS = {
         in_range(0, 255, "retries (the Acknowledge Handler's Retry Limit is a USINT)"),
         "times an unacknowledged COS/cyclic message is sent again (DeviceNet default 1)",
     ),
+    **DUP_MAC_KEYS,
 }
 
 POLL_KEYS = {
@@ -250,6 +268,8 @@ class MasterConfig:
     lost_poll_every: int
     restart_after_bus_off: bool
     transactions: list[Transaction] = field(default_factory=list)
+    dup_mac: tuple[int, int] | None = None
+    """(vendor ID, serial number) of the duplicate MAC ID check at power-up, None without one."""
     cos: list[CosLink] = field(default_factory=list)
 
     @property
@@ -289,6 +309,8 @@ class SlaveConfig:
     acks: set[int] = field(default_factory=set)
     requests: set[int] = field(default_factory=set)
     cos_link: CosLink | None = None
+    dup_mac: tuple[int, int] | None = None
+    """(vendor ID, serial number) of the duplicate MAC ID check at power-up, None without one."""
 
 
 @dataclass
@@ -374,6 +396,7 @@ class _Parser:
             wd or 0,
             ack_timeout_ns=ms_to_ns(o["ack_timeout_ms"]),
             retry_limit=o["retry_limit"],
+            dup_mac=self.dup_mac(d),
         )
 
     def master(self, d: NodeDecl) -> MasterConfig:
@@ -393,7 +416,12 @@ class _Parser:
             lost_after=o["lost_after"],
             lost_poll_every=o["lost_poll_every"],
             restart_after_bus_off=o["restart_after_bus_off"],
+            dup_mac=self.dup_mac(d),
         )
+        if cfg.dup_mac is not None and cfg.plan != "devicenet":
+            raise self.err(
+                self.loc(d), 'dup_mac_check: the duplicate MAC ID check is DeviceNet\'s (plan = "devicenet")'
+            )
         strobes = 0
         for j, raw in enumerate(o["poll"], 1):
             loc = self.loc(d, f"[[nodes.poll]] #{j}")
@@ -424,6 +452,20 @@ class _Parser:
             if c.ack is not None:
                 d.messages.append(c.ack)
         return cfg
+
+    def dup_mac(self, d: NodeDecl) -> tuple[int, int] | None:
+        """(vendor ID, serial number) when the node runs the duplicate MAC ID check; the default
+        serial number is the CRC-32 of the node's name, so that two nodes differ."""
+        o = d.options
+        if not o["dup_mac_check"]:
+            for k, unset in (("vendor_id", 0), ("serial_number", None)):
+                if o[k] != unset:
+                    raise self.err(self.loc(d), f"{k}: only the duplicate MAC ID check sends it (dup_mac_check = true)")
+            return None
+        if o["mac_id"] is None:
+            raise self.err(self.loc(d), "dup_mac_check: the duplicate MAC ID check needs the node's mac_id")
+        serial = o["serial_number"] if o["serial_number"] is not None else zlib.crc32(d.name.encode())
+        return o["vendor_id"], serial
 
     # -- entries
     def claim(self, master: NodeDecl, slave: Any, j: int, loc: str, key: str) -> SlaveConfig:

@@ -17,6 +17,7 @@ __all__ = [
     "MasterLost",
     "MasterBack",
     "RetryLimitReached",
+    "CommunicationFault",
     "POLL",
     "COS",
 ]
@@ -121,3 +122,13 @@ class Reporter:
         self.events.append(event)
         for cb in self._listeners:
             cb(event)
+
+
+class CommunicationFault(NamedTuple):
+    """A node's duplicate MAC ID check heard another node with its MAC ID (``reason``): it went
+    to DeviceNet's communication fault state and stays silent."""
+
+    time: int
+    node: str
+    mac_id: int
+    reason: str

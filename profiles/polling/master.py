@@ -30,6 +30,11 @@ expected packet rate, restarted by every message of it) reports the connection t
 fire); with ``restart_after_bus_off`` it starts a new cycle when its controller is error active
 again (rule 12; `MasterResumed`).
 
+With ``dup_mac_check`` the master first runs DeviceNet's duplicate MAC ID check
+(`profiles.polling.dupmac`) and starts its first cycle ``offset_ms`` after going online (2 s
+after power-up); a duplicate of its MAC ID is a communication fault (`CommunicationFault`,
+`MasterStopped`): it stops for good.
+
 Everything is timed on the node's clock (a drifting master runs a drifting cycle) and happens in
 callbacks of the node API, so the master runs unchanged on the simulated bus and on python-can.
 """
@@ -44,7 +49,17 @@ from profiles.base import Context, Profile, frame_of
 from profiles.polling._state import MasterEvent, MasterState, next_state
 from profiles.polling.config import NETWORK_TABLE
 from profiles.polling.connection import Watchdog
-from profiles.polling.events import COS, CycleOverrun, MasterResumed, MasterStopped, Reporter, SlaveBack, SlaveLost
+from profiles.polling.dupmac import DupMacCheck
+from profiles.polling.events import (
+    COS,
+    CommunicationFault,
+    CycleOverrun,
+    MasterResumed,
+    MasterStopped,
+    Reporter,
+    SlaveBack,
+    SlaveLost,
+)
 from profiles.polling.stats import CycleStats, SlaveLink
 from stack import ErrorStateChanged, TxDone, TxFailed
 
@@ -114,6 +129,17 @@ class PollMaster(Reporter):
         self._awaiting: set[str] = set()
         self._timer: Timer | None = None
         self._cycle_timer: Timer | None = None
+        self.dup_mac: DupMacCheck | None = None
+        if config.dup_mac is not None:
+            vendor, serial = config.dup_mac
+            self.dup_mac = DupMacCheck(
+                node,
+                config.mac_id,
+                vendor_id=vendor,
+                serial_number=serial,
+                on_online=self._online,
+                on_fault=self._comm_fault,
+            )
 
     def _to(self, event: MasterEvent) -> bool:
         """Take ``event`` through the transition table; False (and no change) when the state
@@ -127,16 +153,32 @@ class PollMaster(Reporter):
     # ------------------------------------------------------------------ wiring
     def start(self) -> None:
         """Subscribe to the answers and COS messages, watch the requests and the error state, and
-        arm the first cycle at ``offset_ms``."""
+        arm the first cycle at ``offset_ms`` — after the duplicate MAC ID check, when it has one."""
         if self._filters:
             self.node.subscribe(self._on_frame, self._filters)
         self.node.listen(TxDone, self._on_done)
         self.node.listen(TxFailed, self._on_failed)
         self.node.listen(ErrorStateChanged, self._on_state)
-        now = self.node.now()
+        if self.dup_mac is not None:
+            self.dup_mac.start()
+        else:
+            self._online(self.node.now())
+
+    def _online(self, t: int) -> None:
+        """The master may use the network from ``t`` on: its connections start."""
+        if self.state is MasterState.FAULTED:
+            return
         for w in self.cos_watchdogs.values():
-            w.start(now)
-        self._cycle_timer = self.node.call_at(now + self.config.offset_ns, self._begin_cycle)
+            w.start(t)
+        self._cycle_timer = self.node.call_at(t + self.config.offset_ns, self._begin_cycle)
+
+    def _comm_fault(self, t: int, reason: str) -> None:
+        """The duplicate MAC ID check heard our MAC ID: communication fault, for good."""
+        if not self._to(MasterEvent.COMM_FAULT):
+            return
+        self._halt()
+        self._emit(CommunicationFault(t, self.config.name, self.config.mac_id, reason))
+        self._emit(MasterStopped(t, self.config.name, "duplicate MAC ID"))
 
     # ------------------------------------------------------------------ the cycle
     def _begin_cycle(self) -> None:
@@ -299,18 +341,23 @@ class PollMaster(Reporter):
         self._cycle_timer = self.node.call_at(max(due, t), self._begin_cycle)
 
     # ------------------------------------------------------------------ fault confinement
+    def _halt(self) -> None:
+        """Stop: timers off, the request in progress taken back, no watchdog verdicts (a stopped
+        master consumes nothing)."""
+        self.stats.stopped_at.append(self.node.now())
+        for timer in (self._timer, self._cycle_timer):
+            if timer is not None:
+                timer.cancel()
+        self._timer = self._cycle_timer = None
+        req, self._req, self._tx = self._req, None, None
+        if req is not None:
+            self.node.abort(req)
+        for w in self.cos_watchdogs.values():
+            w.stop()
+
     def _on_state(self, ev: ErrorStateChanged) -> None:
         if ev.new == "bus-off" and self._to(MasterEvent.BUS_OFF):
-            self.stats.stopped_at.append(ev.time)
-            for timer in (self._timer, self._cycle_timer):
-                if timer is not None:
-                    timer.cancel()
-            self._timer = self._cycle_timer = None
-            req, self._req, self._tx = self._req, None, None
-            if req is not None:
-                self.node.abort(req)
-            for w in self.cos_watchdogs.values():  # a stopped master consumes nothing: no verdicts
-                w.stop()
+            self._halt()
             self._emit(MasterStopped(ev.time, self.config.name, "bus off"))
         elif ev.new == "error-active" and self.config.restart_after_bus_off and self._to(MasterEvent.RECOVERED):
             self._emit(MasterResumed(ev.time, self.config.name))
@@ -320,8 +367,12 @@ class PollMaster(Reporter):
 
     # ------------------------------------------------------------------ results
     def figures(self) -> dict[str, Any]:
-        """The master's figures (`CycleStats.figures`): its cycles, its state and its events."""
-        return self.stats.figures(self.cycle, self.state.value, self.events)
+        """The master's figures (`CycleStats.figures`): its cycles, its state and its events (and
+        its duplicate MAC ID check's, when it has one)."""
+        out = self.stats.figures(self.cycle, self.state.value, self.events)
+        if self.dup_mac is not None:
+            out["dup_mac_check"] = self.dup_mac.figures()
+        return out
 
 
 class Master(Profile):

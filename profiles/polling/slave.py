@@ -22,7 +22,12 @@
   its outputs meanwhile is its own business; DeviceNet's connection would stay timed out until
   the master allocates it again — see the package docstring).
 
-States (``state``): ``running``, or ``master lost`` while a watchdog has expired.
+- With ``dup_mac_check`` it first runs DeviceNet's duplicate MAC ID check (`profiles.polling.dupmac`):
+  it answers nothing and produces nothing until it is online, 2 s after power-up; a duplicate
+  sends it to communication fault, silent for good.
+
+States (``state``): ``running``, ``master lost`` while a watchdog has expired, ``communication
+fault``.
 """
 
 from __future__ import annotations
@@ -33,7 +38,16 @@ from typing import TYPE_CHECKING, Any
 from profiles.base import Context, Profile, frame_of, source_for
 from profiles.polling.config import NETWORK_TABLE
 from profiles.polling.connection import CosProducer, Watchdog
-from profiles.polling.events import COS, POLL, MasterBack, MasterLost, Reporter, RetryLimitReached
+from profiles.polling.dupmac import COMMUNICATION_FAULT, DupMacCheck
+from profiles.polling.events import (
+    COS,
+    POLL,
+    CommunicationFault,
+    MasterBack,
+    MasterLost,
+    Reporter,
+    RetryLimitReached,
+)
 from profiles.polling.master import rx_filters
 from stack import TxDone
 
@@ -42,7 +56,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.polling.config import SlaveConfig
     from stack import Frame, NodeAPI, Received, TxRequest
 
-__all__ = ["Slave", "RUNNING", "MASTER_LOST"]
+__all__ = ["Slave", "RUNNING", "MASTER_LOST", "COMMUNICATION_FAULT"]
 
 RUNNING, MASTER_LOST = "running", "master lost"
 
@@ -93,40 +107,72 @@ class Slave(Profile, Reporter):
         self.acks = 0
         self.master_lost_at: list[int] = []
         self.master_back_at: list[int] = []
+        self.online = False
+        self.dup_mac: DupMacCheck | None = None
+        if cfg.dup_mac is not None and cfg.mac_id is not None:
+            vendor, serial = cfg.dup_mac
+            self.dup_mac = DupMacCheck(
+                node, cfg.mac_id, vendor_id=vendor, serial_number=serial, on_online=self._online, on_fault=self._fault
+            )
 
     def start(self) -> None:
-        """Listen to the master's frames addressed to this slave, load the remote-reply mailbox,
-        start the COS/cyclic sources and the watchdog."""
+        """Listen to the master's frames addressed to this slave, start the COS/cyclic sources,
+        and go online — after the duplicate MAC ID check, when it has one."""
         keys = self.config.requests
         wanted = [m for m in self.context.scenario.node(self.config.master).messages if frame_of(m).key in keys]
         if wanted:
             self.node.subscribe(self._on_frame, rx_filters(wanted))
-        for m in self.config.mailbox:
-            self.node.set_remote_reply(self.frames[m.name])
         # the controller queues a mailbox's reply itself (accounted for when it is sent); an
         # acknowledged COS/cyclic message's Acknowledge Timer runs from its end
         self.node.listen(TxDone, self._on_done)
-        now = self.node.now()
-        for w in self.watchdogs.values():
-            w.start(now)
-        for p in self.producers.values():
-            p.start()
         for s in self.sources:
             s.start()
+        if self.dup_mac is not None:
+            self.dup_mac.start()
+        else:
+            self._online(self.node.now())
+
+    def _online(self, t: int) -> None:
+        """The slave may use the network from ``t`` on: the remote-reply mailbox is loaded, the
+        connections start (watchdogs, COS/cyclic producers)."""
+        if self.state == COMMUNICATION_FAULT:
+            return
+        self.online = True
+        for m in self.config.mailbox:
+            self.node.set_remote_reply(self.frames[m.name])
+        for w in self.watchdogs.values():
+            w.start(t)
+        for p in self.producers.values():
+            p.start()
+
+    def _fault(self, t: int, reason: str) -> None:
+        """A duplicate of its MAC ID: communication fault — silent for good (no answers, no
+        production, no mailbox, no watchdog verdicts)."""
+        self.online = False
+        self.state = COMMUNICATION_FAULT
+        for m in self.config.mailbox:
+            self.node.set_remote_reply(None, can_id=m.can_id, extended=m.extended)
+        for w in self.watchdogs.values():
+            w.stop()
+        for p in self.producers.values():
+            p.stop()
+        for req in list(self.node.pending()):
+            self.node.abort(req)
+        self._emit(CommunicationFault(t, self.decl.name, self.config.mac_id or 0, reason))
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry (a mailbox
         message is reloaded into the controller)."""
         old = self.frames[name]
         self.frames[name] = new = type(old)(old.can_id, data, extended=old.extended)
-        if new.key in self._mailbox:
+        if new.key in self._mailbox and self.online:
             self.node.set_remote_reply(new)
 
     # ------------------------------------------------------------------ requests
     def _on_frame(self, ev: Received) -> None:
         key = ev.frame.key
         cfg = self.config
-        if key not in cfg.requests:
+        if key not in cfg.requests or not self.online:
             return
         if key in cfg.acks:  # the acknowledgement of the COS/cyclic connection
             self.acks += 1
@@ -170,13 +216,15 @@ class Slave(Profile, Reporter):
         if w is not None and w.kick(t):
             self.master_back_at.append(t)
             self._emit(MasterBack(t, self.decl.name, self.config.master, connection))
-            if not any(x.expired for x in self.watchdogs.values()):
+            if not any(x.expired for x in self.watchdogs.values()) and self.state == MASTER_LOST:
                 self.state = RUNNING
 
     def _retry_limit(self, message: str, t: int, retries: int) -> None:
         self._emit(RetryLimitReached(t, self.decl.name, message, retries))
 
     def _lost(self, connection: str, now: int) -> None:
+        if self.state == COMMUNICATION_FAULT:
+            return
         self.state = MASTER_LOST
         self.master_lost_at.append(now)
         timeout = self.watchdogs[connection].timeout_ns
@@ -205,4 +253,5 @@ class Slave(Profile, Reporter):
             "heartbeats": sum(p.heartbeats for p in ps),
             "retransmissions": sum(p.retransmissions for p in ps),
             "retry_limit_reached": sum(p.retry_limits for p in ps),
+            **({} if self.dup_mac is None else {"dup_mac_check": self.dup_mac.figures()}),
         }

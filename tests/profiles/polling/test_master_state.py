@@ -27,7 +27,9 @@ def test_the_transition_table_is_the_documented_one():
         expected[(s, E.COS)] = s
         expected[(s, E.CYCLE_END)] = S.IDLE
         expected[(s, E.BUS_OFF)] = S.STOPPED
+        expected[(s, E.COMM_FAULT)] = S.FAULTED
     assert expected == TRANSITIONS
+    assert not [e for e in MasterEvent if next_state(S.FAULTED, e) is not None]
 
 
 def test_a_stopped_master_ignores_everything_but_its_recovery():
