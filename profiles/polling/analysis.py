@@ -21,8 +21,10 @@ itself):
 - the master queues its next request when it receives the last response (end of EOF), so the
   next SOF is 3 tau later.
 
-A transaction's bound (request SOF to the end of its last response) is L(req)·tau plus that
-makespan; the cycle's (first request's SOF to the end of the last response) is the sum of the
+A message longer than 8 bytes goes in DeviceNet fragments queued back to back
+(`profiles.polling.fragment`): its L is then the sum of its fragments' lengths and the 3-bit
+intermissions between them (`message_bits`). A transaction's bound (request SOF to the end of
+its last response) is L(req)·tau plus that makespan; the cycle's (first request's SOF to the end of the last response) is the sum of the
 transactions' plus 3 tau between consecutive ones. Both grow with every d_k and every L, so the
 longest delays and worst-case frames give the worst case. It holds on a fault-free bus that
 carries nothing else; a slave that misses a poll adds its timeout (× retries + 1) instead.
@@ -89,8 +91,9 @@ from typing import TYPE_CHECKING, Any
 
 from profiles.analysis.rta import ERROR_FRAME_BITS, HORIZON_FACTOR, ErrorModel, MessageSpec, analyse, frame_bits_worst
 from profiles.base import frame_of
+from profiles.polling.fragment import io_frames
 from profiles.registry import profile_kind
-from stack import arbitration_key
+from stack import Frame, arbitration_key
 from stack.wire.coding import INTERMISSION_BITS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -100,6 +103,8 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "frame_bits",
     "frame_bits_min",
+    "message_bits",
+    "message_bits_min",
     "transaction_bound_ns",
     "cycle_bound_ns",
     "holistic",
@@ -128,6 +133,29 @@ def frame_bits_min(m: MessageDecl) -> int:
     return (64 if m.extended else 44) + (0 if m.remote else 8 * min(m.dlc, 8))
 
 
+def message_bits(m: MessageDecl, stuffing: str = "worst") -> int:
+    """Bits from the first SOF to the last EOF of a message: one frame (`frame_bits`), or the
+    DeviceNet fragments of an I/O message longer than 8 bytes, queued back to back — each with
+    its own length and the 3-bit intermission between consecutive ones."""
+    frames = io_frames(m)
+    if len(frames) == 1:
+        return frame_bits(m, stuffing)
+    if stuffing == "exact":
+        bits = [Frame(m.can_id, f, extended=m.extended).bits.length for f in frames]
+    else:
+        bits = [frame_bits_worst(len(f), m.extended) - INTERMISSION_BITS for f in frames]
+    return sum(bits) + INTERMISSION_BITS * (len(frames) - 1)
+
+
+def message_bits_min(m: MessageDecl) -> int:
+    """The shortest a message can be on the bus (`frame_bits_min`, fragments back to back)."""
+    frames = io_frames(m)
+    if len(frames) == 1:
+        return frame_bits_min(m)
+    base = 64 if m.extended else 44
+    return sum(base + 8 * len(f) for f in frames) + INTERMISSION_BITS * (len(frames) - 1)
+
+
 def _tau(bitrate: int) -> Fraction:
     return Fraction(10**9, bitrate)
 
@@ -151,8 +179,8 @@ def transaction_bound_ns(
     tau = _tau(bitrate)
     ifs = INTERMISSION_BITS * tau
     ready = [max(Fraction(_delay_max(tx, slaves, k)), ifs) for k in range(len(tx.slaves))]
-    occupy = [(frame_bits(r, stuffing) + INTERMISSION_BITS) * tau for r in tx.responses]
-    return frame_bits(tx.request, stuffing) * tau + _makespan(ready, occupy) - ifs
+    occupy = [(message_bits(r, stuffing) + INTERMISSION_BITS) * tau for r in tx.responses]
+    return message_bits(tx.request, stuffing) * tau + _makespan(ready, occupy) - ifs
 
 
 def cycle_bound_ns(
@@ -195,9 +223,22 @@ class Holistic:
 
 
 def _spec(m: MessageDecl, period: int, deadline: int, jitter: Fraction, stuffing: str) -> MessageSpec:
-    bits: int | None = frame_bits(m, stuffing) + INTERMISSION_BITS
-    if stuffing != "exact" and not m.remote:
-        bits = None  # eq. 1 from the DLC, as every other stream of the analysis
+    """The stream of a message. The k fragments of a fragmented one, queued together once per
+    period T, are a stream of period floor(T / k) with k − 1 such periods more release jitter: k
+    instances can then be released at once, and no window holds fewer instances than the real
+    k per T."""
+    k = len(io_frames(m))
+    if k > 1:
+        short = period // k
+        jitter += (k - 1) * short
+        period = short
+        bits: int | None = max(frame_bits_worst(len(f), m.extended) for f in io_frames(m))
+        if stuffing == "exact":
+            bits = max(Frame(m.can_id, f, extended=m.extended).bits.length for f in io_frames(m)) + INTERMISSION_BITS
+    else:
+        bits = frame_bits(m, stuffing) + INTERMISSION_BITS
+        if stuffing != "exact" and not m.remote:
+            bits = None  # eq. 1 from the DLC, as every other stream of the analysis
     return MessageSpec(m.name, m.can_id, m.extended, m.dlc, period, deadline, math.ceil(jitter), bits, remote=m.remote)
 
 
@@ -277,7 +318,7 @@ class _Chain:
         self.top = max(keys, default=0)
 
     def c(self, m: MessageDecl) -> Fraction:
-        return (frame_bits(m, self.stuffing) + INTERMISSION_BITS) * self.tau
+        return (message_bits(m, self.stuffing) + INTERMISSION_BITS) * self.tau
 
     def gap(self, tx: Transaction) -> tuple[Fraction, int]:
         """How long the bus may wait for the slaves' processing, and in how many idle stretches
@@ -310,14 +351,14 @@ class _Chain:
         for tx in self.master.transactions:
             req = tx.request
             out[req.name] = (lo, hi)
-            req_end_lo = lo + frame_bits_min(req) * tau
+            req_end_lo = lo + message_bits_min(req) * tau
             req_end_hi = window(own + self.c(req), gaps)
             ends_lo = []
             for k, resp in enumerate(tx.responses):
                 d_lo = 0 if tx.style == "remote" else slaves[tx.slaves[k]].processing_min_ns
                 out[resp.name] = (req_end_lo + d_lo, req_end_hi + _delay_max(tx, slaves, k))
                 # an answer cannot start before the request's intermission is over
-                ends_lo.append(req_end_lo + max(Fraction(d_lo), ifs) + frame_bits_min(resp) * tau)
+                ends_lo.append(req_end_lo + max(Fraction(d_lo), ifs) + message_bits_min(resp) * tau)
             g, n = self.gap(tx)
             mine = self.c(req) + g + sum((self.c(r) for r in tx.responses), Fraction(0))
             own += mine

@@ -17,7 +17,8 @@ lists), each slave's connections, and the frames they use — read from ``[[node
 
     [[nodes.poll]]            # polled I/O: poll command -> poll response (a data frame)
     slave = "valve1"
-    data = "0102"             # the poll command's output data (default: dlc zero bytes)
+    data = "0102"             # the poll command's output data (default: dlc zero bytes); more than
+                              # 8 bytes (up to 255) go in DeviceNet fragments (profiles.polling.fragment)
 
     [[nodes.poll]]            # remote: a remote frame the slave's controller answers itself
     style = "remote"
@@ -47,6 +48,8 @@ lists), each slave's connections, and the frames they use — read from ``[[node
     name = "valve1_in"
     id = 0x3C1                # DeviceNet: 0x3C0|MAC poll response, 0x380|MAC strobe response,
     dlc = 4                   #            0x340|MAC change of state / cyclic (timed)
+    # size = 12               # a poll response above 8 bytes (9..255): DeviceNet fragments of 8-byte
+    # io_data = "a0a1..."     # frames (dlc = 8); its data as hex (default zeros)
 
 Connections (DeviceNet's I/O connections, CIP Vol. 3 ch. 3 and the Connection object's attributes
 as device manuals reprint them): every connection has an expected packet rate (EPR, attribute 9)
@@ -79,6 +82,7 @@ import profiles.polling.plan as ids
 from profiles.base import frame_of
 from profiles.declarations import MessageDecl, ms_to_ns
 from profiles.polling.analysis import transaction_bound_ns
+from profiles.polling.fragment import MAX_IO_SIZE, fragment
 from profiles.schema import (
     REQUIRED,
     Key,
@@ -104,6 +108,7 @@ __all__ = [
     "parse_network",
     "MASTER_KEYS",
     "SLAVE_KEYS",
+    "SLAVE_MESSAGE_KEYS",
     "POLL_KEYS",
     "STYLES",
     "NETWORK_TABLE",
@@ -154,6 +159,16 @@ MASTER_KEYS = {
     ),
 }
 
+
+SLAVE_MESSAGE_KEYS = {
+    "size": Key(
+        int,
+        None,
+        in_range(9, MAX_IO_SIZE, "bytes of a fragmented I/O message (8 or fewer go in one frame: give dlc)"),
+        "a poll response longer than 8 bytes: sent in DeviceNet fragments of 8-byte frames",
+    ),
+    "io_data": Key(str, None, doc="the fragmented message's data as hex (default zeros)"),
+}
 
 SLAVE_KEYS = {
     "mac_id": Key(int, None, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
@@ -381,11 +396,10 @@ class _Parser:
                 f"processing_min_ms: {o['processing_min_ms']!r} is above processing_ms {o['processing_ms']!r}",
             )
         for j, m in enumerate(d.messages, 1):
+            mloc = self.loc(d, f"[[nodes.messages]] #{j} {m.name!r}")
             if m.remote:
-                raise self.err(
-                    self.loc(d, f"[[nodes.messages]] #{j} {m.name!r}"),
-                    "remote: a slave answers with data frames (the master sends the remote frames)",
-                )
+                raise self.err(mloc, "remote: a slave answers with data frames (the master sends the remote frames)")
+            self.io_message(m, mloc)
         wd = None if o["watchdog_ms"] is None else ms_to_ns(o["watchdog_ms"])
         return SlaveConfig(
             d.name,
@@ -453,6 +467,34 @@ class _Parser:
                 d.messages.append(c.ack)
         return cfg
 
+    def io_message(self, m: MessageDecl, loc: str) -> None:
+        """A slave's message of ``size`` above 8 bytes goes in DeviceNet fragments: its frames are 8
+        bytes long (dlc 8) and its I/O data (``io_data``, zeros by default) is stored in
+        ``m.options['io_data']``; a COS/cyclic message is not fragmented here."""
+        size, io = m.options.get("size"), m.options.get("io_data")
+        if size is None:
+            if io is not None:
+                raise self.err(
+                    loc, "io_data: only a message of size above 8 bytes (size = ...) has I/O data of its own"
+                )
+            m.options.pop("io_data", None)
+            return
+        if m.interval_ns is not None:
+            raise self.err(loc, f"size: {size}: canstack fragments polled I/O only (a COS/cyclic message is one frame)")
+        if m.dlc != 8:
+            raise self.err(loc, f"dlc: {m.dlc}: the fragments of a {size}-byte message are 8-byte frames (dlc = 8)")
+        if io is None:
+            data = bytes(size)
+        else:
+            try:
+                data = bytes.fromhex(io)
+            except ValueError:
+                raise self.err(loc, f"io_data: {io!r} is not hex bytes") from None
+            if len(data) != size:
+                raise self.err(loc, f"io_data: {len(data)} bytes given for size {size}")
+        m.options["io_data"] = data
+        m.data = fragment(data)[0]
+
     def dup_mac(self, d: NodeDecl) -> tuple[int, int] | None:
         """(vendor ID, serial number) when the node runs the duplicate MAC ID check; the default
         serial number is the CRC-32 of the node's name, so that two nodes differ."""
@@ -486,7 +528,7 @@ class _Parser:
         s.master = master.name
         return s
 
-    def response_of(self, s: SlaveConfig, can_id: int, extended: bool, loc: str, what: str) -> MessageDecl:
+    def response_of(self, s: SlaveConfig, can_id: int, extended: bool, loc: str, what: str, style: str) -> MessageDecl:
         d = self.sc.node(s.name)
         for m in d.messages:
             if m.can_id == can_id and m.extended == extended and not m.remote:
@@ -495,6 +537,13 @@ class _Parser:
                         loc,
                         f"slave {s.name!r} releases {m.name!r} ({m.id_text}) on its own (period_ms or "
                         f"sporadic_ms): the answer to a poll is released by the poll",
+                    )
+                if "io_data" in m.options and style != "polled":
+                    raise self.err(
+                        loc,
+                        f"slave {s.name!r} answers with {m.name!r} of size {m.options['size']}: canstack "
+                        "fragments polled I/O only (a bit-strobe response or a remote frame's answer is one "
+                        "frame of at most 8 bytes)",
                     )
                 return m
         ident = f"0x{can_id:08X}" if extended else f"0x{can_id:03X}"
@@ -528,21 +577,33 @@ class _Parser:
             raise self.err(loc, f"slave {s.name!r} has no mac_id: the DeviceNet plan derives its identifiers from it")
         return s.mac_id
 
-    def request_payload(self, e: dict[str, Any], loc: str, default: bytes) -> tuple[int, bytes]:
+    def request_payload(
+        self, e: dict[str, Any], loc: str, default: bytes, *, fragmented: bool = False
+    ) -> tuple[int, bytes, bytes | None]:
+        """(DLC, data of the frame, the whole I/O message when it is fragmented) of a request."""
         data = default
         if e["data"] is not None:
             try:
                 data = bytes.fromhex(e["data"])
             except ValueError:
                 raise self.err(loc, f"data: {e['data']!r} is not hex bytes") from None
-            if len(data) > 8:
+            if len(data) > 8 and not fragmented:
                 raise self.err(loc, f"data: {len(data)} bytes: a CAN 2.0 frame carries at most 8")
+            if len(data) > MAX_IO_SIZE:
+                raise self.err(loc, f"data: {len(data)} bytes: canstack takes I/O of at most {MAX_IO_SIZE} bytes")
+            if len(data) > 8:
+                if e["dlc"] is not None:
+                    raise self.err(
+                        loc,
+                        f"dlc: {len(data)} bytes of data go in DeviceNet fragments of 8-byte frames: leave dlc out",
+                    )
+                return 8, fragment(data)[0], data
         if e["dlc"] is not None:
             if e["data"] is not None and len(data) != e["dlc"]:
                 raise self.err(loc, f"data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {e['dlc']}")
             if e["data"] is None:
                 data = (default + bytes(8))[: e["dlc"]]
-        return len(data), data
+        return len(data), data, None
 
     def new_message(
         self,
@@ -643,12 +704,14 @@ class _Parser:
             if e["dlc"] is None and e["data"] is None:
                 dlc, data = 8, default
             else:
-                dlc, data = self.request_payload(e, loc, default)
+                dlc, data, _ = self.request_payload(e, loc, default)
             if cfg.plan == "devicenet" and dlc != 8:
                 raise self.err(
                     loc, f"dlc: {dlc}: the DeviceNet bit-strobe command carries 8 bytes (64 bits, one per MAC ID)"
                 )
-            responses = [self.response_of(s, r, ext, loc, "its bit-strobe response") for s, r in zip(slaves, resp_ids)]
+            responses = [
+                self.response_of(s, r, ext, loc, "its bit-strobe response", style) for s, r in zip(slaves, resp_ids)
+            ]
             for s, r in zip(slaves, responses):
                 self.answer(s, r, loc, j)
             name = e["name"] or f"strobe_{d.name}"
@@ -665,7 +728,7 @@ class _Parser:
         mac = self.mac(s, cfg, loc)
         what = f"poll response of MAC {mac}" if cfg.plan == "devicenet" else "the slave's answer"
         resp_id = self.plan_id(e, "response_id", cfg, None if mac is None else ids.poll_response(mac), loc, what)
-        resp = self.response_of(s, resp_id, ext, loc, what)
+        resp = self.response_of(s, resp_id, ext, loc, what, style)
         self.answer(s, resp, loc, j)
         name = e["name"] or f"poll_{s.name}"
         if style == "remote":
@@ -675,8 +738,9 @@ class _Parser:
             req_id = self.plan_id(
                 e, "id", cfg, None if mac is None else ids.poll_command(mac), loc, f"poll command of MAC {mac}"
             )
-            dlc, data = self.request_payload(e, loc, b"")
-            req = self.new_message(d, loc, name, req_id, ext, dlc, data, False, poll=j, style=style)
+            dlc, data, io = self.request_payload(e, loc, b"", fragmented=True)
+            extra = {} if io is None else {"io_data": io}
+            req = self.new_message(d, loc, name, req_id, ext, dlc, data, False, poll=j, style=style, **extra)
             s.answers[frame_of(req).key] = resp
         s.requests.add(frame_of(req).key)
         s.polls.add(frame_of(req).key)

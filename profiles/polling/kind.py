@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from profiles.polling.analysis import cycle_bound_ns, frame_bits, holistic, transaction_bound_ns
-from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, parse_network
+from profiles.polling.analysis import cycle_bound_ns, holistic, message_bits, transaction_bound_ns
+from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, SLAVE_MESSAGE_KEYS, parse_network
 from profiles.polling.convert import express_message_set  # noqa: F401  (the profiles study finds it here)
 from profiles.polling.master import Master
 from profiles.polling.plots import poll_cycle
@@ -111,7 +111,7 @@ def summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
             done = start + alone
             offsets: tuple[float, float] | None
             if why is None:
-                offsets = (start + frame_bits(tx.request, stuffing) * tau, done)
+                offsets = (start + message_bits(tx.request, stuffing) * tau, done)
             else:
                 offsets = h.offsets_ns.get(tx.request.name)
             worst = [p.links[s].response_ns for s in tx.slaves]
@@ -203,6 +203,7 @@ SLAVE = ProfileKind(
     name="slave",
     build=_build_slave,
     node_keys=SLAVE_KEYS,
+    message_keys=SLAVE_MESSAGE_KEYS,
     timed_messages=False,
     traffic=_traffic,
     description="master/slave polling: a slave answers its master's requests",

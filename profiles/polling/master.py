@@ -17,6 +17,9 @@ poll list in order:
 2. From the request's SOF (`TxDone.sof`) the slave(s) have ``timeout_ms`` to answer, up to the end
    of the response: the response time measured is the same interval (request SOF to response
    end), so a response is counted exactly when its response time is within the timeout.
+   A poll command longer than 8 bytes goes out in DeviceNet fragments, queued back to back
+   (`profiles.polling.fragment`): the timeout runs from the first fragment's SOF, and an answer
+   longer than 8 bytes counts when its last fragment completes it.
 3. An answer ends the transaction (a bit-strobe: the answers of every strobed slave); the next
    request is queued at once. A timeout repeats a polled or remote request ``retries`` times;
    then the slave has *missed* the poll. After ``lost_after`` missed polls in a row the slave is
@@ -60,8 +63,9 @@ from profiles.polling.events import (
     SlaveBack,
     SlaveLost,
 )
+from profiles.polling.fragment import Reassembler, fragment, io_frames
 from profiles.polling.stats import CycleStats, SlaveLink
-from stack import ErrorStateChanged, TxDone, TxFailed
+from stack import ErrorStateChanged, Frame, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
     from array import array
@@ -72,10 +76,11 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["PollMaster", "Master", "Send", "rx_filters"]
 
-Send = Callable[["MessageDecl", "int | None"], "TxRequest | None"]
+Send = Callable[..., "TxRequest | None"]
 """``send(message, not_after)``: queue one of the master's messages (a request with its latest
 start, an acknowledgement with None) and return its request, or None when the node could not
-take it (queue full, bus off)."""
+take it (queue full, bus off); ``send(message, not_after, data)`` queues one fragment of a
+fragmented request (the frame's ``data``, `profiles.polling.fragment`)."""
 
 
 def rx_filters(messages: list[MessageDecl]) -> list[dict[str, Any]]:
@@ -99,11 +104,16 @@ class PollMaster(Reporter):
         self.links = {s: SlaveLink(s) for s in config.slaves}
         self.stats = CycleStats(config)
         self._answers: dict[int, tuple[Transaction, str]] = {}
+        self._reassembly: dict[int, Reassembler] = {}  # fragmented answers, by identifier
+        self.fragments = {tx.request.name: io_frames(tx.request) for tx in config.transactions}
         watched: list[MessageDecl] = []
         for tx in config.transactions:
             for s, r in zip(tx.slaves, tx.responses):
                 self._answers[frame_of(r).key] = (tx, s)
                 watched.append(r)
+                io = r.options.get("io_data")
+                if io is not None:
+                    self._reassembly[frame_of(r).key] = Reassembler(len(io))
         self._cos: dict[int, CosLink] = {}
         self.cos_watchdogs: dict[str, Watchdog] = {}
         for link in config.cos:
@@ -124,6 +134,7 @@ class PollMaster(Reporter):
         self._tx: Transaction | None = None
         self._attempt = 0
         self._req: TxRequest | None = None
+        self._rest: list[TxRequest] = []  # the request's further fragments
         self._queued_at = 0
         self._sof = 0
         self._awaiting: set[str] = set()
@@ -213,12 +224,25 @@ class PollMaster(Reporter):
         self._awaiting = awaiting
         now = self._queued_at = self.node.now()
         self._to(MasterEvent.REQUEST)
-        self._req = self.send(tx.request, now + tx.timeout_ns)
+        self._drop_rest()
+        frames = self.fragments[tx.request.name]
+        if len(frames) == 1:
+            self._req = self.send(tx.request, now + tx.timeout_ns)
+        else:  # DeviceNet I/O fragments, back to back: the first one carries the latest start
+            self._req = self.send(tx.request, now + tx.timeout_ns, frames[0])
+            if self._req is not None:
+                self._rest = [r for f in frames[1:] if (r := self.send(tx.request, None, f)) is not None]
         if self._req is None:  # queue full, or bus off (then the state listener stops the master)
             self.stats.unsent += 1
             self.clean = False
             if self.state is not MasterState.STOPPED:
                 self._arm(now + tx.timeout_ns)
+
+    def _drop_rest(self) -> None:
+        """Take back the fragments of an earlier attempt still queued."""
+        for r in self._rest:
+            self.node.abort(r)
+        self._rest = []
 
     def _arm(self, at: int) -> None:
         if self._timer is not None:
@@ -227,6 +251,9 @@ class PollMaster(Reporter):
 
     def _on_done(self, ev: TxDone) -> None:
         req, tx = self._req, self._tx
+        if self._rest and ev.request is self._rest[-1] and tx is not None:
+            self.stats.request_end(tx.request.name, ev.time - self.cycle_start)  # the last fragment
+            return
         if req is None or ev.request is not req or tx is None or not self._to(MasterEvent.SENT):
             return
         self._sof = ev.sof if ev.sof >= 0 else self._queued_at
@@ -235,13 +262,15 @@ class PollMaster(Reporter):
             self.first_sof_bus = req.sof if req.sof >= 0 else None
         for s in self._awaiting:
             self.links[s].polls += 1
-        self.stats.request_end(tx.request.name, ev.time - self.cycle_start)
+        if not self._rest:
+            self.stats.request_end(tx.request.name, ev.time - self.cycle_start)
         self._arm(self._sof + tx.timeout_ns)
 
     def _on_failed(self, ev: TxFailed) -> None:
         if ev.request is not self._req or not self._to(MasterEvent.UNSENT):
             return
         # not started by its latest start time (a bus too busy), or dropped: no answer can come
+        self._drop_rest()
         self.stats.unsent += 1
         self.clean = False
         self._req = None
@@ -250,6 +279,9 @@ class PollMaster(Reporter):
     def _on_frame(self, ev: Received) -> None:
         key = ev.frame.key
         hit = self._answers.get(key)
+        reassembly = self._reassembly.get(key)
+        if reassembly is not None and reassembly.feed(ev.frame.data) is None:
+            return  # a fragment of an answer: it counts when its last fragment completes it
         if hit is not None:
             tx, slave = hit
             link = self.links[slave]
@@ -388,17 +420,26 @@ class Master(Profile):
         self._track = {m.name: context.recorder.track(m) for m in decl.messages}
         self.poller = PollMaster(node, self.config, send=self._send)
 
-    def _send(self, m: MessageDecl, not_after: int | None) -> TxRequest | None:
+    def _send(self, m: MessageDecl, not_after: int | None, data: bytes | None = None) -> TxRequest | None:
+        frame = self.frames[m.name] if data is None else Frame(m.can_id, data, extended=m.extended)
         if not_after is None:
-            return self.queue(self.frames[m.name], self._track[m.name])
-        return self.queue(self.frames[m.name], self._track[m.name], not_after=not_after)
+            return self.queue(frame, self._track[m.name])
+        return self.queue(frame, self._track[m.name], not_after=not_after)
 
     def start(self) -> None:
         """Start polling (`PollMaster.start`)."""
         self.poller.start()
 
     def set_data(self, name: str, data: bytes) -> None:
-        """Application hook: the output data the next requests of message ``name`` carry."""
+        """Application hook: the output data the next requests of message ``name`` carry (the
+        whole I/O message of a fragmented one, of its connection's size)."""
+        frags = self.poller.fragments.get(name)
+        if frags is not None and len(frags) > 1:
+            size = sum(len(f) - 1 for f in frags)
+            if len(data) != size:
+                raise ValueError(f"{name}: {len(data)} bytes for a {size}-byte fragmented I/O connection")
+            self.poller.fragments[name] = fragment(data)
+            return
         old = self.frames[name]
         self.frames[name] = type(old)(old.can_id, data, extended=old.extended)
 

@@ -1,7 +1,9 @@
 """A slave of a master/slave network: it speaks when its master asks, and watches that it does.
 
 - A request addressed to it (a poll command, a bit-strobe command that names it) is answered
-  after the slave's processing delay, drawn uniformly from [``processing_min_ms``,
+  after the slave's processing delay (a poll command or answer longer than 8 bytes goes in
+  DeviceNet fragments, `profiles.polling.fragment`: the answer is due once the request's last
+  fragment completed it; ``outputs`` keeps the last output data received per request), drawn uniformly from [``processing_min_ms``,
   ``processing_ms``] by a seeded source, from the end of the request (its reception) to queuing
   the answer — so the response time the master measures includes it.
 - A remote frame for a message of its remote-reply mailbox is answered by the controller itself
@@ -48,13 +50,14 @@ from profiles.polling.events import (
     Reporter,
     RetryLimitReached,
 )
+from profiles.polling.fragment import Reassembler, fragment
 from profiles.polling.master import rx_filters
-from stack import TxDone
+from stack import Frame, TxDone
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import SlaveConfig
-    from stack import Frame, NodeAPI, Received, TxRequest
+    from stack import NodeAPI, Received, TxRequest
 
 __all__ = ["Slave", "RUNNING", "MASTER_LOST", "COMMUNICATION_FAULT"]
 
@@ -108,6 +111,14 @@ class Slave(Profile, Reporter):
         self.master_lost_at: list[int] = []
         self.master_back_at: list[int] = []
         self.online = False
+        # fragmented I/O: the master's poll commands longer than 8 bytes, and our answers
+        self._reassembly = {
+            frame_of(m).key: Reassembler(len(m.options["io_data"]))
+            for m in context.scenario.node(cfg.master).messages
+            if frame_of(m).key in cfg.polls and "io_data" in m.options
+        }
+        self.io = {m.name: m.options["io_data"] for m in decl.messages if "io_data" in m.options}
+        self.outputs: dict[int, bytes] = {}
         self.dup_mac: DupMacCheck | None = None
         if cfg.dup_mac is not None and cfg.mac_id is not None:
             vendor, serial = cfg.dup_mac
@@ -162,7 +173,13 @@ class Slave(Profile, Reporter):
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry (a mailbox
-        message is reloaded into the controller)."""
+        message is reloaded into the controller; a fragmented message takes its whole I/O data, of
+        its ``size``)."""
+        if name in self.io:
+            if len(data) != len(self.io[name]):
+                raise ValueError(f"{name}: {len(data)} bytes for a {len(self.io[name])}-byte fragmented message")
+            self.io[name] = bytes(data)
+            return
         old = self.frames[name]
         self.frames[name] = new = type(old)(old.can_id, data, extended=old.extended)
         if new.key in self._mailbox and self.online:
@@ -180,8 +197,16 @@ class Slave(Profile, Reporter):
             for p in self.producers.values():
                 p.acked()
             return
-        self.requests += 1
         self._kick(POLL, ev.time)
+        reassembly = self._reassembly.get(key)
+        if reassembly is not None:
+            message = reassembly.feed(ev.frame.data)
+            if message is None:
+                return  # a fragment: the request is complete with its last one
+            self.outputs[key] = message
+        elif not ev.frame.remote:
+            self.outputs[key] = ev.frame.data
+        self.requests += 1
         name = self._answer_of.get(key)
         if name is None:
             return  # a remote frame: the controller's mailbox answers it
@@ -194,7 +219,13 @@ class Slave(Profile, Reporter):
             self._answer(name)
 
     def _answer(self, name: str) -> None:
-        self.queue(self.frames[name], self._track[name])
+        io = self.io.get(name)
+        if io is None:
+            self.queue(self.frames[name], self._track[name])
+            return
+        f = self.frames[name]
+        for data in fragment(io):  # DeviceNet I/O fragments, back to back
+            self.queue(Frame(f.can_id, data, extended=f.extended), self._track[name])
 
     def _on_done(self, ev: TxDone) -> None:
         key = ev.frame.key
