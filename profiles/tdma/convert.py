@@ -26,15 +26,20 @@ TX_ENABLE_BITS = 16
 MAX_MATRIX = 64
 
 
-def _us_up(ns: float) -> int:
-    return math.ceil(ns / 1000)
-
-
 def express_message_set(mset: MessageSet) -> dict[str, Any]:
-    """The set as a TDMA scenario (see the module docstring)."""
+    """The set as a TDMA scenario (see the module docstring). Every time is a whole number of NTU
+    (level 1: bit times), as the schedule's time marks are."""
     bit_ns = 1e9 / mset.bitrate
-    cycle_us = int(min(m.period_ns for m in mset.messages) // 1000)
-    tx_enable_us = max(1, _us_up(TX_ENABLE_BITS * bit_ns))
+    ntu_us = bit_ns / 1000
+
+    def _us_up(ns: float) -> float:
+        return _ntus(math.ceil(ns / bit_ns - 1e-9))
+
+    def _ntus(n: int) -> float:
+        return round(n * ntu_us, 6)
+
+    cycle_us = _ntus(int(min(m.period_ns for m in mset.messages) // bit_ns))
+    tx_enable_us = _ntus(TX_ENABLE_BITS)
     used = {m.can_id for m in mset.messages}
     ref_id = next(i for i in range(0, 0x800, 8) if all(j not in used for j in range(i, i + 8)))
     ref_us = _us_up(frame_ns_worst(1, False, False, bit_ns))
@@ -45,10 +50,10 @@ def express_message_set(mset: MessageSet) -> dict[str, Any]:
             r *= 2
         repeats[m.name] = r
     matrix = max(repeats.values())
-    columns: list[dict[str, Any]] = []  # {"length": us, "busy": set of cycles, "windows": [...]}
+    columns: list[dict[str, Any]] = []  # {"length": µs, "busy": set of cycles, "windows": [...]}
     for m in sorted(mset.messages, key=lambda m: (repeats[m.name], m.can_id)):
         r = repeats[m.name]
-        length = tx_enable_us + _us_up(frame_ns_worst(m.dlc, m.extended, False, bit_ns))
+        length = round(tx_enable_us + _us_up(frame_ns_worst(m.dlc, m.extended, False, bit_ns)), 6)
         placed = False
         for col in columns:
             for base in range(r):
@@ -77,10 +82,10 @@ def express_message_set(mset: MessageSet) -> dict[str, Any]:
                     "repeat": r,
                 }
             )
-        start += col["length"]
+        start = round(start + col["length"], 6)
     if start > cycle_us:
         raise ValueError(
-            f"the set does not fit a TDMA schedule: its windows need {start} µs of a {cycle_us} µs "
+            f"the set does not fit a TDMA schedule: its windows need {start:g} µs of a {cycle_us:g} µs "
             f"basic cycle (after a {ref_us} µs reference message)"
         )
     nodes: list[dict[str, Any]] = [{"name": "time_master", "profile": "tdma"}]

@@ -68,7 +68,8 @@ oscillators are within 1.58 % each, so two of them differ by at most about 3.2 %
 
 
 class SyncMode(str, Enum):
-    """Sync_Mode [9.4.2] (In_Gap is not modelled: no gap mode)."""
+    """Sync_Mode [9.4.2] (In_Gap is not modelled: no gap mode; a reference that announces a gap
+    is counted, ``next_is_gap_seen``, and the next one still expected at its time mark)."""
 
     OFF = "sync_off"
     SYNCHRONISING = "synchronising"
@@ -128,6 +129,7 @@ class Fse:
         self._timers: dict[str, Timer] = {}
         self._marks: dict[TxRequest, int | None] = {}
         self._bit = schedule.bit_ns
+        self._ntu = schedule.ntu_length
         self._init_watch_ns = schedule.ntu(CYCLE_TIME_NTU)
         # counters
         self.references_sent = 0
@@ -137,6 +139,7 @@ class Fse:
         self.restarts = 0
         self.bus_off = 0
         self.took_over = 0
+        self.gaps_announced = 0  # references with Next_is_Gap set (from another implementation)
 
     # ------------------------------------------------------------------ time
     def local(self, ntu_ns: float) -> int:
@@ -253,7 +256,7 @@ class Fse:
         cc = 0 if self.cycle_count is None else (self.cycle_count + 1) % s.matrix_cycles
         mark = None
         if s.level == 2:
-            mark = round(self.global_time(sof_guess) * (1 << NTU_RES_BITS) / self._bit) % MARK_MODULUS
+            mark = round(self.global_time(sof_guess) * (1 << NTU_RES_BITS) / self._ntu) % MARK_MODULUS
         frame = s.reference_frame(self.priority, cc, mark=mark)
         try:
             req = self.node.send(frame, one_shot=True, not_after=not_after)
@@ -306,7 +309,7 @@ class Fse:
             bits = 3 + (8 if self.node.state is ErrorState.PASSIVE else 0)
             if ev.kind != "arbitration":
                 self.reference_retransmissions += 1
-            self._send_reference(self.node.now() + self.schedule.ntu(bits))
+            self._send_reference(self.node.now() + self.schedule.bits(bits))
 
     def _state_changed(self, ev: ErrorStateChanged) -> None:
         if ev.new == ErrorState.BUS_OFF.value:
@@ -322,6 +325,10 @@ class Fse:
         if not own and self.ref_req is not None:
             self._withdraw()  # the request ends with any completed reference message
         s = self.schedule
+        if info.next_is_gap:
+            # gap mode is not modelled: the next reference is still expected at its time mark,
+            # so a gap longer than the Watch_Trigger ends in Sync_Off (counted and reported)
+            self.gaps_announced += 1
         if s.level == 2:
             self._time_base(sof, info, own)
         self.ref_mark = sof
@@ -355,14 +362,14 @@ class Fse:
         prev = self._prev_mark
         step = None
         if prev is not None and not info.disc:
-            step = ((mark - prev[1]) % MARK_MODULUS) * self._bit / (1 << NTU_RES_BITS)
+            step = ((mark - prev[1]) % MARK_MODULUS) * self._ntu / (1 << NTU_RES_BITS)
             d_local = sof - prev[0]
             if d_local > 0 and abs(step / d_local - 1) < MAX_RATE_DEVIATION:
                 self.tur = step / d_local
         if step is not None and self.global_ref is not None:
             self.global_ref += step
         else:
-            self.global_ref = mark * self._bit / (1 << NTU_RES_BITS)
+            self.global_ref = mark * self._ntu / (1 << NTU_RES_BITS)
         self._prev_mark = (sof, mark)
 
     def _master_mode(self, prio: int, own: bool) -> None:
@@ -407,6 +414,8 @@ class Fse:
             )
         if self.bus_off:
             out["bus_off"] = self.bus_off
+        if self.gaps_announced:
+            out["next_is_gap_seen"] = self.gaps_announced
         if self.schedule.level == 2:
             out["tur"] = round(self.tur, 9)
         return out

@@ -75,7 +75,7 @@ def message_bounds(schedule: Schedule, name: str) -> tuple[int | None, int | Non
         return None, None, "in no window"
     if any(w.kind != EXCLUSIVE for w in ws):
         return None, None, "arbitrating window: no guarantee (the frame may lose arbitration every time)"
-    c = schedule.frame_ns[name] - schedule.ntu(3)
+    c = schedule.frame_ns[name] - schedule.bits(3)
     response = schedule.tx_enable_ns + c
     starts = sorted(
         k * schedule.basic_cycle_ns + w.start_ns for k in range(schedule.matrix_cycles) for w in ws if w.active(k)
@@ -217,7 +217,7 @@ class Monitor:
             gap = sof - last.sof
             slack = s.watch_ns - s.basic_cycle_ns
             self.missing += max(0, (gap - slack) // cycle)
-            if gap > cycle + s.bit_ns:
+            if gap > cycle + s.ntu_length:
                 self.late_references += 1
             if priority != last.priority:
                 self.switches.append(

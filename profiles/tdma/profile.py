@@ -10,8 +10,11 @@ measure release → end of EOF) with its latest start:
   repeated in this window) and latest start = window start + Tx_Enable — a frame that could not
   start in time is withdrawn (`TxFailed` 'expired', counted as a late start) and waits for its
   next window; it is never sent late;
-- arbitrating window: automatic retransmission inside the window (losers of arbitration try
-  again at the next idle point) and latest start = the last start that still ends, with the
+- single arbitrating window: as an exclusive one — one-shot, latest start the end of Tx_Enable
+  (a frame that lost arbitration or was destroyed is not repeated there: it goes at its
+  message's next trigger);
+- merged arbitrating window: automatic retransmission inside the window (losers of arbitration
+  try again at the next idle point) and latest start = the last start that still ends, with the
   error budget, inside the window.
 
 A gated CSMA node knows nothing of the schedule but follows the reference messages as a time
@@ -26,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 from profiles.base import Context, Profile, frame_of
 from profiles.tdma.fse import Fse
 from profiles.tdma.monitor import Monitor
-from profiles.tdma.schedule import EXCLUSIVE, frame_ns_worst
+from profiles.tdma.schedule import frame_ns_worst
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import NodeDecl
@@ -85,7 +88,7 @@ class TdmaProfile(Profile):
             return
         s = self.schedule
         latest = fse.local(s.latest_start_ns(w, s.frame_ns[name]))
-        req = self.queue(self.frames[name], self._track_of[name], one_shot=w.kind == EXCLUSIVE, not_after=latest)
+        req = self.queue(self.frames[name], self._track_of[name], one_shot=w.triggered, not_after=latest)
         if req is not None:
             self.monitor.tag(req, w, name)
 

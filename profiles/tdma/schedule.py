@@ -9,9 +9,26 @@ retransmission), *arbitrating* (event messages compete by CAN arbitration inside
 (reserved). A window entry is used in the basic cycles ``c`` with ``c mod repeat == base_cycle``
 (the standard's Repeat_Factor and Cycle_Offset), ``repeat`` a power of two.
 
+An *arbitrating* window is a *single* arbitrating window (``arbitration = "single"``: a frame may
+start only inside the Tx_Enable window at its start, without automatic retransmission — one that
+loses arbitration or is destroyed waits for its message's next trigger) or a *merged* one
+(``"merged"``, the default: the standard's sequence of consecutive arbitrating windows merged
+into one, in which frames start throughout and retry after a lost arbitration, up to the last
+start that still ends, with the error budget, inside it).
+
 Times in the table are µs of the time master's clock; inside they are integer ns of it ("NTU
-ns"). The network time unit (NTU) is the nominal bit time: Tx_Enable, Ref_Trigger_Offset and
-the 16-bit Cycle_Time count in it.
+ns"). The network time unit (NTU): at level 1 the nominal bit time; at level 2 the time unit
+ratio times the period of the CAN clock it is counted in (``tur`` × 1 / ``can_clock_mhz``, both
+required at level 2; ISO 11898-4's TUR, held by M_TTCAN as NC/DC with NC 0x10000..0x1FFFF and DC
+0x0001..0x3FFF, so 4.0002 ≤ TUR ≤ 131071). Time marks, Tx_Enable, Ref_Trigger_Offset and the
+16-bit Cycle_Time count in NTU, so every time of the table is a whole number of NTU.
+
+Ranges checked (ISO 11898-4 as M_TTCAN and the TC1796 MultiCAN manual implement it): Tx_Enable
+1..16 NTU (M_TTCAN TTOCF.TEW, 4 bits); Initial_Ref_Offset 0..127 NTU; Cycle_Time and the
+Watch_Trigger within 16 bits of NTU; the matrix 1..64 basic cycles, a power of two; Repeat_Factor
+a power of two up to the matrix, Cycle_Offset below it; 1..8 potential time masters. Gap mode
+(Next_is_Gap, a basic cycle that waits for an event before its reference message) is not
+modelled: ``gap_mode = true`` is refused.
 
 Reference message (the numbers and where they come from):
 
@@ -60,11 +77,21 @@ __all__ = [
     "frame_ns_worst",
     "TDMA_KEYS",
     "WINDOW_KEYS",
+    "SINGLE",
+    "MERGED",
+    "TX_ENABLE_NTU",
+    "TUR_RANGE",
 ]
 
 EXCLUSIVE = "exclusive"
 ARBITRATING = "arbitrating"
 FREE = "free"
+SINGLE = "single"
+MERGED = "merged"
+TX_ENABLE_NTU = (1, 16)
+"""Tx_Enable in NTU: M_TTCAN's TTOCF.TEW holds 0..15 for 1..16 NTU."""
+TUR_RANGE = (0x10000 / 0x3FFF, float(0x1FFFF))
+"""The time unit ratios M_TTCAN's TURCF can hold: NC / DC with NC 0x10000..0x1FFFF, DC 1..0x3FFF."""
 MATRIX_SIZES = (1, 2, 4, 8, 16, 32, 64)
 """Basic cycles in a system matrix: Cycle_Count has 6 bits (0..63)."""
 MAX_TIME_MASTERS = 8
@@ -137,6 +164,19 @@ class Window:
     messages: tuple[str, ...]
     base_cycle: int
     repeat: int
+    arbitration: str = ""
+    """An arbitrating window's kind: ``single`` or ``merged`` ("" for the others)."""
+
+    @property
+    def single(self) -> bool:
+        """A single arbitrating window: starts only in Tx_Enable, no automatic retransmission."""
+        return self.arbitration == SINGLE
+
+    @property
+    def triggered(self) -> bool:
+        """A frame here must start within Tx_Enable and is not retransmitted (exclusive and single
+        arbitrating windows)."""
+        return self.kind == EXCLUSIVE or self.single
 
     @property
     def end_ns(self) -> int:
@@ -150,7 +190,8 @@ class Window:
 
     def label(self) -> str:
         """How errors and tables name it: ``window #3 (exclusive, 1200..1500 µs)``."""
-        return f"window #{self.index} ({self.kind}, {self.start_ns / 1000:g}..{self.end_ns / 1000:g} µs)"
+        kind = f"{self.arbitration} {self.kind}" if self.arbitration else self.kind
+        return f"window #{self.index} ({kind}, {self.start_ns / 1000:g}..{self.end_ns / 1000:g} µs)"
 
 
 @dataclass(frozen=True)
@@ -172,6 +213,10 @@ class Schedule:
     error_budget_bits: int
     bitrate: int
     windows: tuple[Window, ...]
+    ntu_ns: float = 0.0
+    """One NTU in ns: the bit time at level 1, TUR / CAN clock at level 2 (0: the bit time)."""
+    tur: float | None = None
+    can_clock_mhz: float | None = None
     message_windows: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
     """Message name -> positions in ``windows`` (0-based)."""
     owners: Mapping[str, str] = field(default_factory=dict)
@@ -183,12 +228,21 @@ class Schedule:
 
     @property
     def bit_ns(self) -> float:
-        """The nominal bit time = one NTU, ns."""
+        """The nominal bit time, ns (frame lengths)."""
         return 1e9 / self.bitrate
+
+    @property
+    def ntu_length(self) -> float:
+        """One NTU, ns (the bit time at level 1)."""
+        return self.ntu_ns or self.bit_ns
 
     def ntu(self, n: float) -> int:
         """``n`` NTU as ns."""
-        return round(n * 1e9 / self.bitrate)
+        return round(n * self.ntu_length)
+
+    def bits(self, n: float) -> int:
+        """``n`` bit times as ns."""
+        return round(n * self.bit_ns)
 
     @property
     def reference_dlc(self) -> int:
@@ -203,7 +257,7 @@ class Schedule:
     @property
     def budget_ns(self) -> int:
         """The user's error budget per window, ns."""
-        return self.ntu(self.error_budget_bits)
+        return self.bits(self.error_budget_bits)
 
     @property
     def reference_ids(self) -> tuple[int, ...]:
@@ -224,9 +278,10 @@ class Schedule:
 
     def latest_start_ns(self, w: Window, frame_ns: int) -> int:
         """The last cycle time a frame of worst-case length ``frame_ns`` (with intermission) may
-        start in window ``w``: the end of its Tx_Enable window in an exclusive window; in an
-        arbitrating window the last start that still ends, with the error budget, inside it."""
-        if w.kind == EXCLUSIVE:
+        start in window ``w``: the end of its Tx_Enable window in an exclusive or single
+        arbitrating window; in a merged arbitrating window the last start that still ends, with
+        the error budget, inside it."""
+        if w.triggered:
             return w.start_ns + self.tx_enable_ns
         return w.end_ns - frame_ns - self.budget_ns
 
@@ -267,7 +322,9 @@ TDMA_KEYS = {
             "cycles, Cycle_Count 0..63)"
         ),
     ),
-    "tx_enable_us": Key(float, None, positive("the Tx_Enable window"), f"default {DEFAULT_TX_ENABLE_NTU} NTU"),
+    "tx_enable_us": Key(
+        float, None, positive("the Tx_Enable window"), f"default {DEFAULT_TX_ENABLE_NTU} NTU; 1..16 NTU"
+    ),
     "level": Key(
         int,
         1,
@@ -285,6 +342,19 @@ TDMA_KEYS = {
         float, None, positive("the Watch_Trigger"), "cycle time at which a missing reference message is an error"
     ),
     "error_budget_bits": Key(int, 0, non_negative("bits an error may add inside a window")),
+    "tur": Key(
+        float,
+        None,
+        lambda v: (
+            None
+            if TUR_RANGE[0] <= v <= TUR_RANGE[1]
+            else f"{v!r} is not {TUR_RANGE[0]:.4f}..{TUR_RANGE[1]:g} (a time unit ratio NC/DC with NC "
+            "0x10000..0x1FFFF and DC 0x0001..0x3FFF)"
+        ),
+        "level 2: NTU / CAN clock period",
+    ),
+    "can_clock_mhz": Key(float, None, positive("a CAN clock"), "level 2: the clock the NTU is counted in, MHz"),
+    "gap_mode": Key(bool, False, doc="Next_is_Gap (event-synchronised cycles): not modelled, refused"),
     "windows": Key(list, REQUIRED),
 }
 
@@ -295,6 +365,7 @@ WINDOW_KEYS = {
     "messages": Key(list, []),
     "base_cycle": Key(int, 0, non_negative(), "the first basic cycle of the matrix that uses the window"),
     "repeat": Key(int, 1, positive("a repeat factor"), "the window is used every `repeat` basic cycles"),
+    "arbitration": Key(str, None, one_of(SINGLE, MERGED), "arbitrating windows: single | merged (default)"),
 }
 
 
@@ -345,26 +416,47 @@ def parse_schedule(scenario: Scenario, raw: Any) -> Schedule:
                 "each identifier has one sender"
             )
 
+    if t["gap_mode"]:
+        raise ScenarioError(
+            f"{loc}: gap_mode: gap mode (Next_is_Gap: a basic cycle that waits for an event before its "
+            "reference message, ISO 11898-4) is not modelled: canstack's time masters send every reference "
+            "message at its time mark (leave gap_mode out)"
+        )
+    level = t["level"]
+    ntu = _ntu_of(t, level, bit_ns, loc)
     basic = _us(t["basic_cycle_us"])
-    ntu = bit_ns
+    _whole_ntu(basic, ntu, loc, "basic_cycle_us", t["basic_cycle_us"])
     if basic > CYCLE_TIME_NTU * ntu:
         raise ScenarioError(
-            f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is {basic / ntu:.0f} NTU at "
-            f"{bitrate} bit/s: Cycle_Time counts 16 bits (at most {CYCLE_TIME_NTU} NTU = "
+            f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is {basic / ntu:.0f} NTU "
+            f"({ntu / 1000:g} µs each): Cycle_Time counts 16 bits (at most {CYCLE_TIME_NTU} NTU = "
             f"{CYCLE_TIME_NTU * ntu / 1000:g} µs)"
         )
-    tx_enable = _us(t["tx_enable_us"]) if t["tx_enable_us"] is not None else round(DEFAULT_TX_ENABLE_NTU * ntu)
-    level = t["level"]
+    if t["tx_enable_us"] is not None:
+        tx_enable = _us(t["tx_enable_us"])
+        _whole_ntu(tx_enable, ntu, loc, "tx_enable_us", t["tx_enable_us"])
+        lo, hi = TX_ENABLE_NTU
+        if not lo <= round(tx_enable / ntu) <= hi:
+            raise ScenarioError(
+                f"{loc}: tx_enable_us: {t['tx_enable_us']:g} µs is {tx_enable / ntu:g} NTU: the Tx_Enable window "
+                f"is {lo}..{hi} NTU ({lo * ntu / 1000:g}..{hi * ntu / 1000:g} µs of {ntu / 1000:g} µs NTU; "
+                "ISO 11898-4 as M_TTCAN's TTOCF.TEW holds it)"
+            )
+    else:
+        tx_enable = round(DEFAULT_TX_ENABLE_NTU * ntu)
     ref_dlc = 1 if level == 1 else 4
     ref_ns = frame_ns_worst(ref_dlc, ref_ext, False, bit_ns)
     offset = t["initial_ref_offset"]
     latest_ref = basic + round(offset * ntu) + ref_ns
     if t["watch_trigger_us"] is None:
         # past the backups' Tx_Ref_Trigger and room for their reference message and one
-        # retransmission after an error frame
-        watch = latest_ref + 2 * round((frame_bits_worst(ref_dlc, ref_ext) + ERROR_FRAME_BITS) * ntu)
+        # retransmission after an error frame, rounded up to a whole NTU
+        watch = latest_ref + 2 * round((frame_bits_worst(ref_dlc, ref_ext) + ERROR_FRAME_BITS) * bit_ns)
+        watch = math.ceil(watch / ntu - 1e-9) * ntu
+        watch = round(watch)
     else:
         watch = _us(t["watch_trigger_us"])
+        _whole_ntu(watch, ntu, loc, "watch_trigger_us", t["watch_trigger_us"])
         if watch <= latest_ref:
             raise ScenarioError(
                 f"{loc}: watch_trigger_us: {t['watch_trigger_us']:g} µs must be after the backup "
@@ -378,14 +470,27 @@ def parse_schedule(scenario: Scenario, raw: Any) -> Schedule:
             f"Cycle_Time ({CYCLE_TIME_NTU} NTU = {CYCLE_TIME_NTU * ntu / 1000:g} µs): shorten "
             "basic_cycle_us"
         )
-    budget_ns = round(t["error_budget_bits"] * ntu)
+    budget_ns = round(t["error_budget_bits"] * bit_ns)
     matrix = t["matrix_cycles"]
 
     windows: list[Window] = []
     for i, rw in enumerate(t["windows"], 1):
         windows.append(
             _window(
-                rw, i, src, decls, owners, tdma_nodes, scenario, basic, matrix, ref_ns, budget_ns, tx_enable, bit_ns
+                rw,
+                i,
+                src,
+                decls,
+                owners,
+                tdma_nodes,
+                scenario,
+                basic,
+                matrix,
+                ref_ns,
+                budget_ns,
+                tx_enable,
+                bit_ns,
+                ntu,
             )
         )
     _check_overlaps(windows, src, matrix)
@@ -419,6 +524,9 @@ def parse_schedule(scenario: Scenario, raw: Any) -> Schedule:
         error_budget_bits=t["error_budget_bits"],
         bitrate=bitrate,
         windows=tuple(windows),
+        ntu_ns=ntu,
+        tur=t["tur"],
+        can_clock_mhz=t["can_clock_mhz"],
         message_windows={k: tuple(v) for k, v in message_windows.items()},
         owners=owners,
         frame_ns=frame_ns,
@@ -442,11 +550,22 @@ def _window(
     budget_ns: int,
     tx_enable: int,
     bit_ns: float,
+    ntu: float,
 ) -> Window:
     loc = where(src, "[tdma]", f"[[tdma.windows]] #{i}")
     d = read_table(rw, WINDOW_KEYS, loc)
     start, length = _us(d["start_us"]), _us(d["length_us"])
+    _whole_ntu(start, ntu, loc, "start_us", d["start_us"])
+    _whole_ntu(length, ntu, loc, "length_us", d["length_us"])
     kind = d["kind"]
+    arbitration = d["arbitration"]
+    if arbitration is not None and kind != ARBITRATING:
+        raise ScenarioError(
+            f"{loc}: arbitration: {arbitration!r}: only an arbitrating window is single or merged (this one is {kind})"
+        )
+    if kind == ARBITRATING and arbitration is None:
+        arbitration = MERGED
+    triggered = kind == EXCLUSIVE or arbitration == SINGLE
     repeat, base = d["repeat"], d["base_cycle"]
     if not _power_of_two(repeat):
         raise ScenarioError(
@@ -508,10 +627,10 @@ def _window(
     for name in names:
         m = decls[name]
         f = frame_ns_worst(m.dlc, m.extended, m.remote, bit_ns)
-        need = f + budget_ns + (tx_enable if kind == EXCLUSIVE else 0)
+        need = f + budget_ns + (tx_enable if triggered else 0)
         if need > length:
             parts = f"its worst case {f / 1000:g} µs ({f / bit_ns:.0f} bits with intermission)"
-            if kind == EXCLUSIVE:
+            if triggered:
                 parts += f" after a Tx_Enable window of {tx_enable / 1000:g} µs"
             if budget_ns:
                 parts += f" plus the error budget {budget_ns / 1000:g} µs"
@@ -520,7 +639,14 @@ def _window(
                 f"the window is {length / 1000:g} µs"
             )
     return Window(
-        index=i, start_ns=start, length_ns=length, kind=kind, messages=tuple(names), base_cycle=base, repeat=repeat
+        index=i,
+        start_ns=start,
+        length_ns=length,
+        kind=kind,
+        messages=tuple(names),
+        base_cycle=base,
+        repeat=repeat,
+        arbitration=arbitration or "",
     )
 
 
@@ -534,6 +660,37 @@ def _share_cycles(a: Window, b: Window) -> int | None:
     while c % b.repeat != b.base_cycle:
         c += a.repeat
     return c
+
+
+def _ntu_of(t: dict[str, Any], level: int, bit_ns: float, loc: str) -> float:
+    """One NTU in ns: the nominal bit time at level 1; TUR times the CAN clock's period at level 2
+    (both keys required there, refused at level 1)."""
+    tur, clock = t["tur"], t["can_clock_mhz"]
+    if level == 1:
+        for key, value in (("tur", tur), ("can_clock_mhz", clock)):
+            if value is not None:
+                raise ScenarioError(
+                    f"{loc}: {key}: level 1's NTU is the nominal bit time (ISO 11898-4); the time unit ratio "
+                    "configures the NTU at level 2 (set level = 2, or leave it out)"
+                )
+        return bit_ns
+    for key, value in (("tur", tur), ("can_clock_mhz", clock)):
+        if value is None:
+            raise ScenarioError(
+                f"{loc}: key {key!r} is required at level 2: the NTU is the time unit ratio (tur) times the "
+                "period of the CAN clock it counts (can_clock_mhz), e.g. tur = 16 and can_clock_mhz = 8 for 2 µs"
+            )
+    return float(tur) * 1000.0 / float(clock)
+
+
+def _whole_ntu(ns: int, ntu: float, loc: str, key: str, value: float) -> None:
+    """Times of the schedule are whole NTU (time marks count NTU): within 1 ns of one."""
+    n = ns / ntu
+    if abs(n - round(n)) * ntu > 1:
+        raise ScenarioError(
+            f"{loc}: {key}: {value:g} µs is {n:g} NTU: a time of the schedule is a whole number of NTU "
+            f"({ntu / 1000:g} µs each)"
+        )
 
 
 def _check_overlaps(windows: list[Window], src: str, matrix: int) -> None:

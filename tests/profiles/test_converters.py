@@ -53,3 +53,16 @@ def test_master_polls_the_fastest_messages_and_the_others_are_cyclic():
     rows = {m["name"]: m for m in res.to_json()["messages"]}
     assert rows["m0"]["sent"] == rows["m1"]["sent"] == 40  # one answer per 5 ms cycle for 0.2 s
     assert rows["m3"]["sent"] == 10 and all(r["deadline_misses"] == 0 for r in rows.values())
+
+
+@pytest.mark.parametrize("bitrate", [125_000, 250_000, 800_000, 1_000_000])
+def test_tdma_times_are_whole_ntu_at_any_bitrate(bitrate):
+    """The schedule's times count NTU (level 1: bit times; 1.25 µs at 800 kbit/s): the converter's
+    windows pass the checker's whole-NTU rule and run."""
+    raw = as_tdma(_set([7.3, 7.3, 14.9, 29.1], bitrate))
+    ntu_us = 1e6 / bitrate
+    for w in raw["tdma"]["windows"]:
+        for key in ("start_us", "length_us"):
+            assert abs(w[key] / ntu_us - round(w[key] / ntu_us)) < 1e-9, (key, w[key])
+    data = run_scenario(parse_scenario(raw, "tdma-converted")).to_json()
+    assert data["tdma"]["outside"] == 0 and all(m["sent"] > 0 for m in data["messages"])

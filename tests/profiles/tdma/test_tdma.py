@@ -48,6 +48,9 @@ NET = {
 }
 
 
+LEVEL_2 = {"tur": 16.0, "can_clock_mhz": 8.0}  # an NTU of 16 periods of an 8 MHz clock: 2 µs, one bit
+
+
 def net(mutate=None):
     raw = copy.deepcopy(NET)
     if mutate is not None:
@@ -246,6 +249,8 @@ def test_one_shot_in_exclusive_windows_a_flipped_bit_is_not_retried():
 def test_a_disturbed_reference_is_repeated_at_once_with_an_updated_master_ref_mark(level):
     def m(raw):
         raw["tdma"]["level"] = level
+        if level == 2:
+            raw["tdma"].update(LEVEL_2)
         raw["faults"] = [{"kind": "flip", "id": 0x010, "occurrence": 5, "field": "data", "bit": 0}]
 
     res, data = run(net(m))
@@ -293,6 +298,7 @@ def drifting(level):
             "time_masters": ["master"],
             "basic_cycle_us": 60000,
             "level": level,
+            **(LEVEL_2 if level == 2 else {}),
             "windows": [
                 {"start_us": 50000, "length_us": 320, "kind": "exclusive", "messages": ["Fast"]},
                 {"start_us": 55000, "length_us": 320, "kind": "exclusive", "messages": ["Slow"]},
@@ -388,3 +394,76 @@ def test_example_schedule_plot(tmp_path):
     assert list(plots) == ["tdma_schedule"]
     out = plots["tdma_schedule"](res, tmp_path / "s.png")
     assert out.stat().st_size > 10_000
+
+
+def arbitration(kind):
+    """A (gw, 0x100) and C (abs, 0x120) share an arbitrating window at 500 µs in even basic cycles;
+    C alone has one at the same time in odd cycles."""
+
+    def m(raw):
+        raw["tdma"]["windows"] = [
+            {"start_us": 500, "length_us": 800, "kind": "arbitrating", "arbitration": kind, "messages": ["A", "C"]},
+            {"start_us": 1500, "length_us": 400, "kind": "exclusive", "messages": ["B"]},
+        ]
+        raw["tdma"]["windows"][0].update(repeat=2, base_cycle=0)
+        raw["tdma"]["windows"].append(
+            {
+                "start_us": 500,
+                "length_us": 800,
+                "kind": "arbitrating",
+                "arbitration": kind,
+                "messages": ["C"],
+                "repeat": 2,
+                "base_cycle": 1,
+            }
+        )
+
+    return net(m)
+
+
+def test_a_single_arbitrating_window_starts_only_in_tx_enable_and_does_not_retry():
+    res, data = run(arbitration("single"))
+    refs = sofs(res, 0x010)
+    a, c = sofs(res, 0x100), sofs(res, 0x120)
+    even = [r for k, r in enumerate(refs) if k % 2 == 0 and k >= 2]
+    odd = [r for k, r in enumerate(refs) if k % 2 == 1 and k >= 1]
+    assert len(a) >= 8 and len(c) >= 8
+    # A wins every even cycle at the window's start; C lost arbitration there and is not repeated
+    # in that window: it goes at its next trigger, the odd cycle's window, at the start
+    assert set(a) == {r + 500_000 for r in even if r + 500_000 < res.scenario.duration_ns}
+    assert set(c) == {r + 500_000 for r in odd if r + 500_000 < res.scenario.duration_ns}
+    row = tdma_row(data, "C")
+    assert row["lost_arbitration"] == len(a) and row["outside"] == 0
+    assert data["tdma"]["windows"][0]["lost_arbitration"] == len(a)
+
+
+def test_a_merged_arbitrating_window_lets_the_loser_start_later_in_it():
+    res, data = run(arbitration("merged"))
+    a = [r for r in res.trace if r.kind == "frame" and r.frame.can_id == 0x100]
+    c = sofs(res, 0x120)
+    assert len(a) >= 8
+    # in even cycles C retries after A, 3 bits (the intermission) after A's end
+    for fa in a:
+        assert fa.end + 3 * BIT in c
+    assert tdma_row(data, "C")["lost_arbitration"] == 0  # a retry that succeeds is no loss here
+    assert data["tdma"]["outside"] == 0
+
+
+def test_level_2_times_its_reference_in_the_configured_ntu():
+    """tur 8 of an 8 MHz clock: an NTU of 1 µs. The first reference comes at the end of the first
+    basic cycle plus Initial_Ref_Offset 127 NTU = 127 µs (not the 254 µs of 127 bit times), and its
+    Master_Ref_Mark counts 1 µs NTUs with 1/128 NTU fractions."""
+
+    def m(raw):
+        raw["tdma"].update(level=2, tur=8.0, can_clock_mhz=8.0)
+
+    res, data = run(net(m))
+    refs = [r for r in res.trace if r.kind == "frame" and r.frame.can_id == 0x010]
+    assert refs[0].start == 5_000_000 + 127_000
+    for r in refs[:5]:
+        d = r.frame.data
+        mark = (d[2] | d[3] << 8) << 7 | d[1] >> 1
+        assert mark / 128 * 1000 == pytest.approx(r.start, abs=1000 / 128)  # NTU of 1 µs
+    assert data["tdma"]["tx_enable_us"] == 16  # the default 16 NTU of 1 µs
+    # the schedule holds: A at each window start
+    assert {r.start + 500_000 for r in refs[1:-1]} <= set(sofs(res, 0x100))

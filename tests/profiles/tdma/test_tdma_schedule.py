@@ -299,3 +299,83 @@ def test_analytic_bounds_of_exclusive_windows():
     assert message_bounds(s, "C") == (216_000, 10_216_000, None)  # 4 bytes: 95 bits, 92 without intermission
     rta, latency, note = message_bounds(s, "E")
     assert rta is None and latency is None and "arbitrating" in note
+
+
+# -- the standard's ranges, the window kinds, level 2's NTU ---------------------------------------
+
+
+@pytest.mark.parametrize(
+    "mutate, parts",
+    [
+        (
+            lambda r: r["tdma"].update(tx_enable_us=34),
+            ["[tdma]: tx_enable_us: 34 µs is 17 NTU: the Tx_Enable window is 1..16 NTU (2..32 µs of 2 µs NTU"],
+        ),
+        (
+            lambda r: r["tdma"].update(tx_enable_us=3),
+            ["[tdma]: tx_enable_us: 3 µs is 1.5 NTU: a time of the schedule is a whole number of NTU (2 µs each)"],
+        ),
+        (lambda r: r["tdma"].update(tx_enable_us=0), ["[tdma]: tx_enable_us: 0"]),
+        (lambda r: window(r, 1).update(start_us=501), ["#1: start_us: 501 µs is 250.5 NTU: a time of the schedule"]),
+        (lambda r: window(r, 2).update(length_us=401), ["#2: length_us: 401 µs is 200.5 NTU"]),
+        (lambda r: r["tdma"].update(basic_cycle_us=5001), ["[tdma]: basic_cycle_us: 5001 µs is 2500.5 NTU"]),
+        (
+            lambda r: window(r, 1).update(arbitration="single"),
+            ["#1: arbitration: 'single': only an arbitrating window is single or merged (this one is exclusive)"],
+        ),
+        (lambda r: window(r, 4).update(arbitration="both"), ["#4: arbitration: 'both' is not one of 'single'"]),
+        (
+            lambda r: r["tdma"].update(gap_mode=True),
+            ["[tdma]: gap_mode: gap mode (Next_is_Gap", "is not modelled"],
+        ),
+        (lambda r: r["tdma"].update(tur=8.0), ["[tdma]: tur: level 1's NTU is the nominal bit time"]),
+        (lambda r: r["tdma"].update(level=2), ["[tdma]: key 'tur' is required at level 2"]),
+        (
+            lambda r: r["tdma"].update(level=2, tur=8.0),
+            ["[tdma]: key 'can_clock_mhz' is required at level 2"],
+        ),
+        (
+            lambda r: r["tdma"].update(level=2, tur=3.9, can_clock_mhz=8),
+            ["[tdma]: tur: 3.9 is not 4.0002..131071 (a time unit ratio NC/DC"],
+        ),
+        (
+            lambda r: r["tdma"].update(level=2, tur=24.0, can_clock_mhz=8),  # 3 µs NTU: 5000 µs is no whole NTU
+            ["[tdma]: basic_cycle_us: 5000 µs is 1666.67 NTU: a time of the schedule is a whole number of NTU (3 µs"],
+        ),
+    ],
+)
+def test_values_outside_the_standards_ranges_are_refused(mutate, parts):
+    refuse(mutate, *parts)
+
+
+def test_tx_enable_at_the_ends_of_its_range():
+    assert scenario(lambda r: r["tdma"].update(tx_enable_us=2)).tables["tdma"].tx_enable_ns == 2_000
+    assert scenario(lambda r: r["tdma"].update(tx_enable_us=32)).tables["tdma"].tx_enable_ns == 32_000
+
+
+def test_arbitrating_windows_are_merged_unless_said_single():
+    s = scenario().tables["tdma"]
+    w = s.windows[3]
+    assert w.arbitration == "merged" and not w.triggered
+    assert s.latest_start_ns(w, 40_000) == w.end_ns - 40_000  # starts throughout
+    s = scenario(lambda r: window(r, 4).update(arbitration="single")).tables["tdma"]
+    w = s.windows[3]
+    assert w.single and w.triggered and s.latest_start_ns(w, 40_000) == w.start_ns + s.tx_enable_ns
+    assert s.windows[0].arbitration == "" and "single arbitrating" in s.windows[3].label()
+
+
+def test_a_single_arbitrating_window_fits_its_messages_after_tx_enable():
+    # E: 1 byte, 65 bits worst case with intermission = 130 µs; + Tx_Enable 32 µs = 162 µs
+    refuse(
+        lambda r: window(r, 4).update(arbitration="single", length_us=160),
+        "#4: length_us: message 'E' does not fit",
+        "after a Tx_Enable window of 32 µs needs 162 µs",
+    )
+
+
+def test_level_2_counts_in_the_ntu_its_time_unit_ratio_gives():
+    """tur 8 of an 8 MHz clock: an NTU of 1 µs (half the bit time at 500 kbit/s)."""
+    s = scenario(lambda r: r["tdma"].update(level=2, tur=8.0, can_clock_mhz=8.0)).tables["tdma"]
+    assert s.ntu_length == 1000.0 and s.ntu(127) == 127_000
+    assert s.tx_enable_ns == 16_000  # the default 16 NTU
+    assert s.bit_ns == 2000.0 and s.budget_ns == 0
