@@ -3,9 +3,16 @@ transfer the server keeps between frames.
 
 Block download: the client sends up to ``blksize`` segments (byte 0 = c | seqno 1..127, seven
 data bytes each) without waiting; the server answers each sub-block with 0xA2, the last good
-sequence number and the next block size. A segment out of sequence ends the sub-block at once
-with the last good number, so the client sends the rest again (duplicates and segments before
-the first good one are ignored, as in CANopenNode). The end request (0xC1 | n << 2, CRC) says how
+sequence number (ackseq) and the next block size. A segment out of sequence ends the sub-block at
+once with the last good number, so the client sends the rest again (duplicates and segments
+before the first good one are ignored, as in CANopenNode). A sub-block that stops short — its
+first segment, a middle one followed by nothing, or its last one lost — ends when no segment has
+come for the sub-block timeout (``block_timeout_ns``, by default half the SDO timeout, as
+CANopenNode's ``block_SDOtimeoutTime_us``): the server answers with the segments it received in
+order (ackseq 0 when it has none: CiA 301 7.2.4.3.10, "all segments shall be retransmitted"), and
+the client sends the rest again in a new sub-block. The transfer's own timeout is not restarted
+by that answer: a client that stays silent is aborted (0x0504 0000) one SDO timeout after its
+last frame. The end request (0xC1 | n << 2, CRC) says how
 many bytes of the last segment carry no data and gives the CRC; the server answers 0xA1.
 
 Block upload: after the initiate (0xA0 | cc, blksize, pst) the server answers 0xC6 with the
@@ -51,6 +58,9 @@ class Transfer:
         """The next client frame of this transfer."""
         raise NotImplementedError
 
+    def cancel(self) -> None:
+        """The transfer ended: stop any timer of its own (a block download's sub-block timer)."""
+
     @property
     def kind(self) -> str:
         """The transfer's kind for the server's counters ('segmented download', ...)."""
@@ -66,7 +76,17 @@ class Transfer:
 class BlockDownload(Transfer):
     """The server's half of a block download."""
 
-    def __init__(self, server: Any, index: int, sub: int, size: int | None, *, crc: bool, block_size: int) -> None:
+    def __init__(
+        self,
+        server: Any,
+        index: int,
+        sub: int,
+        size: int | None,
+        *,
+        crc: bool,
+        block_size: int,
+        block_timeout_ns: int | None = None,
+    ) -> None:
         super().__init__(index, sub)
         self.server = server
         self.size = size
@@ -76,12 +96,39 @@ class BlockDownload(Transfer):
         self.last_good = 0  # sequence number of the last segment accepted in this sub-block
         self.last_segment_seen = False
         self.retransmissions = 0
+        self.sub_block_timeouts = 0
+        self.block_timeout_ns = block_timeout_ns
+        self._timer: Any = None
+        self._arm()  # the first sub-block may start now
+
+    def _arm(self) -> None:
+        """(Re)start the sub-block timeout: from the last segment received, or from the server's
+        answer that opened the sub-block (CANopenNode restarts it at both)."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self.block_timeout_ns and not self.last_segment_seen and not self.done:
+            self._timer = self.server.call_later(self.block_timeout_ns, self._sub_block_timeout)
+
+    def cancel(self) -> None:
+        """The transfer ended (completed, aborted, or the server was reset): no timer left."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _sub_block_timeout(self) -> None:
+        self._timer = None
+        if self.done or self.last_segment_seen or self.server.transfer is not self:
+            return
+        self.sub_block_timeouts += 1
+        self._ack()
 
     def on_request(self, req: bytes) -> None:
         """A segment of the sub-block (c | seqno, 7 bytes), or the end request after the last."""
         if self.last_segment_seen:
             self._end(req)
             return
+        self._arm()  # any frame of the sub-block restarts its timeout (CANopenNode)
         seqno = req[0] & 0x7F
         if seqno == self.last_good + 1 and seqno <= self.block_size:
             self.buffer += req[1:8]
@@ -102,6 +149,7 @@ class BlockDownload(Transfer):
     def _ack(self) -> None:
         self.server.send(bytes([0xA2, self.last_good, self.block_size]) + bytes(5))
         self.last_good = 0
+        self._arm()  # the next sub-block's timeout runs from this answer
 
     def _end(self, req: bytes) -> None:
         cmd = req[0]
@@ -123,6 +171,7 @@ class BlockDownload(Transfer):
         self.server.store.sdo_write(self.index, self.sub, data)
         self.server.send(bytes([0xA1]) + bytes(7))
         self.done = True
+        self.cancel()
 
 
 class BlockUpload(Transfer):

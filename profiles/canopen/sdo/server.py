@@ -112,7 +112,9 @@ class SdoServer:
     ``send(data)`` transmits 8 bytes on the server→client COB-ID; ``call_later(delay_ns, cb)``
     returns a timer with ``cancel()`` (the node's). ``timeout_ns`` aborts a transfer the client
     stopped answering with 0x0504 0000; ``block_size`` is the number of segments per block the
-    server asks for in a block download (1..127).
+    server asks for in a block download (1..127); ``block_timeout_ns`` ends a block download's
+    sub-block that stopped short with the segments received in order (default: half of
+    ``timeout_ns``, CANopenNode's; 0: never — the transfer's timeout then aborts it).
 
     Counters: ``requests`` (frames handled), ``aborts_sent``, ``aborts_received``, ``ignored``
     (not 8 bytes), and ``completed`` by transfer kind.
@@ -126,6 +128,7 @@ class SdoServer:
         *,
         timeout_ns: int = DEFAULT_TIMEOUT_NS,
         block_size: int = 127,
+        block_timeout_ns: int | None = None,
     ) -> None:
         if not 1 <= block_size <= 127:
             raise ValueError(f"block_size {block_size!r}: an SDO block has 1..127 segments (CiA 301 7.2.4.3.9)")
@@ -134,6 +137,7 @@ class SdoServer:
         self.call_later = call_later
         self.timeout_ns = timeout_ns
         self.block_size = block_size
+        self.block_timeout_ns = timeout_ns // 2 if block_timeout_ns is None else block_timeout_ns
         self.transfer: Transfer | None = None
         self._timer: Any = None
         self.requests = 0
@@ -190,10 +194,16 @@ class SdoServer:
             var = self.store.check_sdo_access(index, sub, upload=False)
             size = struct.unpack_from("<L", req, 4)[0] if cmd & 0x02 else None
             _check_size(self.store, index, sub, size, var)
-            t: Transfer = BlockDownload(
-                self, index, sub, size, crc=bool(cmd & CRC_SUPPORTED), block_size=self.block_size
-            )
             self.send(bytes([0xA0 | CRC_SUPPORTED]) + req[1:4] + bytes([self.block_size, 0, 0, 0]))
+            t: Transfer = BlockDownload(
+                self,
+                index,
+                sub,
+                size,
+                crc=bool(cmd & CRC_SUPPORTED),
+                block_size=self.block_size,
+                block_timeout_ns=self.block_timeout_ns,
+            )
             return t
         if ccs == 0xA0 and cmd & 0x03 == 0:
             self.store.check_sdo_access(index, sub, upload=True)
@@ -248,6 +258,8 @@ class SdoServer:
         self._finish()
 
     def _finish(self) -> None:
+        if self.transfer is not None:
+            self.transfer.cancel()
         self.transfer = None
         if self._timer is not None:
             self._timer.cancel()
