@@ -7,6 +7,14 @@ NMT state machine with boot-up, heartbeat producer and consumer, node guarding, 
 EMCY and TIME. It acts only through the node API (send, subscribe/listen, timers, now), so it
 runs unchanged on the simulated bus and on any python-can bus through `stack.PyCanDriver`.
 
+A communication error — a heartbeat consumer timeout, a life guarding event, bus off — makes the
+device change its NMT state as object 0x1029 sub-index 1 (error behaviour, communication error)
+asks (CiA 301 7.5.2.32): 0x00 pre-operational, only from operational; 0x01 no change; 0x02
+stopped (from operational or pre-operational). Without the object the state does not change.
+(CANopenNode acts only in operational, and also on a heartbeat consumer's "remote reset"; CiA 301
+counts only the errors named here.) Recovery from bus off is reported with EMCY 0x8140 and its
+error reset, as CANopenNode does once the controller can send again.
+
 What the services do, and which CiA 301 numbers they keep, is in their modules: `nmt`,
 `heartbeat`, `guarding`, `sync`, `pdo.tpdo`, `pdo.rpdo`, `sdo.server`, `emcy`, `timestamp`;
 the dictionary and its access rules are `dictionary`'s; the options are `options`'s.
@@ -40,13 +48,27 @@ from profiles.canopen.sdo.server import SdoServer
 from profiles.canopen.stats import summary
 from profiles.canopen.sync import SyncConsumer, SyncProducer, check_cob_id_sync, check_counter_overflow
 from profiles.canopen.timestamp import EPOCH_1984, TimeProducer, check_cob_id_time, decode_time_of_day
-from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxFailed, TxRequest
+from stack import (
+    ErrorStateChanged,
+    Frame,
+    NodeAPI,
+    NodeError,
+    QueueFull,
+    Received,
+    TxDone,
+    TxFailed,
+    TxRequest,
+)
 
 __all__ = ["CanopenDevice", "RpdoUpdate"]
 
 MS = 1_000_000
 SYNC_ERROR = 0x8100
 HEARTBEAT_ERROR = 0x8130
+BUS_OFF_RECOVERED = 0x8140
+ERROR_BEHAVIOUR = 0x1029
+"""Error behaviour: sub-index 1 is the communication error's (CiA 301 7.5.2.32)."""
+TO_PRE_OPERATIONAL, NO_CHANGE, TO_STOPPED = 0x00, 0x01, 0x02
 SYNC_LENGTH_ERROR = 0x8240
 PDO_MAPPING_ERROR = 0x8200
 
@@ -150,6 +172,7 @@ class CanopenDevice:
         self._clean_syncs = 0
         self.time_received: int | None = None
         self.state_log: list[tuple[int, str]] = []
+        self.communication_errors: list[tuple[int, str]] = []
 
     def _check_pdos(self) -> None:
         """A PDO the dictionary makes valid must have a usable mapping: an option naming it is a
@@ -258,6 +281,7 @@ class CanopenDevice:
         if not self._listening:
             self.node.listen(TxDone, self._on_tx_done)
             self.node.listen(TxFailed, self._on_tx_failed)
+            self.node.listen(ErrorStateChanged, self._on_error_state)
             self._listening = True
         delay = int(self.options.boot_delay_ms * MS)
         if delay:
@@ -490,8 +514,31 @@ class CanopenDevice:
             self.emcy.clear("sync-timeout")
 
     # ------------------------------------------------------------------ error control events
+    def communication_error(self, event: str) -> None:
+        """A communication error (``event``: what it was): the NMT state object 0x1029:1 asks for
+        (see the module docstring)."""
+        self.communication_errors.append((self.node.now(), event))
+        if not self.running:
+            return
+        behaviour = self.store.u(ERROR_BEHAVIOUR, 1, NO_CHANGE)
+        st = self.nmt.state
+        if behaviour == TO_PRE_OPERATIONAL and st is NmtState.OPERATIONAL:
+            self.nmt.error_behaviour(NmtState.PRE_OPERATIONAL, f"communication error: {event}")
+        elif behaviour == TO_STOPPED and st in (NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL):
+            self.nmt.error_behaviour(NmtState.STOPPED, f"communication error: {event}")
+
+    def _on_error_state(self, ev: ErrorStateChanged) -> None:
+        if ev.new == "bus-off":
+            self.communication_error("bus off")
+        elif ev.old == "bus-off" and self.running:
+            # CANopenNode reports CO_EM_CAN_TX_BUS_OFF (EMCY 0x8140) while bus off and resets it
+            # when the bus is back: both go out once the controller can send again
+            self.emcy.report(BUS_OFF_RECOVERED, b"", key="bus-off")
+            self.emcy.clear("bus-off")
+
     def _heartbeat_lost(self, m: MonitoredNode) -> None:
         self.emcy.report(HEARTBEAT_ERROR, bytes([m.node_id]), key=f"heartbeat-{m.node_id}")
+        self.communication_error(f"heartbeat of node {m.node_id} lost")
 
     def _heartbeat_back(self, m: MonitoredNode) -> None:
         self.emcy.clear(f"heartbeat-{m.node_id}")
@@ -507,6 +554,7 @@ class CanopenDevice:
     def _life_guarding(self, event: str) -> None:
         if event == "lost":
             self.emcy.report(HEARTBEAT_ERROR, b"\x00", key="life-guarding")
+            self.communication_error("life guarding")
         else:
             self.emcy.clear("life-guarding")
 
@@ -632,6 +680,7 @@ class CanopenDevice:
             "error_register": self.emcy.register,
             "errors_active": sorted(self.emcy.active.values()),
             "tx_refused": self.tx_refused,
+            "communication_errors": [[t / 1e6, what] for t, what in self.communication_errors],
             "sdo": {
                 "requests": self.sdo.requests,
                 "aborts_sent": self.sdo.aborts_sent,

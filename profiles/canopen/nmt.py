@@ -74,6 +74,11 @@ class NmtSlave:
         (or straight to operational for a self-starting device, CiA 302's 'auto start')."""
         self._set(NmtState.OPERATIONAL if operational else NmtState.PRE_OPERATIONAL)
 
+    def error_behaviour(self, new: NmtState, event: str) -> None:
+        """The device's own change of state after an error (CiA 301 0x1029), logged as ``event``."""
+        self.history.append((event, new.name))
+        self._set(new)
+
     def power_off(self) -> None:
         """The device stops: back to initialising, without telling anyone."""
         self.state = NmtState.INITIALISING
