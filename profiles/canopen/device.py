@@ -439,6 +439,18 @@ class CanopenDevice:
         f = ev.frame
         if f.extended:
             return
+        if not f.remote and f.can_id == cob.HEARTBEAT + self.node_id:
+            # our own boot-up or heartbeat: the bus shows the device its own frames, so each TPDO
+            # will see where its frames start on the wire
+            for tp in self.tpdos:
+                tp.echoes = True
+        if not f.remote and f.can_id in self._tpdo_ids and self.nmt.state is NmtState.OPERATIONAL:
+            # our own TPDO as the bus shows it (a bus that echoes the node's frames): where it
+            # really started, for the inhibit time and the event timer (one sender per COB-ID)
+            sof = ev.sof if ev.sof >= 0 else ev.time
+            for tp in self._tpdo_ids[f.can_id]:
+                if tp.valid:
+                    tp.on_wire(sof)
         h = self.routes.get((f.can_id, f.remote))
         if h is not None:
             h(ev)

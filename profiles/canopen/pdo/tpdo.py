@@ -18,6 +18,16 @@ Transmission types (0x1800 + n-1, sub-index 2):
         inhibit time is sent, with the data of that moment, when it ends.
 ======  =====================================================================================
 
+Both the inhibit time and the event timer count from the start of the previous frame *on the
+wire*: its `TxDone.sof` (exact on the simulated bus; on a python-can bus the driver's estimate,
+one frame length before ``send`` returned) and, when the bus shows the device its own frames
+(a python-can bus opened with ``receive_own_messages=True``, as ``canstack canopen`` does), the
+start the bus itself reports for it (`Tpdo.on_wire`) — later than the estimate when the frame
+waited on the wire after ``send`` returned, as it does behind a ``canstack serve`` bus. Once the
+bus has shown the device one of its own frames, an event waits until the previous frame of the
+PDO has been seen on the wire (at most `ECHO_WAIT_NS`): a frame still queued behind others on
+the wire cannot be followed by the next one an inhibit time after it was handed over.
+
 A synchronous TPDO that cannot start inside the synchronous window (0x1007, µs after the SYNC)
 is not sent late: it is queued with that latest start time (`send(..., not_after=...)`) and the
 controller withdraws it (`TxFailed`, "not started by ..."); the device counts it and reports
@@ -37,7 +47,11 @@ from profiles.canopen.pdo.common import Pdo, PdoHost
 from profiles.canopen.pdo.mapping import pack
 from stack import Frame, TxRequest
 
-__all__ = ["Tpdo"]
+__all__ = ["Tpdo", "ECHO_WAIT_NS"]
+
+ECHO_WAIT_NS = 1_000_000_000
+"""How long an event waits for the bus to show the PDO's previous frame before it goes anyway (a
+bus that stopped echoing must not stop the PDO)."""
 
 
 class Tpdo(Pdo):
@@ -67,9 +81,14 @@ class Tpdo(Pdo):
         self.running = False
         self._inhibit_timer: Any = None
         self._event_timer: Any = None
+        self._event_at = 0
         self._watching: list[tuple[int, int]] = []
         self.pending: dict[TxRequest, int | None] = {}
         self.queued = self.sent = self.late = self.refused = 0
+        self.wire_starts = 0
+        self.echoes = False  # the bus shows the device its own frames
+        self.unseen = 0  # frames handed to the bus but not yet seen on the wire
+        self._echo_timer: Any = None
         self.sync_latencies: list[int] = []
         super().__init__(host, n, 0x1800 + n - 1, 0x1A00 + n - 1, cob.TPDO)
 
@@ -114,10 +133,11 @@ class Tpdo(Pdo):
         self.sampled = None
         self.pending_event = False
         self.inhibit_until = 0
-        for t in (self._inhibit_timer, self._event_timer):
+        self.unseen = 0
+        for t in (self._inhibit_timer, self._event_timer, self._echo_timer):
             if t is not None:
                 t.cancel()
-        self._inhibit_timer = self._event_timer = None
+        self._inhibit_timer = self._event_timer = self._echo_timer = None
         node = self.host.node
         for req in list(self.pending):
             if node.abort(req):
@@ -182,6 +202,12 @@ class Tpdo(Pdo):
 
     def _event(self) -> None:
         now = self.host.node.now()
+        if self.echoes and self.unseen:
+            # the previous frame has not reached the wire yet: its start is still to come
+            self.pending_event = True
+            if self._echo_timer is None:
+                self._echo_timer = self.host.node.call_at(now + ECHO_WAIT_NS, self._echo_wait_over)
+            return
         if now < self.inhibit_until:
             self.pending_event = True
             if self._inhibit_timer is None:
@@ -191,9 +217,13 @@ class Tpdo(Pdo):
         self._send(self.data(), None)
         self.inhibit_until = now + self.inhibit_ns
         if self.event_ns:
-            if self._event_timer is not None:
-                self._event_timer.cancel()
-            self._event_timer = self.host.node.call_at(now + self.event_ns, self._event_timer_over)
+            self._arm_event_timer(now + self.event_ns)
+
+    def _arm_event_timer(self, at: int) -> None:
+        if self._event_timer is not None:
+            self._event_timer.cancel()
+        self._event_at = at
+        self._event_timer = self.host.node.call_at(at, self._event_timer_over)
 
     def _inhibit_over(self) -> None:
         self._inhibit_timer = None
@@ -203,6 +233,24 @@ class Tpdo(Pdo):
                 self._inhibit_timer = self.host.node.call_at(self.inhibit_until, self._inhibit_over)
             else:
                 self._event()
+
+    def _echo_wait_over(self) -> None:
+        self._echo_timer = None
+        if self.echoes and self.unseen:
+            self.unseen = 0  # the bus stopped showing our frames: go by the estimate
+            self._resume()
+
+    def _resume(self) -> None:
+        """A deferred event goes now, or when the inhibit time ends."""
+        if not (self.pending_event and self.running):
+            return
+        node = self.host.node
+        if node.now() < self.inhibit_until:
+            if self._inhibit_timer is not None:
+                self._inhibit_timer.cancel()
+            self._inhibit_timer = node.call_at(self.inhibit_until, self._inhibit_over)
+        else:
+            self._event()
 
     def _event_timer_over(self) -> None:
         self._event_timer = None
@@ -229,11 +277,35 @@ class Tpdo(Pdo):
             return False
         t_sync = self.pending.pop(req)
         self.sent += 1
-        if self.inhibit_ns and self.event_driven:
-            self.inhibit_until = max(self.inhibit_until, (sof if sof >= 0 else t) + self.inhibit_ns)
+        if self.running and self.event_driven:
+            self.unseen += 1  # until the bus shows it (when it shows the device its own frames)
+        self.started(sof if sof >= 0 else t)
         if t_sync is not None:
             self.sync_latencies.append(t - t_sync)
         return True
+
+    def started(self, sof: int) -> None:
+        """The PDO's last frame started on the wire at ``sof``: the inhibit time and the event
+        timer count from there (never earlier than they already do)."""
+        if not (self.running and self.event_driven):
+            return
+        if self.inhibit_ns:
+            self.inhibit_until = max(self.inhibit_until, sof + self.inhibit_ns)
+        if self.event_ns and self._event_timer is not None and sof + self.event_ns > self._event_at:
+            self._arm_event_timer(sof + self.event_ns)
+
+    def on_wire(self, sof: int) -> None:
+        """The bus showed the device its own frame of this PDO, started at ``sof`` (bus time on
+        the node's clock): see the module docstring."""
+        self.wire_starts += 1
+        self.echoes = True
+        self.unseen = max(0, self.unseen - 1)
+        self.started(sof)
+        if not self.unseen:
+            if self._echo_timer is not None:
+                self._echo_timer.cancel()
+                self._echo_timer = None
+            self._resume()
 
     def on_failed(self, req: TxRequest, kind: str) -> bool:
         """The controller gave ``req`` up (TxFailed, ``kind`` 'expired' at the window's end)."""
