@@ -1,7 +1,7 @@
 """`canstack canopen`: run a CANopen device (CiA 301 NMT slave) on any python-can bus until
 interrupted.
 
-    canstack canopen [EDS] --node-id N --interface I [--channel C] [--bitrate B]
+    canstack canopen [EDS] --node-id N --interface I [--channel C] [--bitrate B] [--app MODULE:FUNCTION]
 
 The device boots (boot-up message, pre-operational) and answers NMT, SDO (all three transfer
 modes), SYNC, PDOs, heartbeat/node guarding like the CANopenNode devices it imitates, so a
@@ -9,6 +9,19 @@ master — the ``canopen`` library, a PLC, `CanopenMaster` — can drive it. It 
 NMT state change; Ctrl-C (or ``--duration``) stops it and prints what it did (``--json``: the
 device's metrics as one JSON object). Registered through the ``canstack.commands`` entry point
 (stack never imports profiles).
+
+``--app module:function`` runs application code with the device: ``function(device)`` is called
+once, on the driver's thread, before the device boots, so it can do what an in-process
+application does — register callbacks (``on_time``, ``on_write``, ``on_rpdo``, ``on_state``),
+raise and clear EMCYs (``report_error``), change objects (``write``), arm timers on
+``device.node`` (``call_later``). Every callback and timer runs on that thread too. The module is
+imported from the current directory first, as ``python -m`` would. A bad value (no colon, a module
+that cannot be imported, no such function, a function that cannot take one argument) is one line
+and exit status 2, before any bus is opened.
+
+The bus is opened with ``receive_own_messages=True``: the device sees its own frames as the bus
+timestamps them, so its TPDOs' inhibit time and event timer count from their start on the wire
+(`profiles.canopen.pdo.tpdo`).
 """
 
 from __future__ import annotations
@@ -18,11 +31,12 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from stack.cli import CliError, int_type, parse_bitrate, plural, seconds_type
 
-__all__ = ["register", "canopen_command"]
+__all__ = ["register", "canopen_command", "load_app"]
 
 
 def register(subparsers: Any) -> None:
@@ -68,6 +82,12 @@ def register(subparsers: Any) -> None:
         help="stop after S seconds (default: run until Ctrl-C)",
     )
     p.add_argument("--json", action="store_true", help="print the device's metrics as one JSON object at the end")
+    p.add_argument(
+        "--app",
+        metavar="MODULE:FUNCTION",
+        default=None,
+        help="application code: FUNCTION(device) is called before the device boots (callbacks, EMCYs, objects, timers)",
+    )
     p.set_defaults(func=canopen_command)
 
 
@@ -86,11 +106,12 @@ def canopen_command(args: argparse.Namespace) -> int:
     from stack.io.driver import PyCanDriver
 
     load_od(args.eds, args.node_id)  # a bad EDS is one line (EdsError names the file) before any bus opens
+    app = None if args.app is None else load_app(args.app)
     if args.interface == "canstack":
         from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     kw: dict[str, Any] = {} if args.bitrate is None else {"bitrate": args.bitrate}
     try:
-        bus = can.Bus(interface=args.interface, channel=args.channel, **kw)
+        bus = can.Bus(interface=args.interface, channel=args.channel, receive_own_messages=True, **kw)
     except (can.CanError, OSError, NotImplementedError, ValueError, ImportError) as exc:
         raise CliError(f"cannot open {args.interface} channel {args.channel!r}: {' '.join(str(exc).split())}") from None
     driver = PyCanDriver(**kw)
@@ -119,6 +140,8 @@ def canopen_command(args: argparse.Namespace) -> int:
     status = 0
     driver.start()
     try:
+        if app is not None:
+            driver.submit(app, device)
         driver.submit(device.start)
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while deadline is None or time.monotonic() < deadline:
@@ -152,6 +175,40 @@ def canopen_command(args: argparse.Namespace) -> int:
     for err in driver.errors:
         print(f"canstack canopen: {err}", file=sys.stderr)
     return status
+
+
+def load_app(spec: str) -> Callable[[Any], Any]:
+    """The function ``module:function`` names, ready to be called with the device; `CliError`
+    (one line naming the value) when there is none."""
+    import importlib
+    import inspect
+    import os
+
+    mod_name, colon, fn_name = spec.partition(":")
+    if not colon or not mod_name or not fn_name:
+        raise CliError(f"--app {spec!r}: not module:function (the module, a colon, the function to call)")
+    if os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())  # the user's own module, as python -m finds it
+    try:
+        mod = importlib.import_module(mod_name)
+    except ModuleNotFoundError as exc:
+        raise CliError(f"--app {spec!r}: no module named {exc.name!r}") from None
+    except Exception as exc:
+        raise CliError(f"--app {spec!r}: cannot import {mod_name!r}: {type(exc).__name__}: {exc}") from None
+    fn = getattr(mod, fn_name, None)
+    if fn is None:
+        raise CliError(f"--app {spec!r}: module {mod_name!r} has no {fn_name!r}")
+    if not callable(fn):
+        raise CliError(f"--app {spec!r}: {fn_name!r} is a {type(fn).__name__}, not a function to call with the device")
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return fn  # a builtin without a signature: called as given
+    try:
+        sig.bind(object())
+    except TypeError:
+        raise CliError(f"--app {spec!r}: {fn_name}{sig} cannot be called with one argument (the device)") from None
+    return fn
 
 
 def _node(node_id: int) -> Any:

@@ -164,3 +164,95 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
             out, err = proc.communicate(timeout=10)
     assert proc.returncode == 130, err
     assert "NMT PRE_OPERATIONAL -> OPERATIONAL" in out and "node 12: OPERATIONAL" in out
+
+
+@pytest.mark.parametrize(
+    "app, message",
+    [
+        ("no_colon_here", r"--app 'no_colon_here': not module:function"),
+        ("nosuchmodule_xyz:setup", r"--app 'nosuchmodule_xyz:setup': no module named 'nosuchmodule_xyz'"),
+        ("app_mod:missing", r"--app 'app_mod:missing': module 'app_mod' has no 'missing'"),
+        ("app_mod:VALUE", r"--app 'app_mod:VALUE': 'VALUE' is a int, not a function to call with the device"),
+        ("app_mod:two", r"--app 'app_mod:two': two\(a, b\) cannot be called with one argument \(the device\)"),
+        ("app_broken:setup", r"--app 'app_broken:setup': cannot import 'app_broken': ZeroDivisionError"),
+    ],
+)
+def test_a_bad_app_is_one_line_and_exit_status_2(capsys, registered, tmp_path, monkeypatch, app, message):
+    import re
+
+    (tmp_path / "app_mod.py").write_text("VALUE = 3\n\ndef two(a, b):\n    pass\n")
+    (tmp_path / "app_broken.py").write_text("1 / 0\n")
+    monkeypatch.chdir(tmp_path)  # the app is found in the current directory, as python -m finds it
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    code, out, err = run(capsys, "canopen", "--node-id", "5", "--interface", "virtual", "--app", app)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and re.search(message, err), err
+
+
+APP = r"""
+# the application of a CANopen device run by `canstack canopen --app app_demo:setup`
+def setup(device):
+    device.write(0x1012, 0, 0x80000100)  # consume TIME on 0x100
+    device.write(0x2003, 0, 1234)  # an object of its own
+    device.node.call_later(50_000_000, device.report_error, 0x5000, b"\x01")  # an EMCY, 50 ms in
+
+    def on_time(unix_ms):
+        device.write(0x2002, 0, unix_ms // 1000 % 2**32)  # react to TIME: seconds into 0x2002
+
+    device.on_time(on_time)
+"""
+
+
+@pytest.mark.socket
+@pytest.mark.subprocess
+@pytest.mark.wallclock
+def test_the_app_of_a_device_in_another_process_raises_emcy_writes_objects_and_reacts_to_time(tmp_path):
+    (tmp_path / "app_demo.py").write_text(APP)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    if not _installed():
+        dist = tmp_path / "canstack_canopen_entry-0.dist-info"
+        dist.mkdir()
+        (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: canstack-canopen-entry\nVersion: 0\n")
+        (dist / "entry_points.txt").write_text(f"[canstack.commands]\ncanopen = {EP.value}\n")
+    with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
+        net = canopen.Network()
+        net.connect(interface="canstack", channel=srv.url)
+        node = net.add_node(13, str(DEFAULT_EDS))
+        node.sdo.RESPONSE_TIMEOUT = 2.0
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "stack.cli",
+                "canopen",
+                "--node-id",
+                "13",
+                "--interface",
+                "canstack",
+                "--channel",
+                srv.url,
+                "--app",
+                "app_demo:setup",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=tmp_path,
+        )
+        try:
+            assert "Ctrl-C stops it" in proc.stdout.readline()
+            emcy = node.emcy.wait(0x5000, timeout=5.0)
+            assert emcy is not None and emcy.code == 0x5000 and emcy.data[:1] == b"\x01"
+            assert node.sdo[0x2003].raw == 1234
+            net.time.transmit(1_700_000_000.0)  # TIME_OF_DAY: 2023-11-14 22:13:20 UTC
+            deadline = time.monotonic() + 5
+            while node.sdo[0x2002].raw != 1_700_000_000 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert node.sdo[0x2002].raw == 1_700_000_000
+        finally:
+            net.disconnect()
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 130, err
+    assert "canstack canopen:" not in err  # no callback failed on the driver's thread
