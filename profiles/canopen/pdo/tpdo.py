@@ -60,6 +60,7 @@ class Tpdo(Pdo):
     The host's ``transmit(frame, not_after=None)`` queues a frame (None when the controller
     refused it); ``sync_window_ns`` and ``sync_overflow`` come from the SYNC consumer. Counters
     and samples: ``queued``, ``sent``, ``late`` (withdrawn at the window's end), ``refused``,
+    ``wire_starts`` (own frames the bus showed the device), ``event_at`` (when the event timer is due),
     ``sync_latencies`` (ns from the SYNC's reception to the end of this PDO's frame, one per
     synchronous transmission).
     """
@@ -81,7 +82,7 @@ class Tpdo(Pdo):
         self.running = False
         self._inhibit_timer: Any = None
         self._event_timer: Any = None
-        self._event_at = 0
+        self.event_at = 0  # when the event timer is due (node clock)
         self._watching: list[tuple[int, int]] = []
         self.pending: dict[TxRequest, int | None] = {}
         self.queued = self.sent = self.late = self.refused = 0
@@ -222,7 +223,7 @@ class Tpdo(Pdo):
     def _arm_event_timer(self, at: int) -> None:
         if self._event_timer is not None:
             self._event_timer.cancel()
-        self._event_at = at
+        self.event_at = at
         self._event_timer = self.host.node.call_at(at, self._event_timer_over)
 
     def _inhibit_over(self) -> None:
@@ -291,7 +292,7 @@ class Tpdo(Pdo):
             return
         if self.inhibit_ns:
             self.inhibit_until = max(self.inhibit_until, sof + self.inhibit_ns)
-        if self.event_ns and self._event_timer is not None and sof + self.event_ns > self._event_at:
+        if self.event_ns and self._event_timer is not None and sof + self.event_ns > self.event_at:
             self._arm_event_timer(sof + self.event_ns)
 
     def on_wire(self, sof: int) -> None:
