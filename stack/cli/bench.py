@@ -13,7 +13,8 @@ same run (so the figures compare across machines).
 - ``campaign_realtime_factor_500k``: the reliability campaign (5 nodes, random traffic,
   bit-error rate 1e-4 global and local) at 500 kbit/s, against the same traffic fault-free
   (``campaign_vs_fault_free``).
-- ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.cli.bench_io.decode_benchmark`.
+- ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.cli.bench_io.decode_benchmark`;
+  without the corpus (``--corpus``, default ``../shared/corpus``) the figure is skipped with a note.
 - ``pycan``: the python-can integration (`stack.cli.bench_io.benchmark`): 10 ms periodic jitter against
   python-can's virtual bus, plugin and ``canstack serve`` throughput as fractions of the wire.
 - figures that packages above stack register under the ``canstack.bench`` entry point group
@@ -22,7 +23,9 @@ same run (so the figures compare across machines).
 Each engine figure and its reference is the best of ``--repeat`` runs (3 by default), as
 `timeit` does: the machine's noise only ever slows a run down.
 
-``--json`` prints one JSON object; ``--quick`` runs smaller counts.
+``--json`` prints one JSON object; ``--quick`` runs smaller counts; ``--only`` names the figures to
+measure (`FIGURES`, then the entry points). A figure whose data is missing is skipped with a note
+(``skipped`` in the JSON), one that fails is noted (``failed``): neither loses the other figures.
 """
 
 from __future__ import annotations
@@ -31,16 +34,30 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import can
 
 from stack.bus.sim import SimBus
+from stack.cli.bench_io import CORPUS
 from stack.controller.events import TxDone
 from stack.wire.frame import Frame
 
-__all__ = ["bench_python_can_virtual", "bench_canstack_pair", "bench_saturated", "main"]
+__all__ = [
+    "bench_python_can_virtual",
+    "bench_canstack_pair",
+    "bench_saturated",
+    "bench_campaign",
+    "Figure",
+    "FIGURES",
+    "Settings",
+    "figures",
+    "run_figures",
+    "main",
+]
 
 
 def _progress(msg: str) -> None:
@@ -153,138 +170,250 @@ def bench_campaign(frames: int, ber: float, seed: int = 1) -> tuple[float, int]:
     return bus.now() / 1e9 / dt, bus.error_frames
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What every figure is measured with: ``repeat`` runs each (the best counts), counts scaled
+    by ``scale`` (``--quick``: 0.2), the corpus directory of the capture-decoding figure."""
+
+    repeat: int = 3
+    scale: float = 1.0
+    corpus: Path = CORPUS
+
+
+def _engine(s: Settings) -> dict[str, Any]:
+    _progress("python-can virtual: 1 sender -> 1 receiver")
+    ref = max(bench_python_can_virtual(int(50_000 * s.scale)) for _ in range(s.repeat))
+    _progress("canstack SimBus: 1 sender -> 1 receiver")
+    ours = max(bench_canstack_pair(int(200_000 * s.scale)) for _ in range(s.repeat))
+    return {"python_can_virtual_fps": ref, "canstack_pair_fps": ours, "vs_python_can_virtual": ours / ref}
+
+
+def _engine_lines(r: dict[str, Any]) -> list[str]:
+    return [
+        f"frames/s 1 sender -> 1 receiver: {r['canstack_pair_fps']:,.0f} vs python-can virtual "
+        f"{r['python_can_virtual_fps']:,.0f}: {r['vs_python_can_virtual']:.2f}x (target >= 3)"
+    ]
+
+
+def _nodes(s: Settings) -> dict[str, Any]:
+    _progress("10 nodes, 1 Mbit/s, 100 % load")
+    fps10, rtf10 = max(bench_saturated(10, int(300_000 * s.scale), False) for _ in range(s.repeat))
+    _progress("1000 nodes, 1 Mbit/s, 100 % load")
+    fps1000, _rtf1000 = max(bench_saturated(1000, int(300_000 * s.scale), True) for _ in range(s.repeat))
+    return {
+        "fps_10_nodes": fps10,
+        "realtime_factor_10_nodes": rtf10,
+        "fps_1000_nodes": fps1000,
+        "scale_1000_vs_10_nodes": fps1000 / fps10,
+    }
+
+
+def _nodes_lines(r: dict[str, Any]) -> list[str]:
+    return [
+        f"10 nodes @ 1 Mbit/s, 100 % load: {r['fps_10_nodes']:,.0f} frames/s, real-time factor "
+        f"{r['realtime_factor_10_nodes']:.1f}x the wire (target >= 50)",
+        f"1000 nodes: {r['fps_1000_nodes']:,.0f} frames/s = {r['scale_1000_vs_10_nodes']:.2f} of the 10-node "
+        f"figure (target >= 0.5)",
+    ]
+
+
+def _campaign(s: Settings) -> dict[str, Any]:
+    n = int(1_000_000 * s.scale)
+    _progress(f"reliability campaign, {n:,} frames fault-free")
+    rtf_clean, _ = bench_campaign(n, 0.0)
+    _progress(f"reliability campaign, {n:,} frames at bit-error rate 1e-4 (global + local)")
+    rtf_faulty, errors = bench_campaign(n, 1e-4)
+    return {
+        "campaign_frames": n,
+        "campaign_error_frames": errors,
+        "campaign_realtime_factor_500k": rtf_faulty,
+        "campaign_realtime_factor_fault_free": rtf_clean,
+        "campaign_vs_fault_free": rtf_faulty / rtf_clean,
+    }
+
+
+def _campaign_lines(r: dict[str, Any]) -> list[str]:
+    return [
+        f"reliability campaign, {r['campaign_frames']:,} frames, 5 nodes @ 500 kbit/s, BER 1e-4: real-time "
+        f"factor {r['campaign_realtime_factor_500k']:.1f}x ({r['campaign_error_frames']:,} error frames) vs "
+        f"{r['campaign_realtime_factor_fault_free']:.1f}x fault-free: {r['campaign_vs_fault_free']:.2f}"
+    ]
+
+
+def _decode(s: Settings) -> dict[str, Any]:
+    from stack.cli.bench_io import decode_benchmark
+
+    _progress("decoding a 12 M-sample capture")
+    w = decode_benchmark(corpus=s.corpus)
+    return {
+        "decode_s": w["decode_s"],
+        "decode_cli_s": w["decode_cli_s"],
+        "sigrok_s": w["sigrok_s"],
+        "decode_vs_sigrok": w["vs_sigrok"],
+        "decode_cli_vs_sigrok": w["cli_vs_sigrok"],
+    }
+
+
+def _decode_lines(r: dict[str, Any]) -> list[str]:
+    if r.get("decode_vs_sigrok") is None:
+        return [f"capture decode: {r['decode_s']:.2f} s (sigrok-cli not installed)"]
+    return [
+        f"capture decode vs sigrok-cli ({r['sigrok_s']:.3f} s, a whole process): canstack decode as a "
+        f"process {r['decode_cli_s']:.3f} s: {r['decode_cli_vs_sigrok']:.2f}x (target >= 1); "
+        f"in-process decode_file {r['decode_s']:.3f} s: {r['decode_vs_sigrok']:.2f}x"
+    ]
+
+
+def _pycan(s: Settings) -> dict[str, Any]:
+    from stack.cli.bench_io import benchmark as pycan_benchmark
+
+    _progress("python-can integration: periodic jitter, plugin and serve throughput")
+    return {"pycan": pycan_benchmark(3.0 * max(s.scale, 0.5))}
+
+
+def _pycan_lines(r: dict[str, Any]) -> list[str]:
+    p = r["pycan"]
+    per = p["periodic"]
+    ours, ref = per["canstack"], per["python_can_virtual"]
+    return [
+        f"10 ms periodic, p99 period deviation: canstack {ours['p99_timestamp_s'] * 1e6:.1f} us "
+        f"(bus timestamps; {ours['p99_arrival_s'] * 1e6:.0f} us at recv) vs python-can virtual "
+        f"{ref['p99_timestamp_s'] * 1e6:.0f} us ({ref['p99_arrival_s'] * 1e6:.0f} us): "
+        f"{per['ratio_timestamp']:.3f}x / {per['ratio_arrival']:.2f}x (target <= 1; median of "
+        f"{per.get('rounds', 1)} rounds)",
+        f"python-can plugin, 2 nodes @ 1 Mbit/s back to back: {p['plugin_throughput']['fps']:,.0f} frames/s = "
+        f"{p['plugin_throughput']['fraction']:.3f} of the wire (target >= 0.9)",
+        f"canstack serve, 3 client processes @ 500 kbit/s: {p['serve_throughput']['fps']:,.0f} frames/s = "
+        f"{p['serve_throughput']['fraction']:.3f} of the wire",
+    ]
+
+
+class Figure(NamedTuple):
+    """One figure of the benchmark: ``measure`` returns its JSON keys, ``lines`` says them."""
+
+    name: str
+    what: str
+    measure: Callable[[Settings], dict[str, Any]]
+    lines: Callable[[dict[str, Any]], list[str]]
+
+
+#: The engine's figures, in the order they run; the packages above stack add theirs through the
+#: ``canstack.bench`` entry point group.
+FIGURES: tuple[Figure, ...] = (
+    Figure("engine", "1 sender -> 1 receiver against python-can's virtual bus", _engine, _engine_lines),
+    Figure("nodes", "10 and 1000 saturating nodes", _nodes, _nodes_lines),
+    Figure("campaign", "the reliability campaign against the same traffic fault-free", _campaign, _campaign_lines),
+    Figure("decode", "capture decoding against sigrok-cli (needs the corpus)", _decode, _decode_lines),
+    Figure("pycan", "python-can integration: periodic jitter, plugin and serve throughput", _pycan, _pycan_lines),
+)
+
+
+def _plugin_figure(ep: Any) -> Figure:
+    def measure(s: Settings) -> dict[str, Any]:
+        _progress(f"{ep.name} (entry point {ep.value})")
+        return {ep.name: ep.load()(seconds=3 * s.scale)}
+
+    def lines(r: dict[str, Any]) -> list[str]:
+        out = r[ep.name]
+        if ep.name == "dbc_ecu":
+            return [
+                f"DBC ECU encode + scheduling: {out['ecu_us_per_msg']:.2f} us/message vs cantools encode "
+                f"{out['cantools_us_per_msg']:.2f} us: {out['ratio']:.2f}x (target <= 1.5)"
+            ]
+        return list(out.get("lines", ())) if isinstance(out, dict) else []
+
+    return Figure(ep.name, f"entry point {ep.value}", measure, lines)
+
+
+def figures() -> list[Figure]:
+    """The engine's figures and those the ``canstack.bench`` entry points register (by name)."""
+    from importlib.metadata import entry_points
+
+    # found through entry points so that stack does not import the packages above it
+    plugins = sorted(entry_points(group="canstack.bench"), key=lambda e: e.name)
+    return [*FIGURES, *(_plugin_figure(ep) for ep in plugins)]
+
+
+def run_figures(chosen: Sequence[Figure], settings: Settings) -> tuple[dict[str, Any], list[str]]:
+    """Measure each figure in turn: (the JSON object, the lines of the report).
+
+    A figure whose data is missing (FileNotFoundError: a plain clone has no ``../shared/corpus``)
+    is skipped with a note under ``skipped``; one that fails for any other reason is noted under
+    ``failed``; neither loses the figures measured before or after it. Ctrl-C (or SIGTERM) stops
+    the run and keeps what was measured, noted under ``interrupted``.
+    """
+    res: dict[str, Any] = {}
+    lines: list[str] = []
+    skipped: dict[str, str] = {}
+    failed: dict[str, str] = {}
+    for i, fig in enumerate(chosen):
+        try:
+            got = fig.measure(settings)
+        except KeyboardInterrupt:
+            res["interrupted"] = [f.name for f in chosen[i:]]
+            lines.append("interrupted: not measured: " + ", ".join(res["interrupted"]))
+            _progress("interrupted")
+            break
+        except FileNotFoundError as exc:
+            skipped[fig.name] = str(exc)
+            lines.append(f"{fig.name}: skipped ({exc})")
+            _progress(f"  skipped: {exc}")
+            continue
+        except Exception as exc:  # one broken figure must not lose the others
+            failed[fig.name] = f"{type(exc).__name__}: {exc}"
+            lines.append(f"{fig.name}: failed ({failed[fig.name]})")
+            _progress(f"  failed: {failed[fig.name]}")
+            continue
+        res.update(got)
+        lines.extend(fig.lines(got))
+    if skipped:
+        res["skipped"] = skipped
+    if failed:
+        res["failed"] = failed
+    return res, lines
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmarks and print each figure as a ratio against its reference."""
-    ap = argparse.ArgumentParser(prog="python -m stack.bench")
-    ap.add_argument("--json", action="store_true")
+    everything = figures()
+    names = [f.name for f in everything]
+    ap = argparse.ArgumentParser(
+        prog="python -m stack.bench",
+        epilog="figures: " + "; ".join(f"{f.name}: {f.what}" for f in everything),
+    )
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--quick", action="store_true", help="smaller counts (a quick look)")
     ap.add_argument("--no-waveform", action="store_true", help="skip the capture-decoding figure")
     ap.add_argument("--repeat", type=int, default=3, help="best of this many runs per figure (default 3)")
+    ap.add_argument(
+        "--only",
+        metavar="NAMES",
+        help=f"measure only these figures, comma-separated ({', '.join(names)})",
+    )
+    ap.add_argument(
+        "--corpus",
+        type=Path,
+        default=CORPUS,
+        help="the shared corpus directory with the captures (default: ../shared/corpus beside the checkout)",
+    )
     args = ap.parse_args(argv)
-    rep = max(1, args.repeat)
-    scale = 0.2 if args.quick else 1.0
-    res: dict[str, Any] = {}
-
-    _progress("python-can virtual: 1 sender -> 1 receiver")
-    ref = max(bench_python_can_virtual(int(50_000 * scale)) for _ in range(rep))
-    _progress("canstack SimBus: 1 sender -> 1 receiver")
-    ours = max(bench_canstack_pair(int(200_000 * scale)) for _ in range(rep))
-    res["python_can_virtual_fps"] = ref
-    res["canstack_pair_fps"] = ours
-    res["vs_python_can_virtual"] = ours / ref
-
-    _progress("10 nodes, 1 Mbit/s, 100 % load")
-    fps10, rtf10 = max(bench_saturated(10, int(300_000 * scale), False) for _ in range(rep))
-    res["fps_10_nodes"] = fps10
-    res["realtime_factor_10_nodes"] = rtf10
-    _progress("1000 nodes, 1 Mbit/s, 100 % load")
-    fps1000, _rtf1000 = max(bench_saturated(1000, int(300_000 * scale), True) for _ in range(rep))
-    res["fps_1000_nodes"] = fps1000
-    res["scale_1000_vs_10_nodes"] = fps1000 / fps10
-
-    n_campaign = int(1_000_000 * scale)
-    _progress(f"reliability campaign, {n_campaign:,} frames fault-free")
-    rtf_clean, _ = bench_campaign(n_campaign, 0.0)
-    _progress(f"reliability campaign, {n_campaign:,} frames at bit-error rate 1e-4 (global + local)")
-    rtf_faulty, errors = bench_campaign(n_campaign, 1e-4)
-    res["campaign_frames"] = n_campaign
-    res["campaign_error_frames"] = errors
-    res["campaign_realtime_factor_500k"] = rtf_faulty
-    res["campaign_realtime_factor_fault_free"] = rtf_clean
-    res["campaign_vs_fault_free"] = rtf_faulty / rtf_clean
-
-    if not args.no_waveform:
-        from stack.cli.bench_io import decode_benchmark
-
-        _progress("decoding a 12 M-sample capture")
-        try:
-            w = decode_benchmark()
-        except FileNotFoundError as exc:
-            _progress(f"skipped: {exc}")
-        else:
-            res["decode_s"] = w.get("decode_s")
-            res["decode_cli_s"] = w.get("decode_cli_s")
-            res["sigrok_s"] = w.get("sigrok_s")
-            res["decode_vs_sigrok"] = w.get("vs_sigrok")
-            res["decode_cli_vs_sigrok"] = w.get("cli_vs_sigrok")
-
-    _progress("python-can integration: periodic jitter, plugin and serve throughput")
-    try:
-        from stack.cli.bench_io import benchmark as pycan_benchmark
-
-        res["pycan"] = pycan_benchmark(3.0 * max(scale, 0.5))
-    except Exception as exc:  # pragma: no cover - reported, not fatal
-        _progress(f"  failed: {exc}")
-
-    # figures of the packages above stack (dbc, profiles), found through entry points so that
-    # stack does not import them
-    from importlib.metadata import entry_points
-
-    for ep in sorted(entry_points(group="canstack.bench"), key=lambda e: e.name):
-        _progress(f"{ep.name} (entry point {ep.value})")
-        try:
-            out = ep.load()(seconds=3 * scale)
-        except Exception as exc:  # a broken plug-in must not hide the other figures
-            _progress(f"  failed: {exc}")
-            continue
-        res[ep.name] = out
-
+    chosen = everything
+    if args.only is not None:
+        wanted = [n.strip() for n in args.only.split(",") if n.strip()]
+        unknown = [n for n in wanted if n not in names]
+        if unknown or not wanted:
+            ap.error(f"--only {args.only!r}: choose among {', '.join(names)}")
+        chosen = [f for f in everything if f.name in wanted]
+    if args.no_waveform:
+        chosen = [f for f in chosen if f.name != "decode"]
+    settings = Settings(repeat=max(1, args.repeat), scale=0.2 if args.quick else 1.0, corpus=args.corpus)
+    res, lines = run_figures(chosen, settings)
     if args.json:
         print(json.dumps(res))
-        return 0
-    print(
-        f"frames/s 1 sender -> 1 receiver: {ours:,.0f} vs python-can virtual {ref:,.0f}: "
-        f"{res['vs_python_can_virtual']:.2f}x (target >= 3)"
-    )
-    print(
-        f"10 nodes @ 1 Mbit/s, 100 % load: {fps10:,.0f} frames/s, real-time factor {rtf10:.1f}x the wire (target >= 50)"
-    )
-    print(
-        f"1000 nodes: {fps1000:,.0f} frames/s = {res['scale_1000_vs_10_nodes']:.2f} of the 10-node "
-        f"figure (target >= 0.5)"
-    )
-    print(
-        f"reliability campaign, {n_campaign:,} frames, 5 nodes @ 500 kbit/s, BER 1e-4: real-time "
-        f"factor {rtf_faulty:.1f}x ({errors:,} error frames) vs {rtf_clean:.1f}x fault-free: "
-        f"{res['campaign_vs_fault_free']:.2f}"
-    )
-    if res.get("decode_vs_sigrok") is not None:
-        print(
-            f"capture decode vs sigrok-cli ({res['sigrok_s']:.3f} s, a whole process): canstack decode as a "
-            f"process {res['decode_cli_s']:.3f} s: {res['decode_cli_vs_sigrok']:.2f}x (target >= 1); "
-            f"in-process decode_file {res['decode_s']:.3f} s: {res['decode_vs_sigrok']:.2f}x"
-        )
-    elif "decode_s" in res:
-        print(f"capture decode: {res['decode_s']:.2f} s (sigrok-cli not installed)")
-    if "pycan" in res:
-        p = res["pycan"]
-        per = p["periodic"]
-        print(
-            f"10 ms periodic, p99 period deviation: canstack {per['canstack']['p99_timestamp_s'] * 1e6:.1f} us "
-            f"(bus timestamps; {per['canstack']['p99_arrival_s'] * 1e6:.0f} us at recv) vs python-can virtual "
-            f"{per['python_can_virtual']['p99_timestamp_s'] * 1e6:.0f} us "
-            f"({per['python_can_virtual']['p99_arrival_s'] * 1e6:.0f} us): {per['ratio_timestamp']:.3f}x / "
-            f"{per['ratio_arrival']:.2f}x (target <= 1; median of {per.get('rounds', 1)} rounds)"
-        )
-        print(
-            f"python-can plugin, 2 nodes @ 1 Mbit/s back to back: {p['plugin_throughput']['fps']:,.0f} frames/s = "
-            f"{p['plugin_throughput']['fraction']:.3f} of the wire (target >= 0.9)"
-        )
-        print(
-            f"canstack serve, 3 client processes @ 500 kbit/s: {p['serve_throughput']['fps']:,.0f} frames/s = "
-            f"{p['serve_throughput']['fraction']:.3f} of the wire"
-        )
-    if "dbc_ecu" in res:
-        d = res["dbc_ecu"]
-        print(
-            f"DBC ECU encode + scheduling: {d['ecu_us_per_msg']:.2f} us/message vs cantools encode "
-            f"{d['cantools_us_per_msg']:.2f} us: {d['ratio']:.2f}x (target <= 1.5)"
-        )
-    for name, out in res.items():  # other plug-ins say their figures in lines of their own
-        if isinstance(out, dict) and name != "dbc_ecu":
-            for line in out.get("lines", ()):
-                print(line)
-    return 0
+    else:
+        for line in lines:
+            print(line)
+    return 130 if "interrupted" in res else 0
 
 
 if __name__ == "__main__":  # pragma: no cover

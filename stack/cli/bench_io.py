@@ -22,7 +22,7 @@ from stack.phy.waveform import decode_file
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
-__all__ = ["benchmark", "serve_benchmark", "decode_benchmark", "wire_limit_fps"]
+__all__ = ["benchmark", "serve_benchmark", "decode_benchmark", "wire_limit_fps", "CORPUS", "BENCH_CAPTURE_NAME"]
 
 
 def _period_p99(stamps: list[float], period: float) -> float:
@@ -211,23 +211,29 @@ def serve_benchmark(seconds: float = 2.0, clients: int = 3, bitrate: int = 500_0
     }
 
 
-_CAPTURES = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "captures"
-BENCH_CAPTURE = _CAPTURES / "mcp2515dm-bm-125kbits_bus_load_100percent.sr"
+#: The shared corpus beside the checkout (``../shared/corpus``); a user's clone has none.
+CORPUS = Path(__file__).resolve().parents[3] / "shared" / "corpus"
+#: The capture the decoding figure is measured on, in the corpus's ``captures`` folder.
+BENCH_CAPTURE_NAME = "mcp2515dm-bm-125kbits_bus_load_100percent.sr"
 
 
-def decode_benchmark(path: str | Path | None = None) -> dict[str, Any]:
+def decode_benchmark(path: str | Path | None = None, *, corpus: str | Path = CORPUS) -> dict[str, Any]:
     """Time `decode_file` on the 12 M sample MCP2515 100 % bus load capture (125 kbit/s, CAN_RX)
     in this process and as a whole `canstack decode` process (interpreter start and imports
     included), and, when sigrok-cli is installed, sigrok's CAN decoder on the same file (a whole
     process too).
 
+    The capture is ``path``, else `BENCH_CAPTURE_NAME` in ``corpus``/captures (default: the
+    shared corpus beside the checkout, `CORPUS`); FileNotFoundError, before anything is timed,
+    when it is not there (a user's clone has no corpus).
+
     Returns {"decode_s", "decode_cli_s", "sigrok_s" (None without sigrok-cli), "frames",
     "vs_sigrok" (sigrok_s / decode_s), "cli_vs_sigrok" (sigrok_s / decode_cli_s): > 1 means
     faster than sigrok}; the best of 3 runs each.
     """
-    p = Path(path) if path else BENCH_CAPTURE
+    p = Path(path) if path is not None else Path(corpus) / "captures" / BENCH_CAPTURE_NAME
     if not p.is_file():
-        raise ValueError(f"{p}: benchmark capture not found (needs ../shared/corpus)")
+        raise FileNotFoundError(f"{p}: the benchmark capture is not there (it comes with ../shared/corpus)")
     best = math.inf
     frames = 0
     for _ in range(3):
