@@ -11,8 +11,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from stack.wire.frame import id_text
 
@@ -191,8 +194,48 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+class _StopOnSigterm:
+    """SIGTERM (a process manager, ``kill``, a test harness) stops a command as Ctrl-C does: it
+    calls the SIGINT handler in place at that moment, so a command that takes Ctrl-C as a flag
+    (`stack.cli.runs`) takes SIGTERM the same way, and raises KeyboardInterrupt where SIGINT is
+    ignored (a background job inherits SIGINT ignored: without this only SIGKILL could stop the
+    command, and nothing of its clean-up would run). Installed on the main thread only."""
+
+    def __init__(self) -> None:
+        self.received = False
+        self._old: Any = None
+        self._installed = False
+
+    def __enter__(self) -> _StopOnSigterm:
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, self._handle)
+            self._installed = True
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.received = True
+        handler = signal.getsignal(signal.SIGINT)
+        if callable(handler):
+            handler(signal.SIGINT, frame)
+        else:  # SIG_IGN or SIG_DFL: stop as Python's default Ctrl-C does
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._installed:
+            signal.signal(signal.SIGTERM, self._old)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the `canstack` console script."""
+    """Entry point of the `canstack` console script.
+
+    Ctrl-C stops a command with exit status 130; SIGTERM stops it the same way with 143 (128 +
+    the signal's number, as a shell reports it)."""
+    with _StopOnSigterm() as term:
+        status = _main(argv)
+    return 128 + signal.SIGTERM if term.received and status == 130 else status
+
+
+def _main(argv: Sequence[str] | None) -> int:
     try:
         args_list = list(sys.argv[1:] if argv is None else argv)
         if args_list[:1] == ["--version"]:
