@@ -56,8 +56,12 @@ class _Session:
         self._closing = False
         self._close_lock = threading.Lock()
         self.rejected = 0
-        threading.Thread(target=self._read_loop, name=f"serve-rd-{peer}", daemon=True).start()
-        threading.Thread(target=self._write_loop, name=f"serve-wr-{peer}", daemon=True).start()
+
+    def start(self) -> None:
+        """Start reading and writing (after the server registered the session, so that a client
+        that leaves at once is also removed from it)."""
+        threading.Thread(target=self._read_loop, name=f"serve-rd-{self.peer}", daemon=True).start()
+        threading.Thread(target=self._write_loop, name=f"serve-wr-{self.peer}", daemon=True).start()
 
     @property
     def node_name(self) -> str | None:
@@ -345,6 +349,7 @@ class BusServer:
         self.sessions: set[_Session] = set()
         self.rejected = 0
         self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)  # notified when a session comes or goes
         self._stop = threading.Event()
         self._announcement = Announcement(name, self.url)
         self._thread = threading.Thread(target=self._accept_loop, name=f"serve-{name}", daemon=True)
@@ -403,18 +408,30 @@ class BusServer:
                 break
             if conn.family != getattr(socket, "AF_UNIX", None):
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lock:
-                self.sessions.add(_Session(self, conn, _peer_name(conn, addr)))
+            session = _Session(self, conn, _peer_name(conn, addr))
+            with self._changed:
+                self.sessions.add(session)
+                self._changed.notify_all()
+            session.start()
 
     def _detach(self, session: _Session) -> None:
         if session.port is not None:
             session.port.close(wait=False)  # the node leaves the bus; its name is free again
-        with self._lock:
+        with self._changed:
             self.sessions.discard(session)
+            self._changed.notify_all()
         try:
             session.sock.shutdown(socket.SHUT_RD)
         except OSError:
             pass
+
+    def wait_sessions(self, count: int, timeout: float | None = None) -> bool:
+        """Wait until exactly ``count`` clients are connected; False if ``timeout`` seconds pass
+        first. A session is registered when its connection is accepted, before the client can
+        hear anything from the server (a client whose ``can.Bus`` is open is in `sessions`), and
+        removed after its leaving is logged."""
+        with self._changed:
+            return self._changed.wait_for(lambda: len(self.sessions) == count, timeout)
 
     def close(self) -> None:
         """Disconnect every client and stop serving."""
