@@ -74,6 +74,7 @@ def test_unknown_interface_is_one_line_exit_2(capsys):
     assert code == 2 and "nosuchinterface" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.wallclock
 def test_same_restbus_on_a_python_can_bus(capsys):
     """The ECUs run unchanged on python-can's virtual bus through stack.io.driver (wall clock)."""
     code, out, err = run(
@@ -98,6 +99,7 @@ def test_same_restbus_on_a_python_can_bus(capsys):
     assert counters == [(counters[0] + k) % 16 for k in range(len(counters))]
 
 
+@pytest.mark.wallclock
 def test_bitrate_is_passed_to_the_python_can_bus(capsys):
     """A canstack bus already running at 250 kbit/s refuses nodes joining at another rate, so
     a restbus with --bitrate 125000 must fail and one with 250000 must run."""
@@ -140,6 +142,8 @@ def test_bitrate_is_passed_to_the_python_can_bus(capsys):
     assert code == 2 and "1000..1000000" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_lost_bus_connection_exits_2_with_one_line(capsys):
     """The canstack server goes away 0.5 s into a 5 s run: restbus stops and names the error."""
     import threading

@@ -5,7 +5,6 @@ import importlib.metadata
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -79,6 +78,7 @@ def test_a_malformed_eds_names_the_file(capsys, registered, tmp_path):
     assert code == 2 and "none.eds: no such file" in err
 
 
+@pytest.mark.wallclock
 def test_a_short_run_on_the_virtual_bus_prints_the_summary(capsys, registered):
     code, out, err = run(
         capsys,
@@ -117,7 +117,10 @@ def test_a_short_run_on_the_virtual_bus_prints_the_summary(capsys, registered):
     assert code == 0 and m["node_id"] == 9 and m["nmt_state"] == "PRE_OPERATIONAL" and m["boot_ups"] == 1
 
 
-def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
+@pytest.mark.wallclock
+@pytest.mark.socket
+@pytest.mark.subprocess
+def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path, interruptible_python):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(tmp_path), os.environ.get("PYTHONPATH", "")]))
     if not _installed():  # the entry point of pyproject.toml, for a checkout not re-installed yet
         dist = tmp_path / "canstack_canopen_entry-0.dist-info"
@@ -126,8 +129,7 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
         (dist / "entry_points.txt").write_text(f"[canstack.commands]\ncanopen = {EP.value}\n")
     with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
         proc = subprocess.Popen(
-            [
-                sys.executable,
+            interruptible_python(  # Ctrl-C stops it even when the suite runs with SIGINT ignored
                 "-m",
                 "stack.cli",
                 "canopen",
@@ -139,7 +141,7 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
                 srv.url,
                 "--heartbeat",
                 "100",
-            ],
+            ),
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -161,7 +163,12 @@ def test_the_canopen_library_drives_a_device_run_by_the_command(tmp_path):
         finally:
             net.disconnect()
             proc.send_signal(signal.SIGINT)
-            out, err = proc.communicate(timeout=10)
+            try:
+                out, err = proc.communicate(timeout=30)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.communicate()
     assert proc.returncode == 130, err
     assert "NMT PRE_OPERATIONAL -> OPERATIONAL" in out and "node 12: OPERATIONAL" in out
 

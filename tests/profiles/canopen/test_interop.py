@@ -158,6 +158,8 @@ def library_master():
     return results, metrics
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_sdo_in_all_three_modes_and_an_abort(library_master):
     r, _ = library_master
     assert r["heartbeats"]
@@ -167,12 +169,16 @@ def test_sdo_in_all_three_modes_and_an_abort(library_master):
     assert r["abort"] == 0x0601_0002
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_pdo_remapping_through_remote_node_tpdo(library_master):
     r, m = library_master
     assert r["mapping"] == [[0x2003, 0, 16], [0x2002, 0, 32]]  # read back after the save
     assert m[0]["tpdos"][0]["mapping"] == ["0x2002:0/32", "0x2000:0/8"]  # the reset node restored the EDS's
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_nmt_start_stop_reset_and_tpdos_after_each_sync(library_master):
     r, m = library_master
     assert r["operational"] and r["stopped"]
@@ -182,6 +188,8 @@ def test_nmt_start_stop_reset_and_tpdos_after_each_sync(library_master):
     assert m[0]["resets"]["application"] == 1 and m[0]["boot_ups"] == 2
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_heartbeat_timeout_detected_and_emcy_decoded(library_master):
     r, m = library_master
     assert r["heartbeat_3"] == "timeout"
@@ -191,6 +199,7 @@ def test_heartbeat_timeout_detected_and_emcy_decoded(library_master):
     assert m[1]["heartbeat_consumer"][0]["timeouts"] >= 1
 
 
+@pytest.mark.wallclock
 @pytest.mark.filterwarnings("ignore::stack.io.pycan.PrivateBusWarning")  # a private bus is meant here
 def test_canstack_master_drives_a_canopen_local_node():
     """What works with LocalNode: once its application boots it (it does not on the master's

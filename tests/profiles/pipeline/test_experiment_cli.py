@@ -20,6 +20,7 @@ def canstack(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess
     return subprocess.run([sys.executable, "-m", "stack.cli", *args], capture_output=True, text=True, env=env, cwd=cwd)
 
 
+@pytest.mark.subprocess
 def test_experiment_prints_the_table_worst_offenders_first():
     out = canstack("experiment", str(EXAMPLES / "powertrain_90.toml"))
     assert out.returncode == 0, out.stderr
@@ -30,6 +31,7 @@ def test_experiment_prints_the_table_worst_offenders_first():
     assert "analysis: not schedulable: Diagnostics" in out.stdout
 
 
+@pytest.mark.subprocess
 def test_experiment_json_is_one_object(tmp_path):
     out = canstack("experiment", str(EXAMPLES / "body_network.toml"), "--json", "--out", str(tmp_path / "r.json"))
     assert out.returncode == 0, out.stderr
@@ -38,6 +40,7 @@ def test_experiment_json_is_one_object(tmp_path):
     assert json.loads((tmp_path / "r.json").read_text()) == data
 
 
+@pytest.mark.subprocess
 def test_experiment_plots(tmp_path):
     pytest.importorskip("matplotlib")
     out = canstack(
@@ -48,6 +51,7 @@ def test_experiment_plots(tmp_path):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize(
     "args,message",
     [

@@ -200,6 +200,7 @@ def test_application_hooks_run_before_the_start(tmp_path, monkeypatch):
     assert res.trace[0].frame.data == b"\xab" and res.tracks["m"].decl.options["touched"]
 
 
+@pytest.mark.wallclock
 def test_the_same_scenario_runs_on_python_cans_virtual_bus():
     sc = _scenario(
         {
@@ -220,6 +221,8 @@ def test_the_same_scenario_runs_on_python_cans_virtual_bus():
         assert 0 <= r["response_ms"]["min"] <= r["response_ms"]["max"] < 50
 
 
+@pytest.mark.wallclock
+@pytest.mark.socket
 def test_the_same_scenario_runs_through_canstack_serve():
     from stack.io.serve import BusServer
 

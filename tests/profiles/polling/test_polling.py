@@ -405,6 +405,7 @@ def test_the_same_scenario_and_seed_give_the_same_results():
 # ---------------------------------------------------------------------------------------------- elsewhere
 
 
+@pytest.mark.wallclock
 def test_the_wall_clock_example_runs_on_python_cans_virtual_bus():
     """examples/master_slave_wallclock.toml: a cycle of 20 ms with 10 ms timeouts leaves Python's
     thread wake-ups room (the simulated example's 1 ms timeouts do not: see the README)."""
@@ -417,6 +418,7 @@ def test_the_wall_clock_example_runs_on_python_cans_virtual_bus():
         assert s["response_ms"]["min"] > 0
 
 
+@pytest.mark.subprocess
 def test_plot_of_the_poll_cycle(tmp_path):
     pytest.importorskip("matplotlib")
     from tests.profiles.pipeline.test_experiment_cli import canstack

@@ -303,6 +303,7 @@ def test_a_poll_request_may_not_reuse_another_messages_identifier():
     ) in refused(mutate)
 
 
+@pytest.mark.subprocess
 def test_on_the_command_line_a_bad_entry_is_one_line_with_exit_2(tmp_path):
     from tests.profiles.pipeline.test_experiment_cli import canstack
 

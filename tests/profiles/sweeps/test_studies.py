@@ -157,6 +157,7 @@ def test_fifo_queues_lose_sets_that_priority_queues_keep(study):
     assert study.breakdown["analysis"] is not None and 0.8 <= study.breakdown["analysis"] <= 1.0
 
 
+@pytest.mark.subprocess
 def test_the_study_is_the_same_on_a_process_pool(study):
     again = schedulability_study(
         UTILISATIONS[-2:], sets=SETS, messages=6, per_node=2, seed=4, workers=2, engine="processes"

@@ -228,6 +228,8 @@ def test_a_row_is_the_run_of_its_scenario_with_its_seed():
     assert res.rows[0]["Doors.jitter_ms"] != res.rows[1]["Doors.jitter_ms"]
 
 
+@pytest.mark.socket
+@pytest.mark.subprocess
 def test_identical_tables_sequential_process_pool_and_dask(monkeypatch):
     # workers the pool or the cluster starts must import this checkout
     monkeypatch.setenv("PYTHONPATH", str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -243,6 +245,8 @@ def test_identical_tables_sequential_process_pool_and_dask(monkeypatch):
     assert dask.engine == "dask" and dask.rows == seq.rows
 
 
+@pytest.mark.socket
+@pytest.mark.subprocess
 def test_a_sweep_on_a_running_scheduler(monkeypatch):
     """--scheduler: the runs go to a cluster this process did not start (here a LocalCluster's
     scheduler, as `dask scheduler` would be), with the same table."""

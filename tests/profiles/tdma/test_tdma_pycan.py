@@ -14,6 +14,7 @@ from profiles.pipeline.scenario import load_scenario
 ROOT = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.wallclock
 def test_wallclock_example_runs_on_the_virtual_bus():
     pytest.importorskip("can")
     sc = load_scenario(ROOT / "examples" / "tdma_wallclock.toml")

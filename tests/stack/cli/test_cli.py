@@ -43,6 +43,7 @@ def test_frame_remote_extended(capsys):
     assert d.frame.remote and d.frame.extended and d.frame.dlc == 8
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize(
     "args,needle",
     [

@@ -10,6 +10,7 @@ import pytest
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("script", ["quickstart.py", "restbus_example.py"])
 def test_example_runs(script, tmp_path):
     p = subprocess.run(
@@ -20,6 +21,7 @@ def test_example_runs(script, tmp_path):
     assert list(tmp_path.iterdir()) == []  # nothing written into the working directory
 
 
+@pytest.mark.subprocess
 def test_quickstart_writes_the_trace_it_is_given(tmp_path):
     out = tmp_path / "run" / "qs.blf"
     out.parent.mkdir()

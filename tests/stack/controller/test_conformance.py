@@ -68,7 +68,8 @@ class PyCanNet:
     def start(self) -> None:
         self.driver.start()
 
-    def wait(self, cond: Callable[[], bool], limit_s: float = 3.0) -> bool:
+    def wait(self, cond: Callable[[], bool], limit_s: float = 10.0) -> bool:
+        # a deadline, not a duration: a loaded machine is slow, not wrong
         end = time.monotonic() + limit_s
         while time.monotonic() < end:
             with self.driver.lock:
@@ -86,7 +87,7 @@ class PyCanNet:
         self.driver.close()
 
 
-@pytest.fixture(params=["sim", "pycan"])
+@pytest.fixture(params=["sim", pytest.param("pycan", marks=pytest.mark.wallclock)])
 def net(request):
     n = SimNet() if request.param == "sim" else PyCanNet()
     yield n
@@ -257,7 +258,7 @@ def test_local_clock_with_drift_speaks_local_time(net):
 
     _do(net, arm)
     net.start()
-    assert net.wait(lambda: fired, limit_s=3.0)
+    assert net.wait(lambda: fired)
     local_elapsed, bus_elapsed = fired[0]
     assert local_elapsed >= 100_000_000
     if net.kind == "sim":

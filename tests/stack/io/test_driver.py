@@ -16,6 +16,8 @@ from stack.io.driver import PyCanDriver
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
+# every test here runs nodes on a python-can bus in real time: threads and the wall clock
+pytestmark = pytest.mark.wallclock
 _ids = itertools.count()
 
 

@@ -24,6 +24,9 @@ from stack.io.runner import get_runner
 from stack.io.serve import ERROR, FILTERS, HELLO, SEND, TXEND, WELCOME, BusServer, encode_message
 
 ROOT = Path(__file__).resolve().parents[3]
+# every test here runs canstack buses in real time (their runner thread paces the simulated bus
+# to the wall clock)
+pytestmark = pytest.mark.wallclock
 _ids = itertools.count()
 
 
@@ -122,6 +125,7 @@ def _read(sock, until_types, timeout=2.0):
     return out
 
 
+@pytest.mark.socket
 @pytest.mark.parametrize("payload", [b"5", b"true", b"1.5", b'"abc"', b'{"can_id": 1, "can_mask": 1}'])
 def test_served_filters_that_are_no_list_get_an_error_and_the_client_stays(server, payload, caplog):
     acker = can.Bus(interface="canstack", channel=server.url)  # acknowledges the raw client's frame
@@ -159,6 +163,8 @@ def test_in_process_buses_that_shut_down_leave_the_bus_and_free_their_names():
         keep.shutdown()
 
 
+@pytest.mark.socket
+@pytest.mark.subprocess
 def test_served_clients_that_leave_are_removed_from_the_bus(server):
     keep = can.Bus(interface="canstack", channel=server.url)
     try:
@@ -218,6 +224,8 @@ bus.shutdown()
 """
 
 
+@pytest.mark.socket
+@pytest.mark.subprocess
 def test_processes_that_send_and_shut_down_at_once_lose_nothing(drain, tmp_path):
     with BusServer(125_000, listen=("127.0.0.1", 0)) as srv:
         rx = can.Bus(interface="canstack", channel=srv.url)
@@ -237,6 +245,8 @@ def test_processes_that_send_and_shut_down_at_once_lose_nothing(drain, tmp_path)
         assert [int.from_bytes(m.data, "big") for m in got if m.arbitration_id == 0x200 + i] == list(range(20))
 
 
+@pytest.mark.socket
+@pytest.mark.subprocess
 def test_can_player_plays_the_whole_log_onto_a_served_bus(drain, tmp_path):
     log = tmp_path / "play.log"
     sent = [
@@ -284,6 +294,7 @@ def runtime_dir(tmp_path, monkeypatch):
     return d
 
 
+@pytest.mark.socket
 def test_a_plain_channel_warns_once_when_a_local_server_runs(runtime_dir):
     with BusServer(500_000, listen=("127.0.0.1", 0)) as srv:
         assert [s["url"] for s in local_servers()] == [srv.url]
@@ -298,6 +309,7 @@ def test_a_plain_channel_warns_once_when_a_local_server_runs(runtime_dir):
     assert local_servers() == []  # the server withdrew its announcement
 
 
+@pytest.mark.subprocess
 def test_a_plain_channel_does_not_warn_without_a_live_local_server(runtime_dir):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -372,10 +384,15 @@ def test_going_passive_while_the_own_frame_is_on_the_wire_stops_its_retransmissi
         lone.shutdown()
 
 
-def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(drain, tmp_path, server):
+@pytest.mark.socket
+@pytest.mark.subprocess
+def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(
+    drain, tmp_path, server, interruptible_python, fill_until_logged
+):
     asc = tmp_path / "rec.asc"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive", "-f", str(asc)],
+        # can.logger ends its log on Ctrl-C: a child that takes it, whatever the suite's SIGINT
+        interruptible_python("-m", "can.logger", "-i", "canstack", "-c", server.url, "--passive", "-f", str(asc)),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -392,16 +409,19 @@ def test_python_can_logger_passive_records_a_served_bus_without_acknowledging(dr
             sent = [msg(0x600 + i, bytes([i])) for i in range(4)]
             for m in sent:
                 tx.send(m)
-            assert len(drain(other, 4, timeout=1.0)) == 4
-            time.sleep(0.1)
+            assert len(drain(other, 4, timeout=10.0)) == 4
+            fill_until_logged(tx, asc, len(sent))
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
+        _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
+            proc.communicate()
     assert "Traceback" not in err, err
-    read = list(can.LogReader(str(asc)))
-    assert [(m.arbitration_id, bytes(m.data)) for m in read] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    read = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(asc))]
+    assert read[: len(sent)] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    filler = (fill_until_logged.filler_id, bytes(8))
+    assert read[len(sent) :] and all(r == filler for r in read[len(sent) :])
 
 
 # ------------------------------------------------------------------------ failed one-shot transmissions
@@ -457,6 +477,7 @@ def test_ignore_rx_error_frames_keeps_them_out_of_recv():
         lone.shutdown()
 
 
+@pytest.mark.socket
 def test_failed_one_shot_frame_arrives_as_an_error_frame_through_serve(server):
     lone = can.Bus(interface="canstack", channel=server.url, one_shot=True)
     try:

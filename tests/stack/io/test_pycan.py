@@ -6,7 +6,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -20,6 +19,9 @@ from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
 ROOT = Path(__file__).resolve().parents[3]
+# every test here runs canstack buses in real time (their runner thread paces the simulated bus
+# to the wall clock)
+pytestmark = pytest.mark.wallclock
 _ids = itertools.count()
 
 
@@ -275,7 +277,9 @@ def _entry_point_path(tmp_path: Path) -> str:
     return str(tmp_path)
 
 
-def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path):
+@pytest.mark.socket
+@pytest.mark.subprocess
+def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path, interruptible_python, fill_until_logged):
     from stack.io.serve import BusServer
 
     asc = tmp_path / "rec.asc"
@@ -284,7 +288,8 @@ def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path):
     env["PYTHONPATH"] = os.pathsep.join([_entry_point_path(tmp_path), str(ROOT), env.get("PYTHONPATH", "")])
     with BusServer(500_000, listen=("127.0.0.1", 0)) as server:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "can.logger", "-i", "canstack", "-c", server.url, "-f", str(asc)],
+            # can.logger ends its log on Ctrl-C: a child that takes it, whatever the suite's SIGINT
+            interruptible_python("-m", "can.logger", "-i", "canstack", "-c", server.url, "-f", str(asc)),
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -297,14 +302,19 @@ def test_python_can_logger_command_records_a_served_bus_to_asc(tmp_path):
                 sent = [msg(0x700 + i, bytes(range(i))) for i in range(6)]
                 for m in sent:
                     tx.send(m)
-                time.sleep(0.3)
+                fill_until_logged(tx, asc, len(sent))
             proc.send_signal(signal.SIGINT)
-            proc.wait(10)
+            _, err = proc.communicate(timeout=30)
         finally:
             if proc.poll() is None:
                 proc.kill()
-    read = list(can.LogReader(str(asc)))
-    assert [(m.arbitration_id, bytes(m.data)) for m in read] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+                proc.communicate()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    read = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(asc))]
+    # what was sent, in order, then the fillers that made the logger write it out
+    assert read[: len(sent)] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    filler = (fill_until_logged.filler_id, bytes(8))
+    assert read[len(sent) :] and all(r == filler for r in read[len(sent) :])
 
 
 def _object_dictionary():

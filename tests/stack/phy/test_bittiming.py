@@ -59,6 +59,7 @@ def _calc_is_legacy() -> bool:
     return int(out.split()[6]) == 2
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(CALC is None, reason="can-calc-bit-timing (can-utils) not installed")
 @pytest.mark.parametrize("controller", ["sja1000", "mcp251x", "flexcan", "at91", "rcar_can"])
 @pytest.mark.parametrize("clock", [8_000_000, 16_000_000, 24_000_000, 33_333_333])
@@ -86,6 +87,7 @@ def test_matches_can_calc_bit_timing(controller: str, clock: int) -> None:
     assert compared >= len(rows) // 2
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(CALC is None, reason="can-calc-bit-timing (can-utils) not installed")
 @pytest.mark.parametrize(
     "bitrate,sp_tenths",

@@ -521,6 +521,7 @@ def test_sigrok_exported_vcd_decodes_like_the_session(tmp_path):
     assert [(r.t, r.to_frame()) for r in a] == [(r.t, r.to_frame()) for r in b]
 
 
+@pytest.mark.subprocess
 @needs_sigrok
 def test_sigrok_decodes_our_rendered_vcd(tmp_path):
     """An independent receiver (sigrok's CAN decoder) reads our waveform."""
