@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -68,3 +69,20 @@ def fill_until_logged(wait_until: Callable[..., Any]) -> Callable[..., list[Any]
 
     fill.filler_id = FILLER_ID  # type: ignore[attr-defined]
     return fill
+
+
+@pytest.fixture
+def settle(wait_until: Callable[..., Any]) -> Callable[[str], None]:
+    """``settle(channel)``: wait until the in-process canstack bus ``channel`` has nothing left
+    to do (no frame on the wire or queued, no timer: `SimBus.next_event_time` is infinite). Every
+    frame sent before is then in its receivers' queues, and none can come after: ``recv(0)``
+    reads exactly what the bus carried. (The check runs on the bus's runner thread, after the
+    commands already posted, such as a frame just sent.)"""
+    from stack.io.runner import get_runner
+
+    def wait(channel: str) -> None:
+        runner = get_runner(channel)
+        assert runner is not None, f"no canstack bus {channel!r} in this process"
+        wait_until(lambda: runner.call(lambda: runner.sim.next_event_time() == math.inf), what=f"bus {channel!r} idle")
+
+    return wait

@@ -15,6 +15,7 @@ import pytest
 
 import stack.io.pycan  # noqa: F401  (registers interface="canstack" when the package is not installed)
 from stack.io.pycan import CanstackBus, CanstackCyclicTask, InvalidFrame, running_buses
+from stack.io.runner import get_runner
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
@@ -64,7 +65,7 @@ def test_back_to_back_frames_arrive_one_wire_time_apart(pair):
     t_send = time.time()
     for m in frames:
         a.send(m)
-    got = [b.recv(1.0) for _ in frames]
+    got = [b.recv(10.0) for _ in frames]
     assert [bytes(m.data) for m in got] == [bytes(m.data) for m in frames]
     first = Frame(0x123, bytes([0]) * 8)
     # the first frame ends one frame length (SOF..EOF) after it started
@@ -75,34 +76,42 @@ def test_back_to_back_frames_arrive_one_wire_time_apart(pair):
     assert all(m.is_rx and m.channel == a.channel for m in got)
 
 
-def test_contending_frames_are_arbitrated_lowest_identifier_first():
+def test_contending_frames_are_arbitrated_lowest_identifier_first(wait_until):
     ch = chan()
-    a = CanstackBus(ch, bitrate=10_000)  # 10 kbit/s: the first frame is ~6 ms on the wire
+    a = CanstackBus(ch, bitrate=10_000)
     b = CanstackBus(ch)
     c = CanstackBus(ch)
+    runner = get_runner(ch)
     try:
         a.send(msg(0x700, b"\x00"))
-        time.sleep(0.001)  # 0x700 is on the wire now; the rest contend when it ends
-        a.send(msg(0x300, b"\x03"))
-        b.send(msg(0x200, b"\x02"))
-        b.send(msg(0x100, b"\x01"))
-        a.send(msg(0x0F0, b"\x04", extended=True))  # extended 0x0F0: base ID 0 beats all
-        got = [c.recv(1.0) for _ in range(5)]
+        # 0x700 has won the bus alone (an arbitration round has started it) ...
+        wait_until(lambda: runner.call(lambda: runner.sim.rounds >= 1))
+
+        def queue_the_rest() -> None:  # ... and the rest is queued at one instant, to contend
+            a.send(msg(0x300, b"\x03"))
+            b.send(msg(0x200, b"\x02"))
+            b.send(msg(0x100, b"\x01"))
+            a.send(msg(0x0F0, b"\x04", extended=True))  # extended 0x0F0: base ID 0 beats all
+
+        # on the bus's own thread: its loop takes the four frames before it arbitrates again
+        runner.call(queue_the_rest)
+        got = [c.recv(10.0) for _ in range(5)]
     finally:
         for bus in (a, b, c):
             bus.shutdown()
     assert [m.arbitration_id for m in got] == [0x700, 0x0F0, 0x100, 0x200, 0x300]
 
 
-def test_receive_own_messages_marks_them_tx():
+def test_receive_own_messages_marks_them_tx(settle):
     ch = chan()
     a = CanstackBus(ch, receive_own_messages=True)
     b = CanstackBus(ch)
     try:
         a.send(msg(0x55, b"\x01\x02"))
-        own = a.recv(1.0)
-        other = b.recv(1.0)
-        assert a.recv(0.05) is None
+        own = a.recv(10.0)
+        other = b.recv(10.0)
+        settle(ch)
+        assert a.recv(0) is None  # its own frame once
     finally:
         a.shutdown()
         b.shutdown()
@@ -111,19 +120,20 @@ def test_receive_own_messages_marks_them_tx():
     assert own.timestamp == other.timestamp  # both see the end of the same EOF
 
 
-def test_filters_are_applied_by_the_node(pair):
+def test_filters_are_applied_by_the_node(pair, settle):
     a, b = pair
     b.set_filters([{"can_id": 0x100, "can_mask": 0x7F0, "extended": False}])
     for cid in (0x101, 0x200, 0x10F):
         a.send(msg(cid, b"\x00"))
     a.send(msg(0x105, b"\x00", extended=True))  # extended frame: filter asks for standard only
+    settle(a.channel)  # the bus has carried all four: b has what passed its filter
     got = []
-    while (m := b.recv(0.1)) is not None:
+    while (m := b.recv(0)) is not None:
         got.append(m.arbitration_id)
     assert got == [0x101, 0x10F]
     b.set_filters(None)
     a.send(msg(0x200, b"\x00"))
-    assert b.recv(1.0).arbitration_id == 0x200
+    assert b.recv(10.0).arbitration_id == 0x200
 
 
 def test_bad_input_raises_clear_can_errors(pair):
@@ -145,7 +155,7 @@ def test_bad_input_raises_clear_can_errors(pair):
         b.send(msg(1, b""))
 
 
-def test_listen_only_node_neither_sends_nor_acknowledges():
+def test_listen_only_node_neither_sends_nor_acknowledges(wait_until):
     ch = chan()
     a = CanstackBus(ch, tx_queue_size=1)
     spy = CanstackBus(ch, listen_only=True)
@@ -153,9 +163,7 @@ def test_listen_only_node_neither_sends_nor_acknowledges():
         with pytest.raises(can.CanOperationError, match="listen-only"):
             spy.send(msg(1, b""))
         a.send(msg(0x10, b"\x01"), timeout=0)
-        deadline = time.monotonic() + 1.0
-        while a.tec == 0 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: a.tec > 0)
         # nobody acknowledges: the frame never completes (its queue slot is never freed) and
         # a's transmit error counter rises with each ACK error (rule 3)
         assert a.tec > 0
@@ -166,7 +174,7 @@ def test_listen_only_node_neither_sends_nor_acknowledges():
         spy.shutdown()
 
 
-def test_full_transmit_queue_times_out_with_reason():
+def test_full_transmit_queue_times_out_with_reason(wait_until):
     ch = chan()
     a = CanstackBus(ch, tx_queue_size=2)  # alone on the bus: no ACK, frames never complete
     try:
@@ -179,45 +187,43 @@ def test_full_transmit_queue_times_out_with_reason():
         with pytest.raises(can.CanOperationError, match="queue full"):
             a.send(msg(3, b""), timeout=0)
         # no acknowledgement: TEC rises by 8 per attempt until error passive (rules 3 and 9)
-        deadline = time.monotonic() + 1.0
-        while a.state is not can.BusState.PASSIVE and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: a.state is can.BusState.PASSIVE)
         assert a.state is can.BusState.PASSIVE and a.tec >= 128
     finally:
         a.shutdown()
 
 
-def test_native_periodic_task_keeps_the_simulated_period(pair):
+def test_native_periodic_task_keeps_the_simulated_period(pair, drain, settle):
     a, b = pair
     task = a.send_periodic(msg(0x321, b"\x00\x01"), 0.010)
     assert isinstance(task, CanstackCyclicTask)
-    stamps = []
-    end = time.monotonic() + 0.25
-    while time.monotonic() < end:
-        m = b.recv(0.1)
-        if m is not None:
-            stamps.append(m)
+    stamps = drain(b, 15, timeout=30.0)
+    assert len(stamps) == 15
     task.modify_data(msg(0x321, b"\x07\x07"))
-    late = b.recv(0.1)
+    # a frame the engine had queued before the change carries the old data; then the new
+    after = []
+    while not after or after[-1].data != b"\x07\x07":
+        after += drain(b, 1, timeout=30.0) or pytest.fail("no frame with the new data")
     task.stop()
-    time.sleep(0.03)
+    settle(a.channel)  # stopped: the bus has nothing left to do, no timer
     while b.recv(0) is not None:
         pass
-    assert b.recv(0.05) is None  # stopped
-    assert len(stamps) >= 15
+    assert b.recv(0) is None
     for x, y in zip(stamps, stamps[1:]):  # virtual clock: the period is exact (only sender)
         assert y.timestamp - x.timestamp == pytest.approx(0.010, abs=2e-6)
-    assert bytes(late.data) == b"\x07\x07"
+    assert [bytes(m.data) for m in stamps + after[:-1]] == [b"\x00\x01"] * (len(stamps) + len(after) - 1)
+    # still on the period: a timestamp is the end of EOF, and the new data stuffs differently
+    longer = (Frame.from_message(after[-1]).bits.length - Frame.from_message(stamps[-1]).bits.length) / 500_000
+    assert after[-1].timestamp - stamps[-1].timestamp == pytest.approx(0.010 * len(after) + longer, abs=2e-6)
 
 
-def test_periodic_task_with_duration_stops_by_itself(pair):
+def test_periodic_task_with_duration_stops_by_itself(pair, drain, settle):
     a, b = pair
     a.send_periodic(msg(0x10, b"\x01"), 0.01, duration=0.05)
-    got = []
-    end = time.monotonic() + 0.2
-    while time.monotonic() < end:
-        if (m := b.recv(0.05)) is not None:
-            got.append(m)
+    got = drain(b, 5, timeout=30.0)
+    settle(a.channel)  # no frame on the way and no timer left: the task has ended by itself
+    while (m := b.recv(0)) is not None:
+        got.append(m)
     assert len(got) == 5
 
 
@@ -228,7 +234,7 @@ def test_shutdown_removes_the_node_and_last_one_stops_the_bus():
     c = CanstackBus(ch)
     b.shutdown()
     a.send(msg(0x1, b"\x01"))
-    assert c.recv(1.0).arbitration_id == 0x1
+    assert c.recv(10.0).arbitration_id == 0x1
     assert ch in running_buses()
     a.shutdown()
     c.shutdown()
@@ -248,11 +254,14 @@ def test_notifier_printer_and_logger_write_what_was_sent(tmp_path):
     asc = tmp_path / "log.asc"
     printer = can.Printer(str(out))
     logger = can.Logger(str(asc))
-    notifier = can.Notifier(b, [printer, logger], timeout=0.05)
+    seen = can.BufferedReader()  # the notifier hands each message to the listeners in this order
+    notifier = can.Notifier(b, [printer, logger, seen], timeout=0.05)
     sent = [msg(0x100 + i, bytes([i, i + 1])) for i in range(4)] + [msg(0x1ABCDE, b"\xff", extended=True)]
     for m in sent:
         a.send(m)
-    time.sleep(0.1)
+    deadline = time.monotonic() + 30.0  # the last message has passed the printer and the logger
+    got = [m for _ in sent if (m := seen.get_message(max(0.0, deadline - time.monotonic()))) is not None]
+    assert len(got) == len(sent)
     notifier.stop()
     printer.stop()
     logger.stop()
@@ -336,7 +345,7 @@ def _object_dictionary():
     return od
 
 
-def test_canopen_master_and_local_node_on_two_canstack_buses():
+def test_canopen_master_and_local_node_on_two_canstack_buses(wait_until):
     import canopen
 
     ch = chan()
@@ -357,13 +366,10 @@ def test_canopen_master_and_local_node_on_two_canstack_buses():
         assert local.sdo.upload(0x2001, 0) == b"renamed by the master"
         # NMT state change commanded by the master
         remote.nmt.state = "OPERATIONAL"
-        deadline = time.monotonic() + 1.0
-        while local.nmt.state != "OPERATIONAL" and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert local.nmt.state == "OPERATIONAL"
+        wait_until(lambda: local.nmt.state == "OPERATIONAL")
         # heartbeat produced by the local node, received by the master
         local.nmt.start_heartbeat(50)
-        assert remote.nmt.wait_for_heartbeat(timeout=1.0) == "OPERATIONAL"
+        assert remote.nmt.wait_for_heartbeat(timeout=10.0) == "OPERATIONAL"
         local.nmt.stop_heartbeat()
     finally:
         master.disconnect()
@@ -395,7 +401,7 @@ BA_ "GenMsgCycleTime" BO_ 768 20;
 """
 
 
-def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
+def test_cantools_tester_drives_a_dut_on_another_canstack_bus(wait_until):
     import cantools
     from cantools.tester import Tester
 
@@ -434,10 +440,10 @@ def test_cantools_tester_drives_a_dut_on_another_canstack_bus():
     try:
         tester.start()  # starts the periodic Heartbeat (a native canstack periodic task)
         tester.send("Command", {"Enable": 1, "Setpoint": 21})
-        assert tester.expect("Status", {"Active": 1}, timeout=2.0) == {"Active": 1, "Value": 42}
+        assert tester.expect("Status", {"Active": 1}, timeout=10.0) == {"Active": 1, "Value": 42}
         tester.send("Command", {"Enable": 0, "Setpoint": 200})
-        assert tester.expect("Status", None, timeout=2.0) == {"Active": 0, "Value": 144}
-        time.sleep(0.2)
+        assert tester.expect("Status", None, timeout=10.0) == {"Active": 0, "Value": 144}
+        wait_until(lambda: len(heartbeats) >= 10)  # the 20 ms heartbeat, read by the DUT's thread
         tester.stop()
     finally:
         stop.set()
