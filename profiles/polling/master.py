@@ -286,8 +286,9 @@ class PollMaster(Reporter):
             tx, slave = hit
             link = self.links[slave]
             # only an answer to the request that went out counts; one that comes while a retry is
-            # still queued answers the attempt that timed out: late
-            if tx is self._tx and slave in self._awaiting and self._to(MasterEvent.ANSWER):
+            # still queued, or that ended before the retry started (a wall-clock bus whose reader
+            # thread handed it over late), answers the attempt that timed out: late
+            if tx is self._tx and slave in self._awaiting and ev.time > self._sof and self._to(MasterEvent.ANSWER):
                 link.responses += 1
                 link.response_ns.append(ev.time - self._sof)
                 link.answered(ev.time)

@@ -102,8 +102,7 @@ class PyCanDriver:
         self.rounds = 0  # arbitration happens in the controller underneath: no rounds seen here
         self.delivered = 0  # receptions go straight to the node: no lazy log
         self.lock = threading.RLock()
-        self._t0 = time.monotonic_ns()
-        self._epoch0 = time.time()  # the wall-clock time of _t0, to read the buses' timestamps
+        self._t0, self._epoch0 = _clock_pair()  # _epoch0: the wall-clock time of _t0, to read the buses' timestamps
         self._timers: list[tuple[int, int, Timer]] = []
         self.seqs = itertools.count(1)  # requests and timers (the contract's `seqs`)
         self._ready: deque[Node] = deque()
@@ -396,6 +395,21 @@ class PyCanDriver:
         nxt = node.confirm(req, done, self._sof(done, frame))
         if nxt is not None:
             self.offer(node, nxt)
+
+
+def _clock_pair(tries: int = 8) -> tuple[int, float]:
+    """A monotonic time (ns) and the wall-clock time (s) of the same instant: the wall clock read
+    between two monotonic reads, the tightest pair of ``tries`` kept. A thread preempted between
+    the two reads (a loaded machine) would otherwise map every bus timestamp that far off, and a
+    frame could seem to arrive before the frame it answers was sent."""
+    best = (0, 0, 0.0)
+    for i in range(tries):
+        m0 = time.monotonic_ns()
+        wall = time.time()
+        m1 = time.monotonic_ns()
+        if i == 0 or m1 - m0 < best[0]:
+            best = (m1 - m0, (m0 + m1) // 2, wall)
+    return best[1], best[2]
 
 
 def decode_error_frame(msg: can.Message) -> dict[str, Any] | None:
