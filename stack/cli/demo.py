@@ -444,12 +444,17 @@ def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: A
     drv = PyCanDriver(interface=interface, channel=channel, pace_bitrate=pace, **kwargs)
     seen: dict[tuple[int, bool, bool], list[float]] = {}
     try:
-        build_demo(drv)  # type: ignore[arg-type]  # the driver offers SimBus's node() and clock
+        # the driver runs while the nodes are built (which takes a while on a loaded machine),
+        # and the window starts once they are: a frame sent before it is not counted, so a slow
+        # start neither adds a burst of frames due during the build nor shortens the window
         drv.start()
+        with drv.lock:
+            build_demo(drv)  # type: ignore[arg-type]  # the driver offers SimBus's node() and clock
+        start = time.time()
         end = time.monotonic() + duration_s
         while (left := end - time.monotonic()) > 0:
             msg = monitor.recv(min(left, 0.1))
-            if msg is not None:
+            if msg is not None and msg.timestamp >= start:
                 seen.setdefault((msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame), []).append(msg.timestamp)
         drv.stop()
         counters = {n.name: n.counters() for n in drv.nodes}
