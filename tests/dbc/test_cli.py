@@ -145,27 +145,38 @@ def test_bitrate_is_passed_to_the_python_can_bus(capsys):
 @pytest.mark.wallclock
 @pytest.mark.socket
 def test_lost_bus_connection_exits_2_with_one_line(capsys):
-    """The canstack server goes away 0.5 s into a 5 s run: restbus stops and names the error."""
+    """The canstack server goes away once the rest-bus runs (its first frame is on the bus), early
+    in a 5 s run: restbus stops and names the error."""
     import threading
     import time
 
     from stack.io.serve import BusServer
 
     server = BusServer(500_000, listen=("127.0.0.1", 0))
-    timer = threading.Timer(0.5, server.close)
-    timer.start()
+    closed_at = []
+
+    def close_once_running():
+        # the ECUs join one by one (slowly on a loaded machine); closing before the run would
+        # test a failed start instead
+        deadline = time.monotonic() + 60.0
+        while server.runner.call(lambda: server.sim.frames_ok) == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        closed_at.append(time.monotonic())
+        server.close()
+
+    closer = threading.Thread(target=close_once_running)
+    closer.start()
     try:
-        t0 = time.monotonic()
         code, out, err = run(
             capsys, "restbus", SAMPLE, "--duration", "5", "--interface", "canstack", "--channel", server.url
         )
-        took = time.monotonic() - t0
+        stopped_at = time.monotonic()
     finally:
-        timer.join()
+        closer.join()
         server.close()
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert server.url in err and "failed" in err
-    assert took < 4  # it did not run on for the whole duration
+    assert stopped_at - closed_at[0] < 4  # it did not run on for the rest of the duration
 
 
 def test_malformed_dbc_without_line_from_cantools_is_one_line(capsys, tmp_path):

@@ -201,7 +201,7 @@ def test_application_hooks_run_before_the_start(tmp_path, monkeypatch):
 
 
 @pytest.mark.wallclock
-def test_the_same_scenario_runs_on_python_cans_virtual_bus():
+def test_the_same_scenario_runs_on_python_cans_virtual_bus(rerun_until):
     sc = _scenario(
         {
             "a": [{"name": "ma", "id": 0x100, "dlc": 8, "period_ms": 10}],
@@ -209,21 +209,31 @@ def test_the_same_scenario_runs_on_python_cans_virtual_bus():
         },
         bitrate=500_000,
     )
-    res = run_on_pycan(sc, "virtual", f"runner-test-{random.random()}", duration_s=0.5)
-    rows = _rows(res)
-    assert res.driver.startswith("virtual")
-    for r in rows.values():
-        # on the wall clock a frame counts as sent when the monitor's receive thread saw it: the
-        # ones released in the last moments before the stop may still be on their way (threads on
-        # a shared machine lag by tens of ms), none may be lost
-        assert r["failed"] == r["dropped"] == 0 and r["sent"] > 0
-        assert r["released"] - 1 - math.ceil(50 / r["period_ms"]) <= r["sent"] <= r["released"]
-        assert 0 <= r["response_ms"]["min"] <= r["response_ms"]["max"] < 50
+
+    def run():
+        res = run_on_pycan(copy.deepcopy(sc), "virtual", f"runner-test-{random.random()}", duration_s=0.5)
+        rows = _rows(res)
+        assert res.driver.startswith("virtual")
+        for r in rows.values():
+            # on the wall clock a frame counts as sent when the monitor's receive thread saw it: the
+            # ones released in the last moments before the stop may still be on their way, none may
+            # be lost
+            assert r["failed"] == r["dropped"] == 0 and 0 < r["sent"] <= r["released"]
+            assert 0 <= r["response_ms"]["min"] <= r["response_ms"]["max"]
+        return rows
+
+    def timely(rows):  # threads that lagged by no more than 50 ms (a shared machine lags by tens)
+        return all(
+            r["released"] - 1 - math.ceil(50 / r["period_ms"]) <= r["sent"] and r["response_ms"]["max"] < 50
+            for r in rows.values()
+        )
+
+    rerun_until(run, timely)
 
 
 @pytest.mark.wallclock
 @pytest.mark.socket
-def test_the_same_scenario_runs_through_canstack_serve():
+def test_the_same_scenario_runs_through_canstack_serve(rerun_until):
     from stack.io.serve import BusServer
 
     sc = _scenario(
@@ -233,16 +243,20 @@ def test_the_same_scenario_runs_through_canstack_serve():
         },
         bitrate=500_000,
     )
-    with BusServer(500_000, name="runner", listen=("127.0.0.1", 0)) as server:
-        res = run_on_pycan(sc, "canstack", server.url, duration_s=0.6)
-    rows = _rows(res)
-    # through the served bus the monitor's timestamps are the wire's end of EOF: a frame alone on
-    # the bus takes its exact length (8 bytes at 500 kbit/s: at least 111 bits = 222 us)
-    ma = rows["ma"]  # (what may still be on its way at the stop: as on the virtual bus above)
-    assert ma["failed"] == ma["dropped"] == 0
-    assert ma["released"] - 1 - math.ceil(50 / ma["period_ms"]) <= ma["sent"] <= ma["released"] and ma["sent"] > 0
-    assert rows["ma"]["response_ms"]["min"] >= 0.222 - 1e-6
-    assert 0 < res.bus_load < 0.2
+
+    def run():
+        with BusServer(500_000, name="runner", listen=("127.0.0.1", 0)) as server:
+            res = run_on_pycan(copy.deepcopy(sc), "canstack", server.url, duration_s=0.6)
+        rows = _rows(res)
+        # through the served bus the monitor's timestamps are the wire's end of EOF: a frame alone
+        # on the bus takes its exact length (8 bytes at 500 kbit/s: at least 111 bits = 222 us)
+        ma = rows["ma"]  # (what may still be on its way at the stop: as on the virtual bus above)
+        assert ma["failed"] == ma["dropped"] == 0 and 0 < ma["sent"] <= ma["released"]
+        assert ma["response_ms"]["min"] >= 0.222 - 1e-6
+        assert 0 < res.bus_load < 0.2
+        return ma
+
+    rerun_until(run, lambda ma: ma["released"] - 1 - math.ceil(50 / ma["period_ms"]) <= ma["sent"])
 
 
 def test_faults_are_refused_on_a_python_can_bus():

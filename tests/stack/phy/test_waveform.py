@@ -468,6 +468,7 @@ def _sigrok_frames(path: Path, channel: str, bitrate: int) -> list[dict]:
     return frames
 
 
+@pytest.mark.subprocess
 @needs_corpus
 @needs_sigrok
 def test_bus_load_100_matches_sigrok():
@@ -480,6 +481,7 @@ def test_bus_load_100_matches_sigrok():
     assert all(abs(r.sample - f["sample"]) <= 1 for r, f in zip(ours, theirs))
 
 
+@pytest.mark.subprocess
 @needs_corpus
 @needs_sigrok
 def test_nmea2000_hard_case_beats_sigrok():
@@ -511,6 +513,7 @@ def test_nmea2000_every_frame_after_bus_idle_is_recovered():
     assert sum(r.ok for r in plain) < 113
 
 
+@pytest.mark.subprocess
 @needs_corpus
 @needs_sigrok
 def test_sigrok_exported_vcd_decodes_like_the_session(tmp_path):
