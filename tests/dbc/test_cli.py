@@ -75,28 +75,33 @@ def test_unknown_interface_is_one_line_exit_2(capsys):
 
 
 @pytest.mark.wallclock
-def test_same_restbus_on_a_python_can_bus(capsys):
+def test_same_restbus_on_a_python_can_bus(capsys, rerun_until):
     """The ECUs run unchanged on python-can's virtual bus through stack.io.driver (wall clock)."""
-    code, out, err = run(
-        capsys,
-        "restbus",
-        SAMPLE,
-        "--dut",
-        "IPC",
-        "--duration",
-        "0.25",
-        "--interface",
-        "virtual",
-        "--channel",
-        "dbc-test-restbus",
-        "--json",
-    )
-    assert code == 0
-    rows = [json.loads(line) for line in out.splitlines()]
-    eng = [r for r in rows if r["name"] == "EngineData"]
-    assert 15 <= len(eng) <= 30  # 10 ms cycle for 0.25 s of wall clock
-    counters = [r["signals"]["EngineCounter"] for r in eng]
-    assert counters == [(counters[0] + k) % 16 for k in range(len(counters))]
+
+    def once():
+        code, out, err = run(
+            capsys,
+            "restbus",
+            SAMPLE,
+            "--dut",
+            "IPC",
+            "--duration",
+            "0.25",
+            "--interface",
+            "virtual",
+            "--channel",
+            "dbc-test-restbus",
+            "--json",
+        )
+        assert code == 0, err
+        rows = [json.loads(line) for line in out.splitlines()]
+        eng = [r for r in rows if r["name"] == "EngineData"]
+        counters = [r["signals"]["EngineCounter"] for r in eng]
+        assert eng and counters == [(counters[0] + k) % 16 for k in range(len(counters))]  # none lost
+        return eng
+
+    # a 10 ms cycle for 0.25 s of wall clock, on a machine that lets the driver's thread keep time
+    rerun_until(once, lambda eng: 15 <= len(eng) <= 30)
 
 
 @pytest.mark.wallclock
