@@ -62,7 +62,8 @@ def fill_until_logged(wait_until: Callable[..., Any]) -> Callable[..., list[Any]
             got = _logged(path)
             if sum(1 for m in got if m.arbitration_id != FILLER_ID) >= n:
                 return got
-            tx.send(filler)
+            for _ in range(16):  # a few lines' worth of the writer's buffer at a time
+                tx.send(filler)
             return None
 
         return wait_until(enough, timeout=60.0, what=f"{n} frames in {path}")
