@@ -47,6 +47,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -300,6 +301,8 @@ class Runner:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             text=True,
+            # Ctrl-C must reach it even when the tests run with SIGINT ignored (a background job)
+            preexec_fn=_default_sigint,
         )
         self.background.append(proc)
         assert proc.stdout is not None
@@ -309,19 +312,22 @@ class Runner:
         return first
 
     def close(self) -> None:
-        """End the background commands (SIGTERM, then SIGKILL after 5 s)."""
-        for proc in self.background:
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in self.background:
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        """End the background commands, the last started first, as a user would: Ctrl-C
+        (SIGINT), then SIGTERM and SIGKILL for one that is still there after 5 s each."""
+        for proc in reversed(self.background):
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+                if proc.poll() is not None:
+                    break
+                proc.send_signal(sig)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(5)
             if proc.stdout:
                 proc.stdout.close()
         self.background.clear()
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _readline(proc: subprocess.Popen[str], timeout: float) -> str:
@@ -377,9 +383,10 @@ def _run(block: Block, runner: Runner) -> str:
     printed: list[str] = []
     for command in commands(block):
         out = runner.run(command)
-        if command.expected and not matches(command.expected, out):
-            raise AssertionError(
-                f"{block.name}: {command.text!r} printed\n{out}\n--- where the page shows\n{command.expected}"
-            )
+        expected = command.expected
+        if expected and runner.port:
+            expected = expected.replace(DEFAULT_PORT, runner.port)
+        if expected and not matches(expected, out):
+            raise AssertionError(f"{block.name}: {command.text!r} printed\n{out}\n--- where the page shows\n{expected}")
         printed.append(out)
     return "".join(printed)
