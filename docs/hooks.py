@@ -102,13 +102,17 @@ def _cell(text: str) -> str:
 
 
 def _summary(obj: Any) -> str:
-    """The first sentence of an object's own docstring, on one line."""
+    """The first sentence of an object's own docstring, on one line: up to the first full stop
+    outside parentheses that ends a word (not one of the dots of ``0..15``)."""
     if not (inspect.isclass(obj) or inspect.isroutine(obj) or inspect.ismodule(obj)):
         return ""
-    doc = inspect.getdoc(obj) or ""
-    first = doc.split("\n\n", 1)[0]
-    sentence = re.split(r"(?<=[.:;])\s", " ".join(first.split()), maxsplit=1)[0]
-    return sentence.rstrip(":;")
+    text = " ".join((inspect.getdoc(obj) or "").split("\n\n", 1)[0].split())
+    depth = 0
+    for i, ch in enumerate(text):
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        if ch == "." and depth <= 0 and text[i + 1 : i + 2] in (" ", "") and text[i - 1 : i] != ".":
+            return text[: i + 1]
+    return text
 
 
 def public_api(package: str) -> str:

@@ -58,7 +58,7 @@ SUBCOMMANDS = {
 
 #: The version when no distribution metadata is installed (a checkout run with PYTHONPATH);
 #: kept equal to pyproject.toml's by a test.
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"
 
 
 def version() -> str:
