@@ -265,7 +265,7 @@ def test_the_mixed_example_is_bounded_by_the_analysis_not_by_frame_lengths():
     for row in data["messages"]:
         assert row["response_ms"]["max"] <= row["rta_ms"]
     worst = max(m["transactions"], key=lambda t: t["response_ms_max"])
-    readme = (EXAMPLES.parent / "README.md").read_text(encoding="utf-8")
+    readme = (EXAMPLES.parent / "docs" / "pages" / "experiments" / "polling.md").read_text(encoding="utf-8")
     assert (
         f"the frame-length bound ({m['chain_bound_ms']:.3f} ms) no longer applies and `master_slave` says so; the\n"
         f"measured cycle reaches {m['cycle_ms']['max']:.3f} ms against the analysis' {m['cycle_bound_ms']:.3f} ms, "
@@ -449,9 +449,9 @@ def test_plot_of_the_poll_cycle(tmp_path):
 
 
 def test_the_readmes_comparison_table_is_what_the_two_examples_measure():
-    """README, "Master/slave against CSMA/CR, the same I/O": every figure of the table, from a run
+    """The polling docs page, "Master/slave against CSMA/CR, the same I/O": every figure of the table, from a run
     of both scenario files."""
-    readme = (EXAMPLES.parent / "README.md").read_text(encoding="utf-8")
+    readme = (EXAMPLES.parent / "docs" / "pages" / "experiments" / "polling.md").read_text(encoding="utf-8")
     ms = run_scenario(load_scenario(EXAMPLES / "master_slave_vs_csma_polled.toml")).to_json()
     cs = run_scenario(load_scenario(EXAMPLES / "master_slave_vs_csma_csma.toml")).to_json()
     tx = {t["slaves"][0]: t for t in ms["master_slave"]["masters"]["plc"]["transactions"]}
