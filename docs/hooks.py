@@ -26,7 +26,7 @@ from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
 PLOTS = ROOT / "examples" / "plots"
-HELP_COLUMNS = 96  # the width argparse wraps the help to (it reads $COLUMNS)
+HELP_COLUMNS = 80  # the width argparse wraps the help to (it reads $COLUMNS): the page's code width
 MARKER = re.compile(r"<!-- generated: ([a-z-]+)(?: ([\w.]+))? -->")
 
 
