@@ -167,3 +167,35 @@ def docs_commands(parser) -> list[str]:
     """Every `canstack` command path, from the parser (as the CLI reference must list them)."""
     hooks = _load("canstack_docs_hooks", ROOT / "docs" / "hooks.py")
     return [command for command, _, _ in hooks.commands(parser, "canstack")]
+
+
+# ------------------------------------------------------------------ names the prose cites
+def _resolves(dotted: str) -> bool:
+    """Whether ``dotted`` is a module, or an attribute reached from the longest module prefix."""
+    import importlib
+
+    parts = dotted.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for attr in parts[cut:]:
+            if not hasattr(obj, attr):
+                return False
+            obj = getattr(obj, attr)
+        return True
+    return False
+
+
+def test_every_module_and_name_the_pages_cite_exists():
+    """A page citing `stack.sim` or `profiles.sweep.run_sweep` after the code moved on would
+    mislead silently; every dotted name in backticks must import."""
+    cited: dict[str, str] = {}
+    for path in [*docs.pages(), ROOT / "README.md"]:
+        for name in re.findall(r"`((?:stack|profiles|dbc)(?:\.[A-Za-z_]\w*)+)", path.read_text(encoding="utf-8")):
+            if name.rsplit(".", 1)[1] not in ("png", "md", "toml", "py", "json", "csv"):  # a file name
+                cited.setdefault(name, path.relative_to(ROOT).as_posix())
+    assert len(cited) >= 30
+    missing = {name: page for name, page in cited.items() if not _resolves(name)}
+    assert not missing, missing
