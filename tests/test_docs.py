@@ -153,10 +153,13 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     for command in commands:  # every command's --help is on the page, under its own heading
         assert f'id="{command.replace(" ", "-")}"' in cli, command
     api = (site / "reference" / "api" / "index.html").read_text(encoding="utf-8")
-    import stack
+    import importlib
 
-    for name in stack.__all__:  # every exported name links into the reference
-        assert re.search(rf'href="[^"]*#stack\.[\w.]*\.{name}"', api), name
+    for package in ("stack", "profiles", "dbc"):  # every exported name links into the reference
+        names = importlib.import_module(package).__all__
+        assert names, package
+        for name in names:
+            assert re.search(rf'href="[^"]*#{package}(\.[\w.]*)?\.{name}"', api), f"{package}.{name}"
     inventory = (site / "objects.inv").read_bytes()
     assert inventory.startswith(b"# Sphinx inventory version 2")
     search = json.loads((site / "search" / "search_index.json").read_text(encoding="utf-8"))
