@@ -1,8 +1,21 @@
 """Analyses that the scheduling experiments print beside simulated results.
 
-``rta``: worst-case response times of CAN messages (Davis, Burns, Bril, Lukkien 2007).
+``rta``: worst-case response times of CAN messages (Davis, Burns, Bril, Lukkien 2007 for priority
+queues; bounds for FIFO queues and transmit mailboxes), on the message model of ``model`` and the
+busy windows of ``window``. ``priority``: priority assignment (deadline monotonic, Audsley's
+optimal, robust).
 """
 
-from .rta import ErrorModel, MessageSpec, RtaResult, analyse, analyse_1994, frame_bits_worst, utilisation
+from .model import ErrorModel, MessageSpec, NodeQueue
+from .rta import RtaResult, analyse, analyse_1994, frame_bits_worst, utilisation
 
-__all__ = ["ErrorModel", "MessageSpec", "RtaResult", "analyse", "analyse_1994", "frame_bits_worst", "utilisation"]
+__all__ = [
+    "ErrorModel",
+    "MessageSpec",
+    "NodeQueue",
+    "RtaResult",
+    "analyse",
+    "analyse_1994",
+    "frame_bits_worst",
+    "utilisation",
+]

@@ -1,77 +1,150 @@
-"""Worst-case response-time analysis of CAN messages (fixed priority, non-preemptive).
+"""Worst-case response times of CAN messages (fixed priority, non-preemptive): Davis et al. 2007
+for priority queues, and bounds for FIFO queues and transmit mailboxes.
 
-Implements R. I. Davis, A. Burns, R. J. Bril and J. J. Lukkien, "Controller Area Network (CAN)
-schedulability analysis: Refuted, revisited and revised", Real-Time Systems 35(3):239-272, 2007
-(doi:10.1007/s11241-007-9012-7), and, for comparison, the original analysis it refutes
-(K. Tindell, A. Burns, A. Wellings, 1994/1995), which looks only at the first instance of a
-message queued at the critical instant and is optimistic.
+References
+- [D07] R. I. Davis, A. Burns, R. J. Bril, J. J. Lukkien, "Controller Area Network (CAN)
+  schedulability analysis: Refuted, revisited and revised", Real-Time Systems 35(3):239-272, 2007
+  (doi:10.1007/s11241-007-9012-7).
+- [T95] K. Tindell, A. Burns, A. Wellings, "Calculating Controller Area Network (CAN) message
+  response times", Control Engineering Practice 3(8), 1995: the first-instance analysis D07
+  refutes (``analyse_1994``).
+- [D11] R. I. Davis, S. Kollmann, V. Pollex, F. Slomka, "Controller Area Network (CAN)
+  schedulability analysis with FIFO queues", ECRTS 2011, 45-56; extended in Real-Time Systems
+  49(1), 2013 (FIFO queues, priority queues and gateways).
+- [K10] D. A. Khan, R. J. Bril, N. Navet, "Integrating hardware limitations in CAN
+  schedulability analysis", WFCS 2010, 207-210; [K11] D. A. Khan, R. I. Davis, N. Navet,
+  "Schedulability analysis of CAN with non-abortable transmission requests", ETFA 2011.
 
-Model (the paper's): every message m has a priority (its identifier: the lower arbitration key
-wins), a worst-case transmission time C_m, a period or minimum inter-arrival time T_m, a deadline
-D_m and a queuing (release) jitter J_m; every node enters its highest-priority ready message into
-arbitration, so the bus behaves as one priority queue served non-preemptively. Frames have the
-worst-case number of stuff bits.
+What is quoted and what is derived. D07's formulas below are checked by hand-worked examples in
+tests/profiles/test_rta.py (section numbers of the journal version; its equation numbers were not
+re-checked against the text). The texts of D11, K10 and K11 could not be consulted when this was
+written (their abstracts only), so none of their equations is quoted: the FIFO and mailbox
+bounds are my derivation, proved below, in D11's approach as its abstract and the literature
+describe it (a FIFO's messages wait behind the FIFO's content at the priority of its lowest
+message, and other messages see them with the extra jitter of their time in the queue). K10/K11
+analyse non-abortable buffers refilled from a *priority-ordered* software queue; the engine's
+mailboxes (`stack.controller.queues.MailboxQueue`) are refilled from a *FIFO* backlog, which
+their analysis does not describe, so the mailbox bound is derived here for the engine's policy.
 
-Equations, by the paper's symbols (section numbers as in the journal version; the equation
-*numbers* are quoted from memory of that version and were not re-checked against its text; the
-formulas themselves are checked by hand-worked examples in tests/profiles/test_rta.py):
+The figures (`RtaResult`), per message m:
+- ``response_ns`` — D07's R_m, from the nominal release (the initiating event; the release
+  jitter counts) to the end of the frame *including* the 3-bit intermission that C_m counts.
+  ``schedulable`` is R_m <= D_m: one deadline, one reference.
+- ``bound_ns`` — the worst time from queuing (the instance entering its controller's queue, up
+  to J_m after its nominal release) to the end of the frame, intermission included: what a
+  simulation measures as a response (to the end of EOF, 3 bit times earlier) never exceeds it.
+  It is *not* R_m − J_m: D07's instance q >= 1 of a busy period is queued with no jitter
+  right behind instance 0 queued late, so its time from queuing is all of R_m(q). One message,
+  500 kbit/s (C = 270 us), T = 1 ms, J = 0.9 ms: R − J = 270 us, but instance 0 queued at 0.9
+  ends at 1.17 ms and instance 1, queued at 1.0, waits for it and ends at 1.44: 440 us
+  (= R_m(1)); ``bound_ns`` is 440 us.
 
-- C_m = (g + 8 s_m + 13 + floor((g + 8 s_m - 1) / 4)) tau_bit, g = 34 (11-bit) or 54 (29-bit)
-  identifiers, s_m data bytes; includes the 3-bit intermission (Section 3, eq. 1).
-  ``frame_bits_worst``.
-- B_m = max over k in lp(m) of C_k: one lower-priority frame already on the bus (Section 3).
-- The original analysis (Section 3): w_m = B_m + sum over k in hp(m) of
-  ceil((w_m + J_k + tau_bit) / T_k) C_k and R_m = J_m + w_m + C_m.  ``analyse_1994``.
-- The revised analysis (Section 5): the level-m busy period
-  t_m = B_m + sum over k in hep(m) of ceil((t_m + J_k) / T_k) C_k (started from C_m), the number of
-  instances in it Q_m = ceil((t_m + J_m) / T_m), for each q = 0..Q_m-1 the queuing delay
-  w_m(q) = B_m + q C_m + sum over k in hp(m) of ceil((w_m(q) + J_k + tau_bit) / T_k) C_k, the
-  response R_m(q) = J_m + w_m(q) - q T_m + C_m, and R_m = max over q of R_m(q).  ``analyse``.
+Model ([D07]): message m has a priority (lower arbitration key wins), a worst-case transmission
+time C_m (worst-case stuffing, 3-bit intermission included, or its exact length), a period or
+minimum inter-arrival time T_m, a deadline D_m (any size) and a queuing jitter J_m. On priority
+queues each node enters its highest-priority pending frame into arbitration, so the bus is one
+priority queue served non-preemptively.
 
-Why instances after the first matter (Section 4, the paper's Table 1 example): a transmission
-cannot be pre-empted, so the busy period can extend past T_m even when the first instance meets
-its deadline; a later instance then waits for the push-through of its predecessor and for the
-higher-priority frames released meanwhile, and can be later than the first.
+D07's equations (priority queues; tau = one bit time):
+- C_m = (g + 8 s_m + 13 + floor((g + 8 s_m - 1) / 4)) tau, g = 34 (11-bit) or 54 (29-bit)
+  identifiers, s_m data bytes (Section 3, eq. 1). ``frame_bits_worst``.
+- B_m = max over k in lp(m) of C_k (Section 3).
+- Original (Section 3): w_m = B_m + sum over hp(m) of ceil((w_m + J_k + tau) / T_k) C_k,
+  R_m = J_m + w_m + C_m. ``analyse_1994``; optimistic.
+- Revised (Section 5): busy period t_m = B_m + sum over hep(m) of ceil((t_m + J_k) / T_k) C_k
+  from C_m; Q_m = ceil((t_m + J_m) / T_m); for q < Q_m, w_m(q) = B_m + q C_m + sum over hp(m) of
+  ceil((w_m(q) + J_k + tau) / T_k) C_k, R_m(q) = J_m + w_m(q) − q T_m + C_m, R_m = max R_m(q).
+- The bound from queuing (my derivation, the case S = {m} of the proof below): an instance
+  queued x after the start of the busy period has at most floor((x + J_m) / T_m) predecessors
+  in it, so ``bound_ns`` = max over x in [0, t_m) of w_m(floor((x + J_m)/T_m)) + C_m − x, taken
+  where the count steps (x = 0 and x = q T_m − J_m > 0). For q T_m >= J_m the term is R_m(q),
+  for instance 0 R_m(0) − J_m, and with J_m > T_m the first instances give w_m(q) + C_m; it
+  never exceeds R_m.
 
-Deadlines: the busy-period formulation does not depend on D_m <= T_m (it examines every instance
-the busy period holds, however many). As recalled, and not re-checked against the text, the paper
-states its exact analysis for arbitrary deadlines and its simpler sufficient tests for
-constrained ones (D_m <= T_m). Here D_m may be below, equal to or above T_m.
+Node queues. Call a frame *contending* from the moment its node could offer it: when queued on
+a priority queue, when at the head of a FIFO, when in a mailbox. Each node offers its best
+contending frame (lowest key, then oldest), so every arbitration is won by the best contending
+frame on the bus. A frame contends at most E_k = bound_k − C_k after its queuing (it starts by
+then); other messages see it with the arbitration jitter J'_k = J_k + E_k (E_k = 0 on priority
+queues). Per queue (window sets as in `profiles.analysis.window`):
+- priority, and a node with a single message: D07 with hp(m) at their arbitration jitters.
+- mailboxes with abort: the engine aborts at once and keeps the best pending frames in the
+  mailboxes (`MailboxQueue._rebalance`), so the node is a priority queue (a real controller's
+  abort takes time, K10's concern: not modelled because the engine has none).
+- FIFO, and one mailbox without abort: S = the node's messages, L its lowest-priority one;
+  ahead = S \\ {m}; interfering = hp(L) of other nodes at J'; B = max C over lp(L) of other
+  nodes.
+- n >= 2 mailboxes without abort: as FIFO, except that S's messages above m are interfering at
+  their own jitter (a frame queued after m reaches a mailbox after m but may pass it there) and
+  only S's messages below m are ahead. A node whose mailboxes hold every frame it can have
+  pending, sum over its messages of (floor((bound_k + J_k) / T_k) + 1) <= n, never uses its
+  backlog and is analysed as a priority queue (checked after the analysis, and dropped to the
+  mailbox bound where the check fails).
 
-Errors (optional, ``ErrorModel``): Tindell and Burns' simple model, errors at least T_error apart,
-each costing an error frame and the retransmission of the longest frame of priority higher than
-or equal to m: E_m(t) = (ceil(t / T_error) + 1) (31 tau_bit + max over k in hep(m) of C_k). It is
-added to the busy-period recurrence as E_m(t_m) and to the queuing recurrence as E_m(w_m(q)). The
-"+1" counts the error that may strike m's own (re)transmission, which lies outside the window
-w_m(q) the recurrence ranges over: at most ceil(w/T_error) errors fall within w and, as long as
-the per-error cost is below T_error (a bounded analysis needs that), at most one more within the
-following C_m. This is Tindell and Burns' simple single-error form, as this project's issue
-states it; the paper's printed form of the error term (including any burst variant) could not be
-re-checked when this was written, so treat it as the 1994 model, not as a quotation of the paper.
+Proof of the FIFO/mailbox bound (D07's is the case S = {m}, ahead empty). Level work: frames of
+S pending (queued, unfinished) and contending frames of interfering messages. (i) While level
+work is pending, each arbitration is won by level work: S, if it has a frame, offers one with
+key <= key_L and only a contending frame with a lower key, from another node, can beat it —
+an interfering one; otherwise a contending interfering frame is pending and its node offers one
+at least as good, interfering too. So a level busy period starting at t0 (level work pending,
+none just before) is delayed by at most one other frame, on the wire at t0, of lp(L) of another
+node: B. (ii) No S frame is pending at t0, so S frames sent before m starts (at s) were queued in
+[t0, s]: on a FIFO exactly those queued before m, in [t0, t0 + x] (m queued at t0 + x): at most
+floor((x + J_k) / T_k) + 1 of k != m and floor((x + J_m) / T_m) of m (queuings in a closed window
+of length x, nominal releases T_k apart, each within J_k); with mailboxes also frames queued after
+m that are better than m, counted over [t0, s]. (iii) Interfering frames sent in [t0, s)
+contended in [t0, s]: at most ceil((w + J'_j + tau) / T_j) with w = s − t0 (>= floor + 1 for any
+tau > 0: D07's form). The bus is never idle in [t0, s), so s − t0 is at most the least fixed point
+w(x) of the recurrence, and m ends by t0 + w(x) + C_m: w(x) + C_m − x after its queuing. (iv) x is
+below the busy-period bound (D07's argument with the same counts). (v) From the nominal release,
+y = release − t0 >= −J_m: m has at most floor((y + J_m) / T_m) predecessors and the others are
+counted at x <= y + J_m; with z = y + J_m, the end is at most J_m + w(z) + C_m − z after the
+release, m's count being floor(z / T_m) — D07's R_m(q) at z = q T_m.
+The arbitration jitters depend on other nodes' bounds: iterate from E = 0 until nothing changes
+(bounds only grow with E; whatever still changes after `MAX_ROUNDS` rounds is left unbounded).
+The least fixed point is safe: if a run broke a bound, take the first instant at which some
+frame k has been pending E_k after its queuing without contending, or bound_k after it. Every
+count above, for a window that ends by then, uses contention instants before it, which respect
+J'; so that frame's own bound holds — a contradiction.
 
-Termination: no recurrence runs when the utilisation of the messages of higher or equal priority
-(with the error overhead 31 tau_bit + max C per T_error) is >= 1, and every recurrence stops with
-"unbounded" once its value exceeds a horizon of 1000 x max(D_m, T_m + J_m) of the message under
-analysis (its own, so that adding other messages never turns an unbounded result bounded).
+Errors (``ErrorModel``), my statement of Tindell and Burns' simple model and a burst form: at most
+n errors in any window of T_error (n = 1: errors at least T_error apart), each costing an error
+frame (31 tau worst case) and the retransmission of the longest frame it destroys, a frame of the
+level: E(t) = n (ceil(t / T_error) + 1)(31 tau + max C over the level's messages), added to the
+busy-period and queuing recurrences. At most n ceil(w / T_error) errors fall in a window w; the
+extra n covers those striking m's own transmission. Nodes are assumed to stay error active.
 
-Arithmetic is exact: times are integers in units of 1/bitrate ns (one bit time is 10**9 units), so
-a tie such as a release exactly at the end of a window is decided as the equations say, not by
-floating-point rounding. Results are converted to float nanoseconds at the end.
+Drift: see `profiles.analysis.model` (the shortest real period, a widened jitter).
 
-Pure functions, no I/O; imports only ``stack``'s top-level ``arbitration_key``.
+Termination: a window whose utilisation (with the error overhead) is >= 1 is unbounded; every
+recurrence stops with "unbounded" past ``HORIZON_FACTOR`` x max(D_m, T_m + J_m) of the message
+under analysis. Arithmetic is exact (integer ticks, `profiles.analysis.model`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 
-from stack import arbitration_key
+from profiles.analysis.model import (
+    ERROR_FRAME_BITS,
+    HORIZON_FACTOR,
+    NS_PER_S,
+    ErrorModel,
+    MessageSpec,
+    NodeQueue,
+    Stream,
+    check_queues,
+    frame_bits_worst,
+    prepare,
+)
+from profiles.analysis.window import Outcome, Term, Window
 
 __all__ = [
     "MessageSpec",
     "ErrorModel",
+    "NodeQueue",
     "RtaResult",
     "frame_bits_worst",
     "analyse",
@@ -79,62 +152,32 @@ __all__ = [
     "utilisation",
     "ERROR_FRAME_BITS",
     "HORIZON_FACTOR",
+    "MAX_ROUNDS",
 ]
 
-ERROR_FRAME_BITS = 31
-"""Worst-case error signalling overhead in bit times per error, as in Tindell and Burns' model."""
+MAX_ROUNDS = 64
+"""Rounds of the arbitration-jitter iteration before what still changes is left unbounded."""
 
-HORIZON_FACTOR = 1000
-"""A recurrence past HORIZON_FACTOR x max(D_m, T_m + J_m) is reported as unbounded."""
-
-_NS_PER_S = 10**9
-_MIN_BITRATE = 1_000
-_MAX_BITRATE = 1_000_000
-
-
-@dataclass(frozen=True)
-class MessageSpec:
-    """One message stream: identifier, format, DLC and timing in integer nanoseconds.
-
-    ``period_ns`` is the period, or the minimum inter-arrival time of a sporadic message;
-    ``deadline_ns`` is relative to the queuing (release) time and may exceed the period;
-    ``jitter_ns`` is the queuing jitter J_m. ``frame_bits`` replaces the worst-case length of
-    eq. 1 by a frame's exact length in bits (stuff bits and the 3-bit intermission included) when
-    its payload is known — the same analysis with C_m exact, as tight as the bus can be.
-    ``remote`` marks a remote frame: it arbitrates just after the data frame of its identifier
-    (RTR recessive), so the two are distinct streams.
-    """
-
-    name: str
-    can_id: int
-    extended: bool
-    dlc: int
-    period_ns: int
-    deadline_ns: int
-    jitter_ns: int = 0
-    frame_bits: int | None = None
-    remote: bool = False
-
-
-@dataclass(frozen=True)
-class ErrorModel:
-    """Tindell and Burns' simple error model: bus errors at least ``t_error_ns`` apart."""
-
-    t_error_ns: int
+_PRIORITY, _FIFO, _MAILBOX = "priority", "fifo", "mailbox"
+_METHOD = {_PRIORITY: "davis2007", _FIFO: "fifo", _MAILBOX: "mailbox"}
 
 
 @dataclass(frozen=True)
 class RtaResult:
     """The analysis of one message. Times are nanoseconds.
 
-    ``busy_period_ns`` is the level-m busy period t_m (None when it does not converge, and always
-    None from ``analyse_1994``, which has no busy period); ``instances`` is Q_m (0 when the busy
-    period does not converge; 1 from ``analyse_1994``); ``queuing_delays_ns`` and
-    ``responses_ns`` hold w_m(q) and R_m(q) per instance q; ``response_ns`` is R_m, None when
-    unbounded (``unbounded_reason`` says why); ``response_1994_ns`` is the first-instance value of
-    the original analysis, for comparison; ``priority`` is the rank, 0 = highest;
-    ``utilisation_hep`` the utilisation of the messages of higher or equal priority (error
-    overhead included when an error model is given).
+    ``response_ns`` is R_m from the nominal release (None when unbounded: ``unbounded_reason``
+    says why) and ``schedulable`` R_m <= ``deadline_ns``; ``bound_ns`` bounds the time from
+    queuing to the end of the frame (see the module docstring for both). ``busy_period_ns`` is the
+    level busy period (None when it does not converge, and from ``analyse_1994``);
+    ``instances`` the number of points examined (D07's Q_m on a priority queue; 1 from
+    ``analyse_1994``); ``queuing_delays_ns`` and ``responses_ns`` hold w and R at each (w_m(q)
+    and R_m(q)); ``worst_instance`` the one attaining R_m; ``response_1994_ns`` the original
+    first-instance value (priority queues only); ``priority`` the rank, 0 = highest;
+    ``utilisation_hep`` the utilisation of the messages the window counts (error overhead
+    included). ``method`` is ``davis2007``, ``fifo`` or ``mailbox``; ``period_used_ns`` and
+    ``jitter_used_ns`` the T and J used (drift applied); ``arbitration_jitter_ns`` J + E, the
+    jitter with which other messages see it enter arbitration.
     """
 
     name: str
@@ -152,329 +195,247 @@ class RtaResult:
     response_1994_ns: float | None
     utilisation_hep: float
     unbounded_reason: str | None = None
-
-
-def frame_bits_worst(dlc: int, extended: bool) -> int:
-    """Worst-case frame length in bits, 3-bit intermission included (Section 3, eq. 1).
-
-    g + 8s + 13 + floor((g + 8s - 1) / 4) with g = 34 (standard) or 54 (extended) bits subject to
-    stuffing before the data, s = min(dlc, 8) data bytes, 13 = CRC delimiter, ACK slot and
-    delimiter, 7 EOF and 3 intermission bits. 135 bits for 8 bytes standard, 160 extended.
-    """
-    if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 15:
-        raise ValueError(f"dlc {dlc!r}: must be an integer 0..15 (9..15 mean 8 data bytes)")
-    g = 54 if extended else 34
-    stuffed = g + 8 * min(dlc, 8)
-    return stuffed + 13 + (stuffed - 1) // 4
-
-
-@dataclass(frozen=True)
-class _Msg:
-    """A validated message in integer ticks (1 tick = 1/bitrate ns)."""
-
-    spec: MessageSpec
-    key: int
-    c: int
-    t: int
-    d: int
-    j: int
-
-    @property
-    def horizon(self) -> int:
-        return HORIZON_FACTOR * max(self.d, self.t + self.j)
-
-
-def _ceil_div(a: int, b: int) -> int:
-    return -(-a // b)
-
-
-def _check_int(name: str, field: str, value: object) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"message {name!r}: {field} {value!r} must be an integer number of ns")
-    return value
-
-
-def _prepare(messages: Sequence[MessageSpec], bitrate: int, errors: ErrorModel | None = None) -> list[_Msg]:
-    """Validate the inputs and return the messages in priority order, times in ticks."""
-    if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not _MIN_BITRATE <= bitrate <= _MAX_BITRATE:
-        raise ValueError(f"bitrate {bitrate!r}: must be an integer {_MIN_BITRATE}..{_MAX_BITRATE} bit/s")
-    if errors is not None:
-        t_err = errors.t_error_ns
-        if isinstance(t_err, bool) or not isinstance(t_err, int) or t_err <= 0:
-            raise ValueError(f"error model: t_error_ns {t_err!r} must be an integer > 0 ns")
-    out: list[_Msg] = []
-    names: set[str] = set()
-    for m in messages:
-        name = m.name
-        if name in names:
-            raise ValueError(f"message {name!r}: the name is used twice")
-        names.add(name)
-        can_id = m.can_id
-        limit = 0x1FFFFFFF if m.extended else 0x7FF
-        if isinstance(can_id, bool) or not isinstance(can_id, int) or not 0 <= can_id <= limit:
-            kind = "extended" if m.extended else "standard"
-            raise ValueError(f"message {name!r}: can_id {can_id!r} outside 0..0x{limit:X} ({kind})")
-        if isinstance(m.dlc, bool) or not isinstance(m.dlc, int) or not 0 <= m.dlc <= 15:
-            raise ValueError(f"message {name!r}: dlc {m.dlc!r} outside 0..15")
-        period = _check_int(name, "period_ns", m.period_ns)
-        deadline = _check_int(name, "deadline_ns", m.deadline_ns)
-        jitter = _check_int(name, "jitter_ns", m.jitter_ns)
-        if period <= 0:
-            raise ValueError(f"message {name!r}: period_ns {period} must be > 0")
-        if deadline <= 0:
-            raise ValueError(f"message {name!r}: deadline_ns {deadline} must be > 0")
-        if jitter < 0:
-            raise ValueError(f"message {name!r}: jitter_ns {jitter} must be >= 0")
-        bits = frame_bits_worst(m.dlc, m.extended)
-        if m.frame_bits is not None:
-            if isinstance(m.frame_bits, bool) or not isinstance(m.frame_bits, int) or not 0 < m.frame_bits <= bits:
-                raise ValueError(
-                    f"message {name!r}: frame_bits {m.frame_bits!r} must be 1..{bits} "
-                    "(at most the worst-case length of its DLC)"
-                )
-            bits = m.frame_bits
-        out.append(
-            _Msg(
-                spec=m,
-                key=arbitration_key(can_id, m.extended, m.remote),
-                c=bits * _NS_PER_S,
-                t=period * bitrate,
-                d=deadline * bitrate,
-                j=jitter * bitrate,
-            )
-        )
-    out.sort(key=lambda x: x.key)
-    for a, b in zip(out, out[1:]):
-        if a.key == b.key:
-            raise ValueError(
-                f"messages {a.spec.name!r} and {b.spec.name!r}: the same arbitration key "
-                f"(identifier 0x{a.spec.can_id:X}, {'extended' if a.spec.extended else 'standard'}); "
-                "two streams may not share an identifier"
-            )
-    return out
+    bound_ns: float | None = None
+    method: str = "davis2007"
+    period_used_ns: float = 0.0
+    jitter_used_ns: float = 0.0
+    arbitration_jitter_ns: float | None = None
 
 
 def utilisation(messages: Sequence[MessageSpec], bitrate: int) -> float:
-    """Bus utilisation with worst-case frames: sum over m of C_m / T_m."""
-    msgs = _prepare(messages, bitrate)
+    """Bus utilisation with worst-case frames: sum over m of C_m / T_m (T as used: drift applied)."""
+    msgs = prepare(messages, bitrate)
     return float(sum((Fraction(m.c, m.t) for m in msgs), Fraction(0)))
 
 
-class _Level:
-    """The quantities shared by every recurrence of one priority level m."""
+def _error_term(errors: ErrorModel | None, bitrate: int, level: list[Stream]) -> tuple[int, int, int] | None:
+    if errors is None:
+        return None
+    return (errors.t_error_ns * bitrate, errors.burst, ERROR_FRAME_BITS * NS_PER_S + max(k.c for k in level))
 
-    def __init__(self, msgs: list[_Msg], i: int, tau: int, errors: ErrorModel | None, bitrate: int) -> None:
-        self.m = msgs[i]
-        self.hp = msgs[:i]
-        self.hep = msgs[: i + 1]
-        self.tau = tau
-        self.b = max((k.c for k in msgs[i + 1 :]), default=0)
-        if errors is None:
-            self.t_err = 0
-            self.per_error = 0
+
+def _first_instance(msgs: list[Stream], i: int, bitrate: int, errors: ErrorModel | None) -> int | None:
+    """T95's R_m = J_m + w_m + C_m (D07 Section 3), None when unbounded; its guard is the
+    utilisation of hp(m) (the recurrence ranges over hp(m) only)."""
+    m = msgs[i]
+    hp = msgs[:i]
+    win = Window(
+        Term(m.c, m.t, m.j),
+        interfering=[Term(k.c, k.t, k.j) for k in hp],
+        blocking=max((k.c for k in msgs[i + 1 :]), default=0),
+        tau=NS_PER_S,
+        error=_error_term(errors, bitrate, msgs[: i + 1]),
+        horizon=m.horizon,
+    )
+    if win.utilisation - Fraction(m.c, m.t) >= 1:
+        return None
+    w = win.delay(win.b, win.b)
+    return None if w is None else m.j + w + m.c
+
+
+class _Bus:
+    """The whole bus: streams in priority order, each node's policy as analysed."""
+
+    def __init__(self, msgs: list[Stream], queues: dict[str, NodeQueue], bitrate: int, errors: ErrorModel | None):
+        self.msgs = msgs
+        self.bitrate = bitrate
+        self.errors = errors
+        self.by_node: dict[str, list[Stream]] = {}
+        for m in msgs:
+            self.by_node.setdefault(m.node, []).append(m)
+        self.mode: dict[str, str] = {}
+        self.tentative: set[str] = set()  # mailbox nodes analysed as priority queues, to be checked
+        for node, own in self.by_node.items():
+            q = queues.get(node)
+            if q is None or q.kind == _PRIORITY or len(own) == 1 or (q.kind == _MAILBOX and q.abort):
+                self.mode[node] = _PRIORITY
+            elif q.kind == _FIFO or q.mailboxes == 1:
+                self.mode[node] = _FIFO
+            else:
+                self.mode[node] = _PRIORITY
+                self.tentative.add(node)
+        self.queues = queues
+
+    def window(self, m: Stream, extra: Mapping[str, int | None]) -> Window | str:
+        """m's window given the contention delays E (None: unbounded); or why there is none."""
+        mode = self.mode[m.node]
+        tau = NS_PER_S
+
+        def seen(k: Stream) -> Term | str:
+            e = extra[k.name]
+            if e is None:
+                return f"no bound for {k.name!r} (node {k.node!r}, {self.mode[k.node]} queue), which can delay it"
+            return Term(k.c, k.t, k.j + e)
+
+        if mode == _PRIORITY:
+            hp = [k for k in self.msgs if k.key < m.key]
+            blocking = max((k.c for k in self.msgs if k.key > m.key), default=0)
+            ahead: list[Term] = []
+            interfering = [seen(k) for k in hp]
+            level = hp + [m]
         else:
-            self.t_err = errors.t_error_ns * bitrate
-            self.per_error = ERROR_FRAME_BITS * tau + max(k.c for k in self.hep)
-        u = sum((Fraction(k.c, k.t) for k in self.hep), Fraction(0))
-        if self.t_err:
-            u += Fraction(self.per_error, self.t_err)
-        self.u_hep = u
+            own = self.by_node[m.node]
+            low = own[-1].key  # the node's lowest-priority message L
+            others_hp = [k for k in self.msgs if k.node != m.node and k.key < low]
+            blocking = max((k.c for k in self.msgs if k.node != m.node and k.key > low), default=0)
+            if mode == _FIFO:
+                ahead = [Term(k.c, k.t, k.j) for k in own if k is not m]
+                interfering = []
+            else:
+                ahead = [Term(k.c, k.t, k.j) for k in own if k.key > m.key]
+                interfering = [Term(k.c, k.t, k.j) for k in own if k.key < m.key]
+            interfering += [seen(k) for k in others_hp]
+            level = own + others_hp
+        for term in interfering:
+            if isinstance(term, str):
+                return term
+        return Window(
+            Term(m.c, m.t, m.j),
+            ahead=ahead,
+            interfering=[t for t in interfering if isinstance(t, Term)],
+            blocking=blocking,
+            tau=tau,
+            error=_error_term(self.errors, self.bitrate, level),
+            horizon=m.horizon,
+        )
 
-    def errors(self, t: int) -> int:
-        """E_m(t) = (ceil(t / T_error) + 1)(31 tau_bit + max over hep(m) of C_k); 0 without a model."""
-        if not self.t_err:
-            return 0
-        return (_ceil_div(t, self.t_err) + 1) * self.per_error
-
-    def busy_period(self) -> int | None:
-        """Level-m busy period t_m (Section 5), from t = C_m; None past the horizon."""
-        t = self.m.c
+    def solve(self) -> tuple[dict[str, Outcome | str], dict[str, int | None], dict[str, Window | str]]:
+        """Outcomes with the arbitration-jitter iteration to its least fixed point."""
+        extra: dict[str, int | None] = {m.name: 0 for m in self.msgs}
+        rounds = 0
         while True:
-            nxt = self.b + self.errors(t) + sum(_ceil_div(t + k.j, k.t) * k.c for k in self.hep)
-            if nxt == t:
-                return t
-            if nxt > self.m.horizon:
-                return None
-            t = nxt
+            windows = {m.name: self.window(m, extra) for m in self.msgs}
+            outs: dict[str, Outcome | str] = {
+                name: w if isinstance(w, str) else w.solve() for name, w in windows.items()
+            }
+            new: dict[str, int | None] = {}
+            for m in self.msgs:
+                o = outs[m.name]
+                if self.mode[m.node] == _PRIORITY:
+                    new[m.name] = 0
+                elif isinstance(o, str) or o.bound is None:
+                    new[m.name] = None
+                else:
+                    new[m.name] = o.bound - m.c
+            if new == extra:
+                return outs, extra, windows
+            rounds += 1
+            if rounds >= MAX_ROUNDS:
+                new = {k: (v if v == extra[k] else None) for k, v in new.items()}
+            extra = new
 
-    def queuing_delay(self, q: int, start: int) -> int | None:
-        """w_m(q) (Section 5; q = 0 is the original analysis' w_m), iterated up from ``start``.
+    def fits(self, node: str, outs: Mapping[str, Outcome | str]) -> bool:
+        """Whether a mailbox node's mailboxes hold every frame it can have pending at once."""
+        need = 0
+        for k in self.by_node[node]:
+            o = outs[k.name]
+            if isinstance(o, str) or o.bound is None:
+                return False
+            need += (o.bound + k.j) // k.t + 1
+        n = self.queues[node].mailboxes
+        return n is not None and need <= n
 
-        ``start`` must not exceed the least fixed point: B_m + q C_m, or w_m(q-1) + C_m.
-        None when w + C_m passes the horizon.
-        """
-        base = self.b + q * self.m.c
-        w = start
-        while True:
-            nxt = base + self.errors(w) + sum(_ceil_div(w + k.j + self.tau, k.t) * k.c for k in self.hp)
-            if nxt == w:
-                return w
-            if nxt + self.m.c > self.m.horizon:
-                return None
-            w = nxt
+
+def analyse(
+    messages: Sequence[MessageSpec],
+    bitrate: int,
+    *,
+    errors: ErrorModel | None = None,
+    queues: Mapping[str, NodeQueue] | None = None,
+) -> dict[str, RtaResult]:
+    """Worst-case response times and bounds (see the module docstring), keyed by message name,
+    in priority order (highest first; lower ``arbitration_key`` wins).
+
+    ``queues`` gives the queue policy of nodes by name (``MessageSpec.node``); nodes not named
+    use priority queues. Raises ValueError naming the message (or node) and the rule for a
+    non-positive period or deadline, negative jitter, a DLC outside 0..15, an identifier out of
+    range, a name or arbitration key used twice, a bitrate outside 1 000..1 000 000 bit/s, a bad
+    error model or a bad queue declaration.
+    """
+    msgs = prepare(messages, bitrate, errors)
+    bus = _Bus(msgs, check_queues(queues), bitrate, errors)
+    while True:
+        outs, extra, windows = bus.solve()
+        failed = [n for n in sorted(bus.tentative) if not bus.fits(n, outs)]
+        if not failed:
+            break
+        for n in failed:
+            bus.mode[n] = _MAILBOX
+            bus.tentative.discard(n)
+    out: dict[str, RtaResult] = {}
+    for i, m in enumerate(msgs):
+        mode = bus.mode[m.node]
+        r1994 = _first_instance(msgs, i, bitrate, errors) if mode == _PRIORITY else None
+        out[m.name] = _result(m, i, bitrate, outs[m.name], windows[m.name], mode, extra[m.name], r1994)
+    return out
 
 
 def _result(
-    msgs: list[_Msg],
+    m: Stream,
     i: int,
-    lv: _Level,
     bitrate: int,
-    *,
-    busy: int | None,
-    q_count: int,
-    ws: list[int],
-    rs: list[int],
-    r: int | None,
-    worst: int | None,
+    o: Outcome | str,
+    win: Window | str,
+    mode: str,
+    extra: int | None,
     r1994: int | None,
-    reason: str | None,
 ) -> RtaResult:
-    m = lv.m
-
     def ns(x: int) -> float:
         return x / bitrate
 
+    if isinstance(o, str):
+        o = Outcome(None, (), (), None, None, None, o)
     return RtaResult(
-        name=m.spec.name,
+        name=m.name,
         c_ns=ns(m.c),
-        blocking_ns=ns(lv.b),
-        busy_period_ns=None if busy is None else ns(busy),
-        instances=q_count,
-        response_ns=None if r is None else ns(r),
-        worst_instance=worst,
-        schedulable=r is not None and r <= m.d,
+        blocking_ns=ns(win.b) if isinstance(win, Window) else 0.0,
+        busy_period_ns=None if o.busy is None else ns(o.busy),
+        instances=len(o.delays),
+        response_ns=None if o.response is None else ns(o.response),
+        worst_instance=o.worst,
+        schedulable=o.response is not None and o.response <= m.d,
         deadline_ns=m.spec.deadline_ns,
         priority=i,
-        queuing_delays_ns=tuple(ns(w) for w in ws),
-        responses_ns=tuple(ns(x) for x in rs),
+        queuing_delays_ns=tuple(ns(w) for w in o.delays),
+        responses_ns=tuple(ns(x) for x in o.responses),
         response_1994_ns=None if r1994 is None else ns(r1994),
-        utilisation_hep=float(lv.u_hep),
-        unbounded_reason=reason,
+        utilisation_hep=float(win.utilisation) if isinstance(win, Window) else float("nan"),
+        unbounded_reason=o.reason,
+        bound_ns=None if o.bound is None else ns(o.bound),
+        method=_METHOD[mode],
+        period_used_ns=ns(m.t),
+        jitter_used_ns=ns(m.j),
+        arbitration_jitter_ns=None if extra is None else ns(m.j + extra),
     )
-
-
-_OVERLOAD = "utilisation of the messages of higher or equal priority >= 1"
-
-
-def _first_instance(lv: _Level) -> int | None:
-    """The original analysis' R_m = J_m + w_m + C_m (Section 3), None when unbounded.
-
-    Its own guard is the utilisation of hp(m) (the recurrence ranges over hp(m) only).
-    """
-    u_hp = sum((Fraction(k.c, k.t) for k in lv.hp), Fraction(0))
-    if lv.t_err:
-        u_hp += Fraction(lv.per_error, lv.t_err)
-    if u_hp >= 1:
-        return None
-    w = lv.queuing_delay(0, lv.b)
-    return None if w is None else lv.m.j + w + lv.m.c
-
-
-def analyse(messages: Sequence[MessageSpec], bitrate: int, *, errors: ErrorModel | None = None) -> dict[str, RtaResult]:
-    """Worst-case response times by the revised analysis (Section 5), keyed by message name.
-
-    Priority is arbitration order (lower ``arbitration_key(can_id, extended, False)`` wins); the
-    dict is in priority order, highest first. Raises ValueError naming the message and the rule
-    for a non-positive period or deadline, negative jitter, a DLC outside 0..15, an identifier out
-    of range, a name or arbitration key used twice, a bitrate outside 1 000..1 000 000 bit/s or
-    a non-positive T_error.
-    """
-    msgs = _prepare(messages, bitrate, errors)
-    tau = _NS_PER_S  # one bit time in ticks of 1/bitrate ns
-    out: dict[str, RtaResult] = {}
-    for i, m in enumerate(msgs):
-        lv = _Level(msgs, i, tau, errors, bitrate)
-        r1994 = _first_instance(lv)
-        if lv.u_hep >= 1:
-            out[m.spec.name] = _result(
-                msgs,
-                i,
-                lv,
-                bitrate,
-                busy=None,
-                q_count=0,
-                ws=[],
-                rs=[],
-                r=None,
-                worst=None,
-                r1994=r1994,
-                reason=_OVERLOAD,
-            )
-            continue
-        busy = lv.busy_period()
-        if busy is None:
-            out[m.spec.name] = _result(
-                msgs,
-                i,
-                lv,
-                bitrate,
-                busy=None,
-                q_count=0,
-                ws=[],
-                rs=[],
-                r=None,
-                worst=None,
-                r1994=r1994,
-                reason=f"busy period beyond the horizon ({HORIZON_FACTOR} x max(D, T + J))",
-            )
-            continue
-        q_count = _ceil_div(busy + m.j, m.t)
-        ws: list[int] = []
-        rs: list[int] = []
-        reason = None
-        start = lv.b
-        for q in range(q_count):
-            w = lv.queuing_delay(q, start)
-            if w is None:
-                reason = f"queuing delay of instance {q} beyond the horizon ({HORIZON_FACTOR} x max(D, T + J))"
-                break
-            ws.append(w)
-            rs.append(m.j + w - q * m.t + m.c)
-            start = w + m.c
-        if reason is not None:
-            r = worst = None
-        else:
-            r = max(rs)
-            worst = rs.index(r)
-        out[m.spec.name] = _result(
-            msgs, i, lv, bitrate, busy=busy, q_count=q_count, ws=ws, rs=rs, r=r, worst=worst, r1994=r1994, reason=reason
-        )
-    return out
 
 
 def analyse_1994(
     messages: Sequence[MessageSpec], bitrate: int, *, errors: ErrorModel | None = None
 ) -> dict[str, RtaResult]:
-    """The original, optimistic analysis (Section 3): the first instance only.
+    """The original, optimistic analysis (T95; D07 Section 3): the first instance only, every
+    node a priority queue.
 
     For comparison and for the refutation example; do not use it to decide schedulability.
     ``busy_period_ns`` is None (the analysis has none), ``instances`` 1 and ``worst_instance`` 0
-    when bounded. Same inputs, order and errors as ``analyse``.
+    when bounded; ``bound_ns`` is R − J (what it wrongly took for the bound from queuing).
     """
-    msgs = _prepare(messages, bitrate, errors)
-    tau = _NS_PER_S
+    msgs = prepare(messages, bitrate, errors)
     out: dict[str, RtaResult] = {}
     for i, m in enumerate(msgs):
-        lv = _Level(msgs, i, tau, errors, bitrate)
-        r = _first_instance(lv)
-        if r is None:
-            out[m.spec.name] = _result(
-                msgs,
-                i,
-                lv,
-                bitrate,
-                busy=None,
-                q_count=1,
-                ws=[],
-                rs=[],
-                r=None,
-                worst=None,
-                r1994=None,
-                reason="higher-priority utilisation >= 1 or queuing delay beyond the horizon",
-            )
-            continue
-        w = r - m.j - m.c
-        out[m.spec.name] = _result(
-            msgs, i, lv, bitrate, busy=None, q_count=1, ws=[w], rs=[r], r=r, worst=0, r1994=r, reason=None
+        r = _first_instance(msgs, i, bitrate, errors)
+        win = Window(
+            Term(m.c, m.t, m.j),
+            interfering=[Term(k.c, k.t, k.j) for k in msgs[:i]],
+            blocking=max((k.c for k in msgs[i + 1 :]), default=0),
+            tau=NS_PER_S,
+            error=_error_term(errors, bitrate, msgs[: i + 1]),
+            horizon=m.horizon,
         )
+        if r is None:
+            o = Outcome(
+                None, (), (), None, None, None, "higher-priority utilisation >= 1 or queuing delay beyond the horizon"
+            )
+        else:
+            o = Outcome(None, (r - m.j - m.c,), (r,), r, 0, r - m.j, None)
+        out[m.name] = _result(m, i, bitrate, o, win, _PRIORITY, 0, r)
     return out
