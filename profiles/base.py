@@ -67,9 +67,13 @@ def stats_ms(values_ns: array[int] | list[int]) -> dict[str, float] | None:
 class Track:
     """What happened to one declared message: instances released (queued), sent, failed,
     dropped (queue full or node bus off at release), their response times (queued → end of EOF,
-    bus ns), the SOF times of successful instances (for start-to-start jitter) and deadline
-    misses — an instance that ends after its deadline, fails, is dropped, or is still pending
-    at the end of the run when its deadline has passed.
+    bus ns), the longest time from a nominal release to the end of EOF (``worst_release``), the
+    SOF times of successful instances (for start-to-start jitter) and deadline misses — an
+    instance that ends more than its deadline after its *nominal* release (the response-time
+    analysis' reference: the release jitter counts against the deadline), fails, is dropped, or
+    is still pending at the end of the run when its deadline has passed. An instance its source
+    queued ``late_ns`` after its nominal release says so (`release`); one a profile queues on its
+    own account is its own nominal release.
 
     It reads the outcome of each instance from its `TxRequest` (state, ``t_done``, ``sof``),
     lazily — at the next release of the message and at the end — rather than through `TxDone`
@@ -87,6 +91,7 @@ class Track:
         "responses",
         "starts",
         "pending",
+        "worst_release",
         "received",
         "monitor",
         "awaiting",
@@ -102,18 +107,21 @@ class Track:
         self.received: int | None = None  # set by the runner: instances that reached another node
         self.responses: array[int] = array("q")
         self.starts: array[int] = array("q")
-        self.pending: dict[TxRequest, None] = {}  # queued instances, in release order
+        # queued instances, in release order, with how late after its nominal release each was
+        # queued (bus ns)
+        self.pending: dict[TxRequest, int] = {}
+        self.worst_release: int | None = None
         # on a python-can bus the end of a frame is the monitor's receive timestamp (`observed`),
         # not the moment the driver handed it over: sent instances wait for it here
         self.monitor = False
-        self.awaiting: dict[TxRequest, None] = {}
+        self.awaiting: dict[TxRequest, int] = {}
 
-    def release(self, req: TxRequest) -> None:
-        """An instance was queued (``req.t_queued`` is its release time)."""
+    def release(self, req: TxRequest, late_ns: int = 0) -> None:
+        """An instance was queued (``req.t_queued``), ``late_ns`` after its nominal release."""
         self.released += 1
         if self.pending:
             self.settle()
-        self.pending[req] = None
+        self.pending[req] = late_ns
 
     def drop(self) -> None:
         """An instance could not be queued (transmit queue full, node bus off)."""
@@ -133,12 +141,12 @@ class Track:
                 break
             done.append(req)
         for req in done:
-            del self.pending[req]
+            late = self.pending.pop(req)
             if req.state == "sent":
                 if self.monitor:
-                    self.awaiting[req] = None
+                    self.awaiting[req] = late
                 else:
-                    self._complete(req, req.t_done, req.sof)
+                    self._complete(req, req.t_done, req.sof, late)
             else:  # failed (one-shot, expired) or aborted
                 self.failed += 1
                 self.misses += 1
@@ -149,21 +157,24 @@ class Track:
         self.settle()
         if self.awaiting:
             req = next(iter(self.awaiting))
-            del self.awaiting[req]
+            late = self.awaiting.pop(req)
         elif self.pending:  # the monitor saw it before the driver reported it sent
             req = next(iter(self.pending))
-            del self.pending[req]
+            late = self.pending.pop(req)
         else:
             return
-        self._complete(req, t_end, sof)
+        self._complete(req, t_end, sof, late)
 
-    def _complete(self, req: TxRequest, t_end: int, sof: int) -> None:
+    def _complete(self, req: TxRequest, t_end: int, sof: int, late: int) -> None:
         self.sent += 1
         resp = t_end - req.t_queued
         self.responses.append(resp)
         self.starts.append(sof)
+        since = resp + late  # from the nominal release
+        if self.worst_release is None or since > self.worst_release:
+            self.worst_release = since
         d = self.decl.deadline_ns
-        if d is not None and resp > d:
+        if d is not None and since > d:
             self.misses += 1
 
     def finish(self, t_end: int) -> int:
@@ -171,9 +182,9 @@ class Track:
         whose deadline has passed are misses. Returns how many are still pending."""
         self.settle(everything=True)
         d = self.decl.deadline_ns
-        left = list(self.pending) + list(self.awaiting)
+        left = list(self.pending.items()) + list(self.awaiting.items())
         if d is not None:
-            self.misses += sum(1 for r in left if r.t_queued + d < t_end)
+            self.misses += sum(1 for r, late in left if r.t_queued - late + d < t_end)
         return len(left)
 
     def jitter_ns(self) -> int | None:
@@ -245,9 +256,14 @@ class Profile:
         """The profile's own figures for the results (JSON-ready)."""
         return {}
 
-    def queue(self, frame: Frame, track: Track | None = None, **send: Any) -> TxRequest | None:
+    def queue(
+        self, frame: Frame, track: Track | None = None, *, nominal: int | None = None, **send: Any
+    ) -> TxRequest | None:
         """Send ``frame`` (keyword arguments go to `send`: ``one_shot``, ``not_after``) and
-        record the instance; a full queue or a bus-off node drops it (recorded as a miss)."""
+        record the instance; a full queue or a bus-off node drops it (recorded as a miss).
+        ``nominal`` is the instance's nominal release on the node's clock (its source's
+        ``releasing``), when it is queued later than that (release jitter, a gate): the track
+        counts its deadline from there."""
         try:
             req = self.node.send(frame, **send)
         except (QueueFull, NodeError):
@@ -255,14 +271,19 @@ class Profile:
                 track.drop()
             return None
         if track is not None:
-            track.release(req)
+            late = 0
+            if nominal is not None:
+                # node-clock ns to bus ns: the node's oscillator runs 1 + drift_ppm·1e-6 as fast
+                late = max(0, round((self.node.now() - nominal) / (1 + self.decl.drift_ppm * 1e-6)))
+            track.release(req, late)
         return req
 
 
 class PeriodicSource:
     """Releases ``on_release(decl)`` every ``period_ns`` of the node's clock, first at
     ``offset_ns``, each release late by a uniform draw in [0, ``jitter_ns``] (release jitter)
-    from a seeded source; the nominal times do not drift with the jitter."""
+    from a seeded source; the nominal times do not drift with the jitter. While ``on_release``
+    runs, ``releasing`` is the nominal release (node clock) of that instance, else None."""
 
     def __init__(
         self, node: NodeAPI, decl: MessageDecl, on_release: Callable[[MessageDecl], Any], rng: random.Random
@@ -275,6 +296,7 @@ class PeriodicSource:
         self.on_release = on_release
         self.rng = rng
         self.nominal = 0
+        self.releasing: int | None = None
 
     def start(self) -> None:
         """Arm the first release."""
@@ -286,7 +308,11 @@ class PeriodicSource:
         self.node.call_at(self.nominal + (self.rng.randint(0, j) if j else 0), self._fire)
 
     def _fire(self) -> None:
-        self.on_release(self.decl)
+        self.releasing = self.nominal
+        try:
+            self.on_release(self.decl)
+        finally:
+            self.releasing = None
         self.nominal += self.period
         self._arm()
 
@@ -314,7 +340,11 @@ class SporadicSource(PeriodicSource):
         return round(self.rng.expovariate(1 / self.extra_mean)) if self.extra_mean > 0 else 0
 
     def _fire(self) -> None:
-        self.on_release(self.decl)
+        self.releasing = self.nominal
+        try:
+            self.on_release(self.decl)
+        finally:
+            self.releasing = None
         self.nominal += self.gap + self._gap_extra()
         self._arm()
 

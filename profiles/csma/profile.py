@@ -45,6 +45,7 @@ class CsmaProfile(Profile):
             for m in decl.messages
             if (s := source_for(node, m, self.release, context.rng("release", decl.name, m.name)))
         ]
+        self._source_of = {s.decl.name: s for s in self.sources}
 
     def start(self) -> None:
         """Arm every message's first release."""
@@ -52,18 +53,21 @@ class CsmaProfile(Profile):
             s.start()
 
     def release(self, m: MessageDecl) -> None:
-        """An instance of ``m`` is released: queue it now (or, gated, when the schedule lets it)."""
+        """An instance of ``m`` is released: queue it now (or, gated, when the schedule lets it).
+        Its deadline counts from its nominal release (its source's, when a source released it)."""
         frame = self.frames[m.name]
+        src = self._source_of.get(m.name)
+        nominal = None if src is None else src.releasing
         if self.gate is not None:
             slot = self.gate(frame, self.node.now())
             if slot is not None:
                 start_at, not_after = slot
-                self.node.call_at(start_at, self._queue_gated, m, not_after)
+                self.node.call_at(start_at, self._queue_gated, m, not_after, nominal)
                 return
-        self.queue(frame, self._track_of[m.name])
+        self.queue(frame, self._track_of[m.name], nominal=nominal)
 
-    def _queue_gated(self, m: MessageDecl, not_after: int | None) -> None:
-        self.queue(self.frames[m.name], self._track_of[m.name], not_after=not_after)
+    def _queue_gated(self, m: MessageDecl, not_after: int | None, nominal: int | None = None) -> None:
+        self.queue(self.frames[m.name], self._track_of[m.name], nominal=nominal, not_after=not_after)
 
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry."""
@@ -77,8 +81,9 @@ class CsmaProfile(Profile):
 
 def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
     """The node's messages as the response-time analysis models them: period (or minimum
-    inter-arrival), deadline and release jitter; with ``exact``, each frame's own length (its
-    payload is fixed) instead of worst-case stuffing."""
+    inter-arrival) and release jitter on the node's clock (its drift goes with them), deadline
+    from the nominal release; with ``exact``, each frame's own length (its payload is fixed)
+    instead of worst-case stuffing."""
     from profiles.analysis.rta import MessageSpec
     from stack.wire.coding import INTERMISSION_BITS
 
@@ -92,6 +97,8 @@ def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
             m.deadline_ns or m.interval_ns,
             m.jitter_ns,
             frame_of(m).bits.length + INTERMISSION_BITS if exact else None,
+            node=decl.name,
+            drift_ppm=decl.drift_ppm,
         )
         for m in decl.messages
         if m.interval_ns is not None

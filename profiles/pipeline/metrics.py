@@ -1,33 +1,39 @@
 """Metrics of a run, the response-time analysis beside them, and the readable table.
 
 Per declared message: ``released``, ``sent``, ``received``, ``response_ms`` (min/mean/p99/max,
-release — the instance queued at its node — to the end of its successful transmission, the end
-of EOF), ``jitter_ms`` (max − min of the start-to-start distance, periodic messages),
-``deadline_misses``, and from the analysis of Davis, Burns, Bril and Lukkien (2007,
-`profiles.analysis.rta`): ``rta_ms``, the bound on the measured response, and ``schedulable``,
-the analysis' verdict (both null where the analysis does not apply), with ``tightness``, the
-simulated maximum over the bound.
+from queuing — the instance entering its node's transmit queue — to the end of its successful
+transmission, the end of EOF), ``release_response_max_ms`` (the longest time from an instance's
+nominal release to the end of its EOF), ``jitter_ms`` (max − min of the start-to-start
+distance, periodic messages), ``deadline_misses`` (instances that end more than their deadline
+after their *nominal* release — the release jitter counts — or fail, are dropped, or are left
+pending past it), and from the response-time analysis (`profiles.analysis.rta`: Davis, Burns,
+Bril, Lukkien 2007 for priority queues, bounds for FIFO queues and mailboxes):
 
-The analysis' R is measured from the nominal release (jitter included: R = J + w + C); the
-simulation measures from the moment the instance is queued, which is J at most after it — so
-the bound on what is measured is R − J (`rta_ms`), and R itself is ``rta_release_ms``.
+- ``rta_ms`` — the bound on what ``response_ms`` measures: queuing to the end of the frame, over
+  every instance of the busy period (the 3-bit intermission included, so at least 3 bit times
+  above any measured maximum). Not R − J: an instance queued without jitter right behind one
+  queued late waits longer than that.
+- ``rta_release_ms`` — R, from the nominal release (jitter included), the bound on
+  ``release_response_max_ms``; ``schedulable`` is R <= deadline, the same reference as
+  ``deadline_misses``: a message that misses in the simulation is never schedulable.
+- ``tightness`` — the simulated maximum over ``rta_ms``; ``rta_method`` the analysis used
+  (``davis2007``, ``fifo``, ``mailbox``); ``rta_note`` why a message has no bound.
 
-Where the analysis does not apply: a node whose controller does not send its highest-priority
-frame first (FIFO queue, mailboxes) breaks its assumption — its own messages can wait behind
-its lower-priority ones (priority inversion), and a message delayed that way reaches the bus
-later than the analysis assumes, so every message of lower priority than one of that node's is
-left without a bound too. Traffic the analysis has no model of (a profile without one) leaves
-the whole bus without.
+Nodes use their scenario queue (priority, FIFO, mailboxes with or without abort) and their
+clock's drift (the analysis takes the shortest real period); ``[analysis] t_error_ms`` and
+``error_burst`` give the error model. Traffic the analysis has no model of (a profile without
+one) leaves the whole bus without a bound; a profile's own bound (a schedule's window) shows in
+``rta_ms`` where the analysis gives none.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING, Any
 
-from profiles.analysis.rta import ErrorModel, MessageSpec, analyse
+from profiles.analysis.rta import ErrorModel, MessageSpec, NodeQueue, analyse
 from profiles.base import Recorder, stats_ms
 from profiles.registry import profile_kind
-from stack import arbitration_key
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import Scenario
@@ -35,8 +41,11 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["analyse_scenario", "message_rows", "summary_of", "format_table"]
 
 
-def _key(m: Any) -> int:
-    return arbitration_key(m.can_id, m.extended, False)
+DEADLINE_REFERENCE = "nominal release (release jitter included)"
+"""What deadlines, ``deadline_misses``, ``schedulable`` and ``rta_release_ms`` count from."""
+
+BOUND_REFERENCE = "queuing to the end of the frame (intermission included)"
+"""What ``rta_ms`` bounds (and ``response_ms`` measures, to the end of EOF)."""
 
 
 def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
@@ -49,17 +58,25 @@ def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
         kind = profile_kind(name)
         if kind.bounds is not None:
             own.update(kind.bounds(scenario))
+    queues: dict[str, NodeQueue] = {}
     for d in scenario.nodes:
         kind = profile_kind(d.profile)
         if kind.traffic is None:
             unmodelled.append(f"{d.name} ({d.profile})")
             continue
-        specs.extend(kind.traffic(d, scenario))
+        queues[d.name] = NodeQueue(d.policy, d.mailboxes, d.abort)
+        # a profile's streams are its node's: that node's queue and clock
+        specs.extend(
+            dataclasses.replace(x, node=d.name, drift_ppm=d.drift_ppm) if not x.node else x
+            for x in kind.traffic(d, scenario)
+        )
     errors = None
+    error_model = None
     if scenario.analysis.get("t_error_ms") is not None:
-        errors = ErrorModel(round(scenario.analysis["t_error_ms"] * 1e6))
+        burst = scenario.analysis.get("error_burst") or 1
+        errors = ErrorModel(round(scenario.analysis["t_error_ms"] * 1e6), burst)
+        error_model = {"t_error_ms": scenario.analysis["t_error_ms"], "burst": burst}
     notes: list[str] = []
-    excluded: dict[str, str] = {}
     if unmodelled:
         notes.append(
             "no worst-case model of the traffic of "
@@ -69,36 +86,26 @@ def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
         if own:
             notes.append("messages with a bound of their own profile (a schedule's window) show it as rta_ms")
         return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
-    # nodes that do not send their highest-priority frame first
-    lowest_inverting: int | None = None
-    for d in scenario.nodes:
-        if d.priority_queue:
-            continue
-        for m in d.messages:
-            excluded[m.name] = f"node {d.name!r} uses a {d.queue} queue (priority inversion)"
-            k = _key(m)
-            lowest_inverting = k if lowest_inverting is None else min(lowest_inverting, k)
-    if lowest_inverting is not None:
-        for m in scenario.messages:
-            if m.name not in excluded and _key(m) > lowest_inverting:
-                excluded[m.name] = "lower priority than a message of a node with priority inversion"
+    results = analyse(specs, scenario.bitrate, errors=errors, queues=queues) if specs else {}
+    methods = sorted({r.method for r in results.values()})
+    if "fifo" in methods or "mailbox" in methods:
         notes.append(
-            "FIFO queues and mailboxes break the analysis' assumption that each node sends its "
-            "highest-priority pending frame: no bound for their messages nor for any of lower priority"
+            "FIFO queues and mailboxes without abort: their messages wait behind their queue's "
+            "content at the priority of its lowest message, and other messages see them enter "
+            "arbitration late (profiles.analysis.rta)"
         )
-    results = analyse(specs, scenario.bitrate, errors=errors) if specs else {}
-    for name in excluded:
-        results.pop(name, None)
     return {
         "results": results,
-        "excluded": excluded,
         "own": own,
         "assumptions": {
             "applies": True,
             "notes": notes,
-            "excluded": excluded,
-            "error_model": None if errors is None else {"t_error_ms": scenario.analysis["t_error_ms"]},
-            "method": "Davis, Burns, Bril, Lukkien 2007 (busy period, every instance)",
+            "error_model": error_model,
+            "method": "Davis, Burns, Bril, Lukkien 2007 (busy period, every instance); FIFO and mailbox "
+            "bounds of profiles.analysis.rta",
+            "methods": methods,
+            "rta_ms": BOUND_REFERENCE,
+            "deadlines_from": DEADLINE_REFERENCE,
         },
     }
 
@@ -117,8 +124,8 @@ def message_rows(scenario: Scenario, recorder: Recorder, analysis: dict[str, Any
         own_note = None
         if r is not None:
             schedulable = r.schedulable
-            if r.response_ns is not None:
-                rta = (r.response_ns - m.jitter_ns) / 1e6
+            if r.response_ns is not None and r.bound_ns is not None:
+                rta = r.bound_ns / 1e6
                 rta_release = r.response_ns / 1e6
         elif m.name in analysis.get("own", {}):
             bound, own_note = analysis["own"][m.name]
@@ -142,15 +149,15 @@ def message_rows(scenario: Scenario, recorder: Recorder, analysis: dict[str, Any
                 "failed": tr.failed if tr else 0,
                 "dropped": tr.dropped if tr else 0,
                 "response_ms": resp,
+                "release_response_max_ms": None if tr is None or tr.worst_release is None else tr.worst_release / 1e6,
                 "jitter_ms": None if jitter is None else jitter / 1e6,
                 "deadline_misses": tr.misses if tr else 0,
                 "rta_ms": rta,
                 "rta_release_ms": rta_release,
+                "rta_method": None if r is None else r.method,
                 "schedulable": schedulable,
                 "tightness": None if rta is None or resp is None or rta <= 0 else resp["max"] / rta,
-                "rta_note": analysis.get("excluded", {}).get(m.name)
-                or own_note
-                or (None if r is None or r.response_ns is not None else r.unbounded_reason),
+                "rta_note": own_note or (None if r is None or r.response_ns is not None else r.unbounded_reason),
             }
         )
     return rows
@@ -204,6 +211,11 @@ def format_table(result_json: dict[str, Any]) -> str:
             lines.extend(kind.text(r[kind.result_key]))
             r = dict(r)
             r.pop(kind.result_key)  # a shared key (a master and its devices) is printed once
+    if any(m["rta_ms"] is not None for m in r["messages"]):
+        lines.append(
+            f"RTA: bound on {BOUND_REFERENCE}, as resp measures it (to the end of EOF); "
+            f"deadlines, misses and schedulable: from the {DEADLINE_REFERENCE}"
+        )
     notes = r.get("analysis", {}).get("notes") or []
     for n in notes:
         lines.append(f"analysis: {n}")

@@ -131,6 +131,12 @@ MESSAGE_KEYS = {
 
 ANALYSIS_KEYS = {
     "t_error_ms": Key(float, None, positive("the minimum time between errors of the simple error model")),
+    "error_burst": Key(
+        int,
+        1,
+        lambda v: None if v >= 1 else f"{v!r} must be at least 1",
+        "errors in any window of t_error_ms (1: Tindell and Burns' simple model; more: bursts)",
+    ),
     "stuffing": Key(
         str,
         "worst",

@@ -263,14 +263,17 @@ class _Foreign:
         longest: Fraction = Fraction(0),
     ) -> None:
         self.t_error = None if errors is None else Fraction(errors.t_error_ns)
-        self.higher: list[tuple[Fraction, int, int, Fraction]] = []
-        self.lower: list[tuple[Fraction, int, int, Fraction]] = []
+        self.higher: list[tuple[Fraction, Fraction, Fraction, Fraction]] = []
+        self.lower: list[tuple[Fraction, Fraction, Fraction, Fraction]] = []
         for x in specs:
             r = rta[x.name]
             if r.response_ns is None:
                 raise _Unbounded(f"no bound for {x.name}: {r.unbounded_reason}")
             c = Fraction(r.c_ns)
-            row = (c, x.period_ns, x.jitter_ns, Fraction(r.response_ns) - x.jitter_ns)
+            # T and J as the analysis used them (a drifting node's shortest period), and W its
+            # bound from queuing to the end of the frame (not R - J: a later instance of the busy
+            # period can be queued with no jitter behind one queued late)
+            row = (c, Fraction(r.period_used_ns), Fraction(r.jitter_used_ns), Fraction(r.bound_ns))
             key = arbitration_key(x.can_id, x.extended, x.remote)
             (self.higher if key < chain_top else self.lower).append(row)
         self.lower_c = max((row[0] for row in self.lower), default=Fraction(0))
@@ -278,7 +281,7 @@ class _Foreign:
         self.per_error = ERROR_FRAME_BITS * _tau(bitrate) + max([longest] + [r[0] for r in self.higher + self.lower])
 
     @staticmethod
-    def _count(rows: list[tuple[Fraction, int, int, Fraction]], length: Fraction) -> Fraction:
+    def _count(rows: list[tuple[Fraction, Fraction, Fraction, Fraction]], length: Fraction) -> Fraction:
         # frames of k that overlap [s, s + L) ended after s, so were released in [s − W, s + L):
         # at most ceil((L + W + J) / T) of them
         return sum((math.ceil((length + w + j) / t) * c for c, t, j, w in rows), Fraction(0))
@@ -429,9 +432,9 @@ def _holistic(scenario: Scenario, net: Network, stuffing: str, t_err: Any) -> Ho
             w_cos = {}
             for name in list(_cos_names(net)):
                 r = rta[name]
-                if r.response_ns is None:
+                if r.bound_ns is None:
                     raise _Unbounded(f"no bound for {name}: {r.unbounded_reason}")
-                w_cos[name] = Fraction(r.response_ns) - new_j.get(name, _jitter_of(flat, name))
+                w_cos[name] = Fraction(r.bound_ns)  # queuing to the end of the frame
             windows = {}
             for ch in chains:
                 foreign = _Foreign(
@@ -468,10 +471,6 @@ def _holistic(scenario: Scenario, net: Network, stuffing: str, t_err: Any) -> Ho
 
 def _cos_names(net: Network) -> list[str]:
     return [m.name for s in net.slaves.values() for m in s.cos]
-
-
-def _jitter_of(flat: list[MessageSpec], name: str) -> int:
-    return next(x.jitter_ns for x in flat if x.name == name)
 
 
 def _ack_jitters(net: Network, w_cos: dict[str, Fraction], tau: Fraction) -> dict[str, Fraction]:
