@@ -80,6 +80,7 @@ def _fits(
         tau=NS_PER_S,
         error=err,
         horizon=m.horizon,
+        deadline=m.d,  # a verdict: stop as soon as a response passes the deadline
     )
     r = win.solve().response
     return r is not None and r <= m.d

@@ -236,8 +236,16 @@ def _first_instance(msgs: list[Stream], i: int, bitrate: int, errors: ErrorModel
 class _Bus:
     """The whole bus: streams in priority order, each node's policy as analysed."""
 
-    def __init__(self, msgs: list[Stream], queues: dict[str, NodeQueue], bitrate: int, errors: ErrorModel | None):
+    def __init__(
+        self,
+        msgs: list[Stream],
+        queues: dict[str, NodeQueue],
+        bitrate: int,
+        errors: ErrorModel | None,
+        verdict_only: bool = False,
+    ):
         self.msgs = msgs
+        self.verdict_only = verdict_only
         self.bitrate = bitrate
         self.errors = errors
         self.by_node: dict[str, list[Stream]] = {}
@@ -297,6 +305,7 @@ class _Bus:
             tau=tau,
             error=_error_term(self.errors, self.bitrate, level),
             horizon=m.horizon,
+            deadline=m.d if self.verdict_only else None,
         )
 
     def solve(self) -> tuple[dict[str, Outcome | str], dict[str, int | None], dict[str, Window | str]]:
@@ -342,18 +351,23 @@ def analyse(
     *,
     errors: ErrorModel | None = None,
     queues: Mapping[str, NodeQueue] | None = None,
+    verdict_only: bool = False,
 ) -> dict[str, RtaResult]:
     """Worst-case response times and bounds (see the module docstring), keyed by message name,
     in priority order (highest first; lower ``arbitration_key`` wins).
 
     ``queues`` gives the queue policy of nodes by name (``MessageSpec.node``); nodes not named
-    use priority queues. Raises ValueError naming the message (or node) and the rule for a
+    use priority queues. ``verdict_only`` stops each message's recurrences once it cannot meet
+    its deadline: it is then reported unbounded, with every message it can delay from a FIFO or
+    mailbox queue — much quicker on overloaded FIFO buses, and whether *every* message is
+    schedulable comes out the same (the jitter iteration and the mailbox check only grow bounds,
+    so where all end within their deadlines no cut ever happens). Raises ValueError naming the message (or node) and the rule for a
     non-positive period or deadline, negative jitter, a DLC outside 0..15, an identifier out of
     range, a name or arbitration key used twice, a bitrate outside 1 000..1 000 000 bit/s, a bad
     error model or a bad queue declaration.
     """
     msgs = prepare(messages, bitrate, errors)
-    bus = _Bus(msgs, check_queues(queues), bitrate, errors)
+    bus = _Bus(msgs, check_queues(queues), bitrate, errors, verdict_only)
     while True:
         outs, extra, windows = bus.solve()
         failed = [n for n in sorted(bus.tentative) if not bus.fits(n, outs)]

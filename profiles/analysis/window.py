@@ -72,7 +72,9 @@ class Window:
     ``own`` is m; ``ahead`` the messages counted by queuing time before m (one more instance
     than m's own count: an instance queued at m's instant but before it); ``interfering`` those
     counted by the window length, with the jitter at which they enter arbitration; ``blocking``
-    B; ``error`` (t_error, burst, per-error cost) or None; ``horizon`` the recurrence limit.
+    B; ``error`` (t_error, burst, per-error cost) or None; ``horizon`` the recurrence limit;
+    ``deadline`` (optional) stops the nominal-release maximisation as soon as a response passes
+    it (the outcome is then unbounded, "beyond the deadline": for a yes/no verdict).
     """
 
     def __init__(
@@ -85,6 +87,7 @@ class Window:
         tau: int,
         error: tuple[int, int, int] | None = None,
         horizon: int,
+        deadline: int | None = None,
     ) -> None:
         self.own = own
         self.ahead = tuple(ahead)
@@ -93,6 +96,7 @@ class Window:
         self.tau = tau
         self.error = error
         self.horizon = horizon
+        self.deadline = deadline
         u = sum((Fraction(k.c, k.t) for k in (own, *self.ahead, *self.interfering)), Fraction(0))
         if error is not None:
             t_err, n, per = error
@@ -118,16 +122,21 @@ class Window:
                 return None
             t = nxt
 
-    def delay(self, base: int, start: int) -> int | None:
+    def delay(self, base: int, start: int, limit: int | None = None) -> int | None:
         """w = base + E(w) + interference(w), least fixed point iterated up from ``start`` (which
-        must not exceed it); None when w + C_m passes the horizon."""
+        must not exceed it); None when w + C_m passes the horizon, or w passes ``limit``."""
         tau = self.tau
+        cap = self.horizon - self.own.c
+        if limit is not None:
+            cap = min(cap, limit)
         w = start
+        if w > cap:
+            return None
         while True:
             nxt = base + self.errors(w) + sum(_ceil_div(w + k.j + tau, k.t) * k.c for k in self.interfering)
             if nxt == w:
                 return w
-            if nxt + self.own.c > self.horizon:
+            if nxt > cap:
                 return None
             w = nxt
 
@@ -144,9 +153,9 @@ class Window:
                 z += t
         return sorted(pts)
 
-    def _maximise(self, span: int, own_offset: int) -> tuple[list[int], list[int]] | None:
+    def _maximise(self, span: int, own_offset: int, deadline: int | None = None) -> tuple[list[int], list[int]] | None:
         """Delays and responses (w(z) + C_m − z) at every point of ``_points``; None if one is
-        unbounded."""
+        unbounded or its response passes ``deadline``."""
         own = self.own
         delays: list[int] = []
         responses: list[int] = []
@@ -155,7 +164,8 @@ class Window:
             base = self.b + ((z + own_offset) // own.t) * own.c
             base += sum(((z + k.j) // k.t + 1) * k.c for k in self.ahead)
             # w(z) is nondecreasing in z: the last fixed point is a valid start
-            w = self.delay(base, max(prev, base))
+            limit = None if deadline is None else deadline - own.c + z
+            w = self.delay(base, max(prev, base), limit)
             if w is None:
                 return None
             prev = w
@@ -173,7 +183,9 @@ class Window:
         j = self.own.j
         # from the nominal release: z is where the nominal release lies (up to J_m before the
         # queuing, so z < busy + J_m), m's predecessors are floor(z / T_m), R = J_m + max(...)
-        nominal = self._maximise(busy + j, 0)
+        nominal = self._maximise(busy + j, 0, None if self.deadline is None else self.deadline - j)
+        if nominal is None and self.deadline is not None:
+            return Outcome(busy, (), (), None, None, None, "beyond its deadline (verdict only)")
         # from the queuing: z < busy, m's predecessors floor((z + J_m) / T_m)
         queued = self._maximise(busy, j)
         if nominal is None or queued is None:

@@ -48,9 +48,11 @@ BOUND_REFERENCE = "queuing to the end of the frame (intermission included)"
 """What ``rta_ms`` bounds (and ``response_ms`` measures, to the end of EOF)."""
 
 
-def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
+def analyse_scenario(scenario: Scenario, *, verdict_only: bool = False) -> dict[str, Any]:
     """The response-time analysis of the scenario's bus: ``results`` by message name (only
-    where it applies) and ``assumptions`` (what was analysed, what was left out and why)."""
+    where it applies) and ``assumptions`` (what was analysed, what was left out and why).
+    ``verdict_only``: see `profiles.analysis.rta.analyse` (for whether every message is
+    schedulable, quicker)."""
     specs: list[MessageSpec] = []
     unmodelled: list[str] = []
     own: dict[str, tuple[int | None, str | None]] = {}  # the profiles' own bounds (ProfileKind.bounds)
@@ -86,7 +88,7 @@ def analyse_scenario(scenario: Scenario) -> dict[str, Any]:
         if own:
             notes.append("messages with a bound of their own profile (a schedule's window) show it as rta_ms")
         return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
-    results = analyse(specs, scenario.bitrate, errors=errors, queues=queues) if specs else {}
+    results = analyse(specs, scenario.bitrate, errors=errors, queues=queues, verdict_only=verdict_only) if specs else {}
     methods = sorted({r.method for r in results.values()})
     if "fifo" in methods or "mailbox" in methods:
         notes.append(

@@ -113,24 +113,31 @@ def write_sweep_plots(
 
 
 _CURVE_STYLE = {
-    "analysis": ("analysis: every message guaranteed (Davis et al. 2007)", "tab:blue", "-"),
+    "analysis": ("analysis, {order}: every message guaranteed (Davis et al. 2007)", "tab:blue", "-"),
+    "opa": ("analysis, Audsley's optimal priority order (OPA)", "tab:purple", "-"),
     "simulation": ("simulation, priority queues: no deadline miss", "tab:green", "--"),
     "fifo": ("simulation, FIFO queues: no deadline miss", "tab:red", "-."),
+    "fifo_analysis": ("analysis, FIFO queues: every message guaranteed", "tab:orange", ":"),
 }
+_ORDER_NAMES = {"deadline": "deadline-monotonic identifiers", "random": "identifiers at random"}
 
 
 def schedulability_plot(
     study: SchedulabilityStudy,
     path: str | Path,
-    curves: Sequence[str] = ("analysis", "simulation"),
+    curves: Sequence[str] = ("analysis", "opa", "simulation"),
     title: str | None = None,
 ) -> Path:
-    """The fraction of sets per utilisation for ``curves`` (analysis, simulation, fifo), each
-    curve's breakdown utilisation (where it falls through 50 %) as a dotted vertical line."""
+    """The fraction of sets per utilisation for ``curves`` (analysis — with the sets' own
+    identifiers, deadline monotonic unless drawn at random —, opa, simulation, fifo,
+    fifo_analysis), each curve's breakdown utilisation (where it falls through 50 %) as a dotted
+    vertical line."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    order = _ORDER_NAMES.get(str(study.settings.get("priorities", "deadline")), "the sets' identifiers")
     for c in curves:
         label, colour, style = _CURVE_STYLE[c]
+        label = label.format(order=order)
         pts = [(100 * p["utilisation"], 100 * p[c]) for p in study.points if p[c] is not None]
         b = study.breakdown.get(c)
         label += f" (breakdown {100 * b:.0f} %)" if b is not None else " (never below 50 %)"

@@ -2,14 +2,17 @@
 
 For each utilisation point and each set (`schedulability_study`): does the
 response-time analysis (`profiles.analysis.rta.analyse`, via the experiments' own
-`profiles.pipeline.metrics.analyse_scenario`) guarantee every message, and does a simulation with
-priority queues, and one with FIFO queues, see no deadline miss? Release is synchronous (every
-offset 0): that is the analysis' critical instant, less only the blocking by a lower-priority
-frame already on the bus, which a simulation that starts on an idle bus cannot have. So the
-simulated no-miss fraction is an upper bound the analysis' fraction must stay under (the analysis
-is sufficient), and a set the analysis accepts must show no miss. The simulation runs twice the
-longest period, which holds every message's first deadline. FIFO queues cannot be analysed that
-way (priority inversion); their curve is the simulation's only.
+`profiles.pipeline.metrics.analyse_scenario`) guarantee every message with the set's own
+identifiers (deadline monotonic, or random with ``priorities="random"``), does it with the
+identifiers in Audsley's optimal priority order (`profiles.analysis.priority`: OPA finds an
+order the analysis accepts whenever one exists, so its curve is never below the other), does the
+FIFO-queue analysis guarantee the set sent from FIFO queues, and does a simulation with priority
+queues, and one with FIFO queues, see no deadline miss? Release is synchronous (every offset 0):
+that is the analysis' critical instant, less only the blocking by a lower-priority frame already
+on the bus, which a simulation that starts on an idle bus cannot have. So the simulated no-miss
+fraction is an upper bound the analysis' fraction (with the same identifiers) must stay under
+(the analysis is sufficient), and a set the analysis accepts must show no miss. The simulation
+runs twice the longest period, which holds every message's first deadline.
 
 The *breakdown utilisation* of a curve, marked on the plots, is where it falls through 50 % of
 the sets (linear between the two points around it).
@@ -24,6 +27,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from profiles.analysis.priority import assign_priorities
 from profiles.sweeps.converters import csma_fifo_scenario, csma_scenario
 from profiles.sweeps.execute import execute
 from profiles.sweeps.random_sets import GENERATORS, PERIOD_RANGES_MS, PRIORITIES, generate_set
@@ -63,8 +67,9 @@ def _misses(raw: dict, source: str) -> int:
 
 
 def schedulability_run(task: SchedTask) -> dict[str, Any]:
-    """One set: the analysis' verdict and the simulated deadline misses with priority and with
-    FIFO queues (synchronous release; see the module docstring)."""
+    """One set: the analysis' verdicts (its own identifiers, OPA's order, FIFO queues) and the
+    simulated deadline misses with priority and with FIFO queues (synchronous release; see the
+    module docstring)."""
     from profiles.pipeline.metrics import analyse_scenario
     from profiles.pipeline.scenario import parse_scenario
 
@@ -82,11 +87,15 @@ def schedulability_run(task: SchedTask) -> dict[str, Any]:
     )
     source = f"study set {task.set_number} at U = {task.utilisation:g}"
     raw = csma_scenario(mset)
-    analysis = analyse_scenario(parse_scenario(raw, source))
+    analysis = analyse_scenario(parse_scenario(raw, source), verdict_only=True)
     results = analysis["results"]
     rta_ok = len(results) == len(mset.messages) and all(r.schedulable for r in results.values())
+    opa_ok = assign_priorities(mset.specs(), mset.bitrate, order="opa").schedulable
+    fifo_raw = csma_fifo_scenario(mset)
+    fifo_results = analyse_scenario(parse_scenario(fifo_raw, source), verdict_only=True)["results"]
+    fifo_rta_ok = len(fifo_results) == len(mset.messages) and all(r.schedulable for r in fifo_results.values())
     prio = _misses(raw, source)
-    fifo = _misses(csma_fifo_scenario(mset), source)
+    fifo = _misses(fifo_raw, source)
     row = task.head()
     row.update(
         {
@@ -94,6 +103,8 @@ def schedulability_run(task: SchedTask) -> dict[str, Any]:
             "u_worst": mset.utilisation(),
             "longest_period_ms": max(m.period_ns for m in mset.messages) / 1e6,
             "rta_schedulable": rta_ok,
+            "rta_opa_schedulable": opa_ok,
+            "rta_fifo_schedulable": fifo_rta_ok,
             "sim_priority_ok": prio == 0,
             "sim_fifo_ok": fifo == 0,
             "priority_misses": prio,
@@ -137,7 +148,13 @@ class SchedulabilityStudy:
         return [r for r in self.rows if r.get("error")]
 
 
-CURVES = {"analysis": "rta_schedulable", "simulation": "sim_priority_ok", "fifo": "sim_fifo_ok"}
+CURVES = {
+    "analysis": "rta_schedulable",
+    "opa": "rta_opa_schedulable",
+    "simulation": "sim_priority_ok",
+    "fifo": "sim_fifo_ok",
+    "fifo_analysis": "rta_fifo_schedulable",
+}
 """The study's curves and the per-set column each is the fraction of."""
 
 
@@ -158,8 +175,9 @@ def schedulability_study(
     progress: bool | None = None,
 ) -> SchedulabilityStudy:
     """The schedulability study (see the module docstring): ``sets`` random sets at each
-    utilisation, each analysed and simulated; the fraction of sets the analysis accepts, and the
-    fractions without a simulated miss (priority and FIFO queues), per utilisation."""
+    utilisation, each analysed and simulated; the fractions of sets the analysis accepts (with
+    the set's identifiers, in OPA's order, from FIFO queues) and the fractions without a simulated
+    miss (priority and FIFO queues), per utilisation."""
     if sets < 1:
         raise ValueError(f"--sets {sets}: at least 1")
     if not utilisations:

@@ -232,3 +232,50 @@ def test_bad_drift_is_refused(change, words):
 def test_bad_burst_is_refused():
     with pytest.raises(ValueError, match="burst 0"):
         analyse([m8("m", 0x100, MS)], 500_000, errors=ErrorModel(MS, burst=0))
+
+
+# --- the verdict-only mode ----------------------------------------------------------------------
+
+
+@settings(max_examples=60)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 3),  # node
+            st.integers(0, 8),  # dlc
+            st.integers(1, 30),  # period, 0.25 ms steps
+            st.integers(0, 100),  # jitter, % of the period
+            st.integers(20, 200),  # deadline, % of the period
+        ),
+        min_size=1,
+        max_size=8,
+    ),
+    st.lists(st.sampled_from(["priority", "fifo", "mailbox1", "mailbox2", "mailbox2a"]), min_size=4, max_size=4),
+)
+def test_verdict_only_gives_the_same_verdict(rows, kinds):
+    # It only stops recurrences of messages that cannot meet their deadline, so whether every
+    # message is schedulable is the same, and where they all are the results are identical.
+    spec = [
+        MessageSpec(
+            f"m{i}", 0x10 + i, False, dlc, p * 250 * US, p * 250 * US * d // 100, p * 250 * US * j // 100, node=f"n{n}"
+        )
+        for i, (n, dlc, p, j, d) in enumerate(rows)
+    ]
+    make = {
+        "priority": NodeQueue(),
+        "fifo": NodeQueue("fifo"),
+        "mailbox1": NodeQueue("mailbox", 1),
+        "mailbox2": NodeQueue("mailbox", 2),
+        "mailbox2a": NodeQueue("mailbox", 2, abort=True),
+    }
+    queues = {f"n{i}": make[k] for i, k in enumerate(kinds)}
+    full = analyse(spec, 500_000, queues=queues)
+    quick = analyse(spec, 500_000, queues=queues, verdict_only=True)
+    assert all(r.schedulable for r in full.values()) == all(r.schedulable for r in quick.values())
+    if all(r.schedulable for r in full.values()):
+        assert full == quick
+    for name, r in quick.items():  # and it is never the more optimistic of the two
+        if full[name].response_ns is None:
+            assert r.response_ns is None
+        elif r.response_ns is not None:
+            assert r.response_ns >= full[name].response_ns and r.bound_ns >= full[name].bound_ns

@@ -146,8 +146,20 @@ def test_the_analysis_is_sufficient_set_by_set_and_point_by_point(study):
     for r in study.rows:
         if r["rta_schedulable"]:
             assert r["sim_priority_ok"], r  # a guaranteed set shows no miss in simulation
+        if r["rta_fifo_schedulable"]:
+            assert r["sim_fifo_ok"], r  # and so does one the FIFO analysis guarantees
     for p in study.points:
         assert p["simulation"] >= p["analysis"]
+
+
+def test_opa_accepts_every_set_deadline_monotonic_order_does(study):
+    # Audsley's algorithm finds an order the analysis accepts whenever one exists, and the sets'
+    # own (deadline-monotonic) identifiers are one order
+    for r in study.rows:
+        if r["rta_schedulable"]:
+            assert r["rta_opa_schedulable"], r
+    for p in study.points:
+        assert p["opa"] >= p["analysis"]
 
 
 def test_fifo_queues_lose_sets_that_priority_queues_keep(study):
@@ -170,7 +182,7 @@ def test_study_plots(study, tmp_path):
     pytest.importorskip("matplotlib")
     from profiles.sweeps.plots import schedulability_plot
 
-    for curves in (("analysis", "simulation"), ("simulation", "fifo")):
+    for curves in (("analysis", "opa", "simulation"), ("simulation", "fifo", "fifo_analysis")):
         p = schedulability_plot(study, tmp_path / f"{curves[1]}.png", curves=curves)
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -252,7 +252,9 @@ def test_study_schedulability_table_json_csv_and_plots(tmp_path, capsys):
     with open(out, newline="") as f:
         rows = list(csv.DictReader(f))
     assert [(r["utilisation"], r["set"]) for r in rows] == [(u, s) for u in ("0.4", "1.0") for s in "0123"]
-    assert {"rta_schedulable", "sim_priority_ok", "sim_fifo_ok"} <= set(rows[0])
+    assert {"rta_schedulable", "rta_opa_schedulable", "rta_fifo_schedulable", "sim_priority_ok", "sim_fifo_ok"} <= set(
+        rows[0]
+    )
     if importlib.util.find_spec("matplotlib") is not None:
         code, stdout, err = run(
             capsys,
@@ -272,15 +274,22 @@ def test_study_schedulability_table_json_csv_and_plots(tmp_path, capsys):
             "U",
             "%",
             "sets",
-            "analysis",
+            "RTA",
+            "DM",
+            "%",
+            "RTA",
+            "OPA",
             "%",
             "simulated",
+            "%",
+            "FIFO",
+            "RTA",
             "%",
             "FIFO",
             "sim",
             "%",
         ]
-        assert len(stdout.splitlines()) == 1 + 3 + 3  # header, 3 points, 3 breakdown lines
+        assert len(stdout.splitlines()) == 1 + 3 + 5  # header, 3 points, 5 breakdown lines
         for name in ("schedulability.png", "fifo_vs_priority.png"):
             assert (tmp_path / "p" / name).read_bytes()[:4] == b"\x89PNG"
 
