@@ -10,7 +10,7 @@ The package is laid out the way the work flows (DESIGN.md, "Profiles: the contra
 - the protocols, each a package that imports the contract only: `profiles.csma` (native
   CSMA/CR), `profiles.polling` (master/slave), `profiles.tdma` (TTCAN-like), `profiles.canopen`
   (CiA 301 devices and master); `profiles.analysis` (CAN response-time analysis, Davis et al.
-  2007);
+  2007, with FIFO and mailbox bounds; priority assignment);
 - `profiles.pipeline` — the experiment pipeline: scenario files read, run on the simulated bus or
   a python-can bus, measured, analysed, plotted (``canstack experiment``);
 - `profiles.sweeps` — many runs: parameter sweeps and the classic studies (``canstack sweep``,
@@ -30,7 +30,8 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
-    from profiles.analysis.rta import ErrorModel, MessageSpec, RtaResult, analyse
+    from profiles.analysis.priority import assign_priorities
+    from profiles.analysis.rta import ErrorModel, MessageSpec, NodeQueue, RtaResult, analyse
     from profiles.base import Context, Profile, Recorder
     from profiles.canopen.device import CanopenDevice
     from profiles.canopen.master import CanopenMaster
@@ -85,6 +86,8 @@ __all__ = [
     "MessageSpec",
     "ErrorModel",
     "RtaResult",
+    "NodeQueue",
+    "assign_priorities",
     "analyse_scenario",
     # many runs
     "run_sweep",
@@ -124,6 +127,8 @@ _EXPORTS = {
     "MessageSpec": "profiles.analysis.rta",
     "ErrorModel": "profiles.analysis.rta",
     "RtaResult": "profiles.analysis.rta",
+    "NodeQueue": "profiles.analysis.rta",
+    "assign_priorities": "profiles.analysis.priority",
     "analyse_scenario": "profiles.pipeline.metrics",
     "run_sweep": "profiles.sweeps.sweep",
     "schedulability_study": "profiles.sweeps.schedulability",
