@@ -46,7 +46,8 @@ answer ends. o_min adds the shortest frames (no stuff bits), the shortest delays
 intermission before each answer; o_max is the bound on the window from the cycle's start to that
 point (below) plus the longest delay. A slave's change-of-state / cyclic message is a sporadic
 or periodic stream as declared; the master's acknowledgement is released when it ends: the same
-interval, jitter J_cos + (R − J)_cos − L_min (an acknowledged link has one COS/cyclic message,
+interval, jitter J_cos + W_cos − L_min (W: the analysis' bound from queuing to the end of the
+frame, ``bound_ns``; an acknowledged link has one COS/cyclic message,
 as DeviceNet's COS connection has).
 
 *Bound on a window of the chain.* Take the chain's work from the cycle's start to some point —
@@ -54,8 +55,10 @@ its frames, each with its intermission (worst-case C), and the time the bus may 
 slaves' processing (per transaction max d_k − 3 tau, in at most one idle stretch per answer
 ready after the intermission). Every instant of the window is then one of three: a frame of the
 chain, a processing wait, or a foreign frame. A foreign frame that overlaps the window ended
-after its start, so it was released at most W = R − J (queuing to end, from the analysis of the
-whole bus) before it: at most ceil((L + W + J) / T) frames of each stream. A foreign stream
+after its start, so it was queued at most W before it (the analysis' bound from queuing to the
+end of the frame, ``bound_ns``, of the whole bus — not R − J, which a later instance of a busy
+period can exceed): at most ceil((L + W + J) / T) frames of each stream, T and J as the analysis
+used them (a drifting node's shortest period). A foreign stream
 that loses arbitration to every frame of the chain can only get in through a frame already on
 the bus when the window opens or one that starts during a processing wait, so it takes at most
 (1 + number of waits) × its longest frame — whichever is smaller. The window's bound is the least
@@ -248,8 +251,8 @@ class _Unbounded(Exception):
 
 class _Foreign:
     """The traffic a master's chain shares the bus with: every stream but the chain's own frames,
-    with C (ns, intermission included), T, J and W = R − J (queuing to the end of EOF, from the
-    response-time analysis of the whole bus). Streams that beat at least one frame of the chain
+    with C (ns, intermission included), T, J and W (queuing to the end of the frame: the
+    response-time analysis' ``bound_ns`` for the whole bus). Streams that beat at least one frame of the chain
     can delay it at any point; the others ("lower") only by a frame already on the bus when the
     window opens, or one that starts while the chain waits for a slave's processing delay."""
 
