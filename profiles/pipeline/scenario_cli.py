@@ -111,14 +111,14 @@ def _rewrite(text: str, source: str, ids: dict[str, int]) -> str:
 def _assign_ids(args: argparse.Namespace) -> int:
     from profiles.analysis.priority import assign_priorities, identifiers_for
     from profiles.analysis.rta import ErrorModel
-    from profiles.csma.profile import message_specs
     from profiles.pipeline.scenario import load_scenario
+    from profiles.registry import profile_kind
 
     check_output(args.out, "--out")
     scenario = load_scenario(args.scenario)
     _eligible(scenario, args.order)
-    exact = scenario.analysis.get("stuffing") == "exact"
-    specs = [s for d in scenario.nodes for s in message_specs(d, exact=exact)]
+    # the CSMA/CR profile's model of its nodes' traffic (the experiments' analysis reads the same)
+    specs = [s for d in scenario.nodes for s in (profile_kind(d.profile).traffic or (lambda d, sc: []))(d, scenario)]
     if not specs:
         raise CliError(f"{scenario.source}: no messages to reassign")
     errors = None
