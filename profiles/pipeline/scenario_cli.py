@@ -11,13 +11,17 @@ analysis finds (`profiles.analysis.priority`): Audsley's optimal assignment (the
 and Burns' robust assignment, or deadline monotonic. The set of identifiers stays the file's own;
 everything else in the file — comments, layout, number formats — is kept (tomlkit edits the
 document in place). Exit status 0 when every message is schedulable in the new order, 1 when no
-order makes them so (the file is still written: the messages no level could take are put at the
-top in deadline order), 2 on bad input.
+order makes them so, or with ``dm`` when that order does not (the file is still written: the
+messages no level could take are put at the top in deadline order), 2 on bad input. Only ``dm``
+takes nodes with FIFO queues or mailboxes without abort; its verdict is then that of the FIFO
+and mailbox bounds (`profiles.analysis.rta.analyse` with the nodes' queues), as
+``canstack experiment`` gives it, not D07's priority-queue test.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -62,6 +66,12 @@ def register_assign_ids(tools: Any) -> None:
     p.set_defaults(func=_assign_ids)
 
 
+def _priority_like(d: Any) -> bool:
+    """Whether the node offers its best pending frame, as D07's test assumes: a priority queue,
+    mailboxes with abort (the engine aborts at once), or a single message."""
+    return bool(len(d.messages) <= 1 or d.priority_queue or (d.policy == "mailbox" and d.abort))
+
+
 def _eligible(scenario: Any, order: str) -> None:
     """Refuse a scenario whose identifiers the command may not permute, naming why."""
     for d in scenario.nodes:
@@ -73,7 +83,7 @@ def _eligible(scenario: Any, order: str) -> None:
         for m in d.messages:
             if m.interval_ns is None:
                 raise CliError(f"{scenario.source}: message {m.name!r} has no period or minimum inter-arrival time")
-        if order != "dm" and len(d.messages) > 1 and not (d.priority_queue or (d.policy == "mailbox" and d.abort)):
+        if order != "dm" and not _priority_like(d):
             raise CliError(
                 f"{scenario.source}: node {d.name!r} uses a {d.queue} queue: --order {order} needs priority queues "
                 "(its test is the priority-queue analysis); --order dm does not"
@@ -110,7 +120,7 @@ def _rewrite(text: str, source: str, ids: dict[str, int]) -> str:
 
 def _assign_ids(args: argparse.Namespace) -> int:
     from profiles.analysis.priority import assign_priorities, identifiers_for
-    from profiles.analysis.rta import ErrorModel
+    from profiles.analysis.rta import ErrorModel, NodeQueue, analyse
     from profiles.pipeline.scenario import load_scenario
     from profiles.registry import profile_kind
 
@@ -134,6 +144,23 @@ def _assign_ids(args: argparse.Namespace) -> int:
     for name in result.order:
         ext = by_name[name].extended
         print(f"  {name}: 0x{ids[name]:{'08X' if ext else '03X'}}")
+    queued = [d for d in scenario.nodes if not _priority_like(d)]  # only with --order dm (_eligible)
+    if queued:
+        # D07's test, which ordered the set, assumes priority queues: the verdict on this file is
+        # the one `canstack experiment` gives, with the FIFO and mailbox bounds of its nodes
+        queues = {d.name: NodeQueue(d.policy, d.mailboxes, d.abort) for d in scenario.nodes}
+        renumbered = [dataclasses.replace(s, can_id=ids[s.name]) for s in specs]
+        verdict = analyse(renumbered, scenario.bitrate, errors=errors, queues=queues)
+        missed = [name for name, r in verdict.items() if not r.schedulable]
+        if not missed:
+            print("every message schedulable (Davis et al. 2007; FIFO and mailbox bounds of profiles.analysis.rta)")
+            return 0
+        print(
+            f"not every message is schedulable in deadline-monotonic order with the FIFO and mailbox queues of "
+            f"{', '.join(d.name for d in queued)}: {', '.join(missed)}",
+            file=sys.stderr,
+        )
+        return 1
     if result.schedulable:
         print("every message schedulable (Davis et al. 2007)")
         return 0

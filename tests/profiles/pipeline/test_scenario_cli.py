@@ -92,6 +92,20 @@ def test_dm_order_that_fails_exits_1_and_still_writes(tmp_path, capsys):
     assert not results["B"].schedulable
 
 
+def test_dm_with_fifo_nodes_gives_the_fifo_analysis_verdict(tmp_path, capsys):
+    # D07's priority-queue test accepts the example in DM order; its engine and gateway use FIFO
+    # queues, where the experiment's analysis bounds EngineSpeed (D = 2 ms) beyond 5 ms
+    out = tmp_path / "dm.toml"
+    code, stdout, err = _run(
+        capsys, "assign-ids", str(EXAMPLES / "powertrain_90_fifo.toml"), "--out", str(out), "--order", "dm"
+    )
+    assert code == 1 and "every message schedulable" not in stdout
+    results = analyse_scenario(load_scenario(out))["results"]
+    missed = sorted(n for n, r in results.items() if not r.schedulable)
+    assert missed and "EngineSpeed" in missed
+    assert err.strip().endswith(": " + ", ".join(n for n in results if not results[n].schedulable))
+
+
 def test_rpa_on_an_example(tmp_path, capsys):
     out = tmp_path / "p.toml"
     code, stdout, _ = _run(
