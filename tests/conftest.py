@@ -85,8 +85,18 @@ def _wrap_socket(name: str) -> None:
     setattr(socket.socket, name, wrapper)
 
 
+def _warm_matplotlib() -> None:
+    """Build matplotlib's font cache before the guards watch: on a machine where it was never
+    built, the first plot runs ``fc-list`` in a subprocess, which is matplotlib's, not the test's."""
+    try:
+        import matplotlib.font_manager  # noqa: F401  (builds the cache on first import)
+    except ImportError:
+        pass
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """Watch process starts and socket use for the marker check (once per session)."""
+    _warm_matplotlib()
     _wrap(subprocess.Popen, "__init__", "subprocess")
     _wrap(multiprocessing.process.BaseProcess, "start", "subprocess")
     for name in ("bind", "connect", "connect_ex"):
