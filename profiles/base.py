@@ -12,13 +12,13 @@ node's `TxRequest` keeps, so they compare across nodes.
 from __future__ import annotations
 
 import hashlib
-import math
 import random
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+from profiles.responses import BATCH, ResponseStats, stats_ms
 from stack import Frame, NodeError, QueueFull
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -30,6 +30,7 @@ __all__ = [
     "Context",
     "Recorder",
     "Track",
+    "Instance",
     "PeriodicSource",
     "SporadicSource",
     "frame_of",
@@ -53,32 +54,27 @@ def frame_of(m: MessageDecl) -> Frame:
     return Frame(m.can_id, m.data if m.data is not None else bytes(m.dlc), extended=m.extended)
 
 
-def stats_ms(values_ns: array[int] | list[int]) -> dict[str, float] | None:
-    """min, mean, p99 and max of ns values, in ms (None when there are none). The p99 is the
-    nearest-rank 99th percentile (the value at rank ceil(0.99 n))."""
-    n = len(values_ns)
-    if n == 0:
-        return None
-    s = sorted(values_ns)
-    p99 = s[max(0, math.ceil(0.99 * n) - 1)]
-    return {"min": s[0] / 1e6, "mean": sum(s) / n / 1e6, "p99": p99 / 1e6, "max": s[-1] / 1e6}
-
-
 class Track:
     """What happened to one declared message: instances released (queued), sent, failed,
     dropped (queue full or node bus off at release), their response times (queued → end of EOF,
-    bus ns), the longest time from a nominal release to the end of EOF (``worst_release``), the
-    SOF times of successful instances (for start-to-start jitter) and deadline misses — an
-    instance that ends more than its deadline after its *nominal* release (the response-time
-    analysis' reference: the release jitter counts against the deadline), fails, is dropped, or
-    is still pending at the end of the run when its deadline has passed. An instance its source
-    queued ``late_ns`` after its nominal release says so (`release`); one a profile queues on its
-    own account is its own nominal release.
+    bus ns: `ResponseStats`, exact min/max/mean and a p99 in bounded memory), the longest time
+    from a nominal release to the end of EOF (``worst_release``), the start-to-start jitter from
+    the SOF times of successful instances, and deadline misses — an instance that ends more than
+    its deadline after its *nominal* release (the response-time analysis' reference: the release
+    jitter counts against the deadline), fails, is dropped, or is still pending at the end of the
+    run when its deadline has passed. An instance its source queued ``late_ns`` after its nominal
+    release says so (`release`); one a profile queues on its own account is its own nominal
+    release.
 
     It reads the outcome of each instance from its `TxRequest` (state, ``t_done``, ``sof``),
     lazily — at the next release of the message and at the end — rather than through `TxDone`
     listeners: a listener per frame would take the simulated bus off its fast path (the runner's
     figure in `python -m stack.bench`).
+
+    ``responses`` and ``starts`` hold the values of the current batch (every value of a short
+    run, or of a run that keeps all: ``keep_all``); ``sink``, when set, is called once per
+    instance with an `Instance` (``canstack experiment --samples``), and ``clock`` gives the bus
+    time of a drop.
     """
 
     __slots__ = (
@@ -88,16 +84,21 @@ class Track:
         "failed",
         "dropped",
         "misses",
-        "responses",
+        "stats",
         "starts",
         "pending",
         "worst_release",
         "received",
         "monitor",
         "awaiting",
+        "sink",
+        "clock",
+        "_gap_lo",
+        "_gap_hi",
+        "_last_start",
     )
 
-    def __init__(self, decl: MessageDecl) -> None:
+    def __init__(self, decl: MessageDecl, keep_all: bool = False) -> None:
         self.decl = decl
         self.released = 0
         self.sent = 0
@@ -105,7 +106,7 @@ class Track:
         self.dropped = 0
         self.misses = 0
         self.received: int | None = None  # set by the runner: instances that reached another node
-        self.responses: array[int] = array("q")
+        self.stats = ResponseStats(keep_all)
         self.starts: array[int] = array("q")
         # queued instances, in release order, with how late after its nominal release each was
         # queued (bus ns)
@@ -115,6 +116,17 @@ class Track:
         # not the moment the driver handed it over: sent instances wait for it here
         self.monitor = False
         self.awaiting: dict[TxRequest, int] = {}
+        self.sink: Callable[[Instance], Any] | None = None
+        self.clock: Callable[[], int] | None = None
+        self._gap_lo: int | None = None  # start-to-start gaps of the folded batches
+        self._gap_hi: int | None = None
+        self._last_start: int | None = None
+
+    @property
+    def responses(self) -> array[int]:
+        """The response times (ns) not yet folded into the statistics: all of them while
+        ``stats.exact``."""
+        return self.stats.values
 
     def release(self, req: TxRequest, late_ns: int = 0) -> None:
         """An instance was queued (``req.t_queued``), ``late_ns`` after its nominal release."""
@@ -128,6 +140,9 @@ class Track:
         self.released += 1
         self.dropped += 1
         self.misses += 1
+        if self.sink is not None:
+            t = self.clock() if self.clock is not None else None
+            self.sink(Instance(self.decl.name, self.decl.node, "dropped", t, None, None, None, None, True))
 
     def settle(self, everything: bool = False) -> None:
         """Account for the pending instances that finished, in release order — up to the first
@@ -150,6 +165,9 @@ class Track:
             else:  # failed (one-shot, expired) or aborted
                 self.failed += 1
                 self.misses += 1
+                if self.sink is not None:
+                    q = req.t_queued
+                    self.sink(Instance(self.decl.name, self.decl.node, "failed", q - late, q, None, None, None, True))
 
     def observed(self, t_end: int, sof: int) -> None:
         """A monitor on a python-can bus received this message at ``t_end`` (its SOF at ``sof``):
@@ -168,14 +186,38 @@ class Track:
     def _complete(self, req: TxRequest, t_end: int, sof: int, late: int) -> None:
         self.sent += 1
         resp = t_end - req.t_queued
-        self.responses.append(resp)
+        values = self.stats.values
+        values.append(resp)
         self.starts.append(sof)
         since = resp + late  # from the nominal release
         if self.worst_release is None or since > self.worst_release:
             self.worst_release = since
         d = self.decl.deadline_ns
-        if d is not None and since > d:
+        missed = d is not None and since > d
+        if missed:
             self.misses += 1
+        if self.sink is not None:
+            q = req.t_queued
+            self.sink(Instance(self.decl.name, self.decl.node, "sent", q - late, q, sof, t_end, resp, missed))
+        if len(values) >= BATCH and not self.stats.keep_all:
+            self._fold()
+
+    def _fold(self) -> None:
+        """Fold the current batch into the running figures (bounded memory: the module
+        `profiles.responses`), the start-to-start gaps included."""
+        st = self.starts
+        if st:
+            prev = self._last_start
+            gaps = [b - a for a, b in zip(st, st[1:])]
+            if prev is not None:
+                gaps.append(st[0] - prev)
+            if gaps:
+                lo, hi = min(gaps), max(gaps)
+                self._gap_lo = lo if self._gap_lo is None else min(self._gap_lo, lo)
+                self._gap_hi = hi if self._gap_hi is None else max(self._gap_hi, hi)
+            self._last_start = st[-1]
+            self.starts = array("q")
+        self.stats.fold()
 
     def finish(self, t_end: int) -> int:
         """At the end of the run: every finished instance is accounted for; those still pending
@@ -183,32 +225,66 @@ class Track:
         self.settle(everything=True)
         d = self.decl.deadline_ns
         left = list(self.pending.items()) + list(self.awaiting.items())
-        if d is not None:
-            self.misses += sum(1 for r, late in left if r.t_queued - late + d < t_end)
+        for r, late in left:
+            missed = d is not None and r.t_queued - late + d < t_end
+            self.misses += missed
+            if self.sink is not None:
+                q = r.t_queued
+                self.sink(Instance(self.decl.name, self.decl.node, "pending", q - late, q, None, None, None, missed))
         return len(left)
+
+    def response_stats_ms(self) -> dict[str, Any] | None:
+        """min, mean, p99, max of the response times in ms and ``p99_error`` (see
+        `ResponseStats.stats_ms`); None when no instance was sent."""
+        return self.stats.stats_ms()
 
     def jitter_ns(self) -> int | None:
         """Max − min of the start-to-start distance (SOF to SOF of consecutive instances),
         for a periodic message; None otherwise or with fewer than two instances."""
-        if self.decl.period_ns is None or len(self.starts) < 2:
+        if self.decl.period_ns is None:
             return None
         st = self.starts
         gaps = [b - a for a, b in zip(st, st[1:])]
+        if st and self._last_start is not None:
+            gaps.append(st[0] - self._last_start)
+        if self._gap_lo is not None and self._gap_hi is not None:
+            gaps += [self._gap_lo, self._gap_hi]
+        if not gaps:
+            return None
         return max(gaps) - min(gaps)
+
+
+class Instance(NamedTuple):
+    """One instance of a message as ``--samples`` writes it (bus ns; None where it has none):
+    ``outcome`` sent, failed (one-shot, expired, aborted), dropped (not queued) or pending (at the
+    end of the run); ``nominal`` its nominal release, ``queued``, ``sof`` and ``eof`` (end of
+    EOF), ``response`` (queued to EOF), ``missed`` its deadline."""
+
+    message: str
+    node: str
+    outcome: str
+    nominal: int | None
+    queued: int | None
+    sof: int | None
+    eof: int | None
+    response: int | None
+    missed: bool
 
 
 class Recorder:
     """The one place profiles record what they measure; the runner reads it. Tracks are keyed by
     message name (unique in a scenario)."""
 
-    def __init__(self) -> None:
+    def __init__(self, keep_all: bool = False) -> None:
         self.tracks: dict[str, Track] = {}
+        self.keep_all = keep_all
 
     def track(self, decl: MessageDecl) -> Track:
-        """The track of a declared message (made on first use)."""
+        """The track of a declared message (made on first use; ``keep_all`` keeps every
+        response time, see `Track`)."""
         t = self.tracks.get(decl.name)
         if t is None:
-            t = self.tracks[decl.name] = Track(decl)
+            t = self.tracks[decl.name] = Track(decl, self.keep_all)
         return t
 
 

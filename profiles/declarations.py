@@ -96,7 +96,9 @@ class FaultDecl:
 @dataclass
 class Scenario:
     """A checked scenario. ``tables`` holds what profiles parsed from their own top-level tables
-    (e.g. ``tdma``); ``analysis`` and ``plot`` the optional tables of the same names."""
+    (e.g. ``tdma``); ``analysis`` and ``plot`` the optional tables of the same names;
+    ``warnings`` what is allowed but likely a mistake (a period shorter than its frame), one line
+    each, naming the file, table and key."""
 
     source: str
     bitrate: int
@@ -108,6 +110,7 @@ class Scenario:
     plot: dict[str, Any]
     tables: dict[str, Any] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def messages(self) -> list[MessageDecl]:

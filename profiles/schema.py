@@ -26,7 +26,21 @@ __all__ = [
     "positive",
     "non_negative",
     "identifier_rule",
+    "positive_time",
+    "non_negative_time",
+    "show",
+    "MAX_TIME_S",
+    "TIME_UNITS",
 ]
+
+MAX_TIME_S = 1e6
+"""The longest time a scenario may give (s): the longest run (11.6 simulated days); a time beyond
+it is a units mistake, and would only overflow the engine's integer nanoseconds."""
+
+TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "µs": 1e3, "ns": 1.0}
+"""Nanoseconds per unit of the time keys (``_ms``, ``_us``)."""
+
+_BIG_INT = 1 << 64
 
 
 class ScenarioError(ValueError):
@@ -78,8 +92,25 @@ class Key:
                 break
         if not ok:
             want = " or ".join(_TYPE_NAMES.get(t, t.__name__) for t in types)
-            return f"{value!r} is {_describe(value)}, expected {want}"
+            return f"{show(value)} is {_describe(value)}, expected {want}"
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= _BIG_INT:
+            return f"{show(value)} is outside any range a scenario uses (at most 64 bits)"
         return self.rule(value) if self.rule is not None else None
+
+
+def show(value: Any, most: int = 60) -> str:
+    """``repr(value)`` for an error message, shortened: an integer of more digits than a message
+    holds is given by its size (Python refuses to print one over 4,300 digits at all), a long
+    string or list is cut with a mark."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
+        digits = (
+            len(str(abs(value))) if abs(value).bit_length() < 14_000 else int(abs(value).bit_length() * 0.30103) + 1
+        )
+        return f"{'-' if value < 0 else ''}an integer of {digits:,} digits"
+    text = repr(value)
+    if len(text) <= most:
+        return text
+    return text[: most - 3] + "..."
 
 
 def _describe(value: Any) -> str:
@@ -108,7 +139,7 @@ def read_table(
     and return every key with its value or default. Unknown keys, missing required keys, wrong
     types and broken rules raise `ScenarioError` naming ``loc`` and the key."""
     if not isinstance(raw, Mapping):
-        raise ScenarioError(f"{loc}: expected a table, got {_describe(raw)} {raw!r}")
+        raise ScenarioError(f"{loc}: expected a table, got {_describe(raw)} {show(raw)}")
     keys = dict(schema)
     if extra:
         keys.update(extra)
@@ -140,7 +171,7 @@ def one_of(*choices: str) -> Callable[[Any], str | None]:
     """Rule: the value is one of ``choices``."""
 
     def rule(v: Any) -> str | None:
-        return None if v in choices else f"{v!r} is not one of {', '.join(map(repr, choices))}"
+        return None if v in choices else f"{show(v)} is not one of {', '.join(map(repr, choices))}"
 
     return rule
 
@@ -153,7 +184,9 @@ def in_range(lo: float, hi: float, what: str = "") -> Callable[[Any], str | None
     """Rule: lo <= value <= hi."""
 
     def rule(v: Any) -> str | None:
-        return None if lo <= v <= hi else f"{v!r} is outside {_num(lo)}..{_num(hi)}" + (f" ({what})" if what else "")
+        return (
+            None if lo <= v <= hi else f"{show(v)} is outside {_num(lo)}..{_num(hi)}" + (f" ({what})" if what else "")
+        )
 
     return rule
 
@@ -162,7 +195,7 @@ def positive(what: str = "") -> Callable[[Any], str | None]:
     """Rule: value > 0."""
 
     def rule(v: Any) -> str | None:
-        return None if v > 0 else f"{v!r} must be > 0" + (f" ({what})" if what else "")
+        return None if v > 0 else f"{show(v)} must be > 0" + (f" ({what})" if what else "")
 
     return rule
 
@@ -171,9 +204,42 @@ def non_negative(what: str = "") -> Callable[[Any], str | None]:
     """Rule: value >= 0."""
 
     def rule(v: Any) -> str | None:
-        return None if v >= 0 else f"{v!r} must be >= 0" + (f" ({what})" if what else "")
+        return None if v >= 0 else f"{show(v)} must be >= 0" + (f" ({what})" if what else "")
 
     return rule
+
+
+def _time_rule(what: str, unit: str, zero: bool) -> Callable[[Any], str | None]:
+    scale = TIME_UNITS[unit]
+    most = MAX_TIME_S * 1e9 / scale
+
+    def rule(v: Any) -> str | None:
+        label = f" ({what})" if what else ""
+        if v < 0 or (v == 0 and not zero):
+            return f"{v!r} must be {'>= 0' if zero else '> 0'}{label}"
+        if v > most:
+            return f"{v!r} {unit} is longer than the longest run ({MAX_TIME_S:g} s){label}"
+        if v and round(v * scale) < 1:
+            return (
+                f"{v!r} {unit} rounds to 0 ns: the engine counts whole nanoseconds, so a time is "
+                f"0 or at least {1 / scale:g} {unit}{label}"
+            )
+        return None
+
+    return rule
+
+
+def positive_time(what: str = "", unit: str = "ms") -> Callable[[Any], str | None]:
+    """Rule: a time > 0 in ``unit`` (``ms``, ``us``, ``s``) that the engine can represent: at
+    least 1 ns once rounded to whole nanoseconds (the engine's unit; a period of 1e-7 ms would
+    round to 0 and release without end at one instant) and at most `MAX_TIME_S`."""
+    return _time_rule(what, unit, zero=False)
+
+
+def non_negative_time(what: str = "", unit: str = "ms") -> Callable[[Any], str | None]:
+    """Rule: a time >= 0 in ``unit``; when not 0, at least 1 ns once rounded, and at most
+    `MAX_TIME_S` (see `positive_time`)."""
+    return _time_rule(what, unit, zero=True)
 
 
 def identifier_rule(extended: bool) -> Callable[[Any], str | None]:

@@ -24,9 +24,11 @@ from profiles.schema import (
     identifier_rule,
     in_range,
     non_negative,
+    non_negative_time,
     one_of,
     positive,
     read_table,
+    show,
     where,
 )
 
@@ -75,11 +77,23 @@ def _flip(fi: FaultInjector, bus: SimBus, p: dict[str, Any]) -> None:
     )
 
 
+def _flip_fields() -> list[str]:
+    """The names a flip's ``field`` may take: the field groups of the fault injector, the wire
+    layer's field names, and 'raw' (a position from SOF, stuff bits counted)."""
+    from stack.bus.faults import FIELD_GROUPS
+    from stack.wire.coding import Field
+
+    return [*FIELD_GROUPS, *(f.value for f in Field), "raw"]
+
+
 def _check_flip(p: dict[str, Any], loc: str) -> None:
     if p["id"] is not None:
         rule = identifier_rule(bool(p["extended"]))(p["id"])
         if rule is not None:
             raise ScenarioError(f"{loc}: id: {rule}")
+    names = _flip_fields()
+    if p["field"].lower() not in {n.lower() for n in names}:
+        raise ScenarioError(f"{loc}: field: {show(p['field'])} is not one of {', '.join(names)}")
 
 
 def _stuck(fi: FaultInjector, bus: SimBus, p: dict[str, Any]) -> None:
@@ -101,10 +115,13 @@ def _babbling_idiot(fi: FaultInjector, bus: SimBus, p: dict[str, Any]) -> None:
 
 
 def _check_babbling_idiot(p: dict[str, Any], loc: str) -> None:
+    rule = identifier_rule(False)(p["id"])
+    if rule is not None:
+        raise ScenarioError(f"{loc}: id: {rule} (a babbling idiot sends a standard frame)")
     try:
         data = bytes.fromhex(p["data"])
     except ValueError:
-        raise ScenarioError(f"{loc}: data: {p['data']!r} is not hex bytes") from None
+        raise ScenarioError(f"{loc}: data: {show(p['data'])} is not hex bytes") from None
     if len(data) > 8:
         raise ScenarioError(f"{loc}: data: {len(data)} bytes: a CAN 2.0 frame carries at most 8")
 
@@ -118,8 +135,8 @@ FAULTS: dict[str, FaultKind] = {
         {
             "rate": Key(float, REQUIRED, in_range(0, 0.5, "a bit-error rate")),
             "nodes": Key(list, None),
-            "start_ms": Key(float, 0.0, non_negative()),
-            "end_ms": Key(float, None, non_negative()),
+            "start_ms": Key(float, 0.0, non_negative_time()),
+            "end_ms": Key(float, None, non_negative_time()),
         },
         _bit_errors,
     ),
@@ -140,16 +157,16 @@ FAULTS: dict[str, FaultKind] = {
         {
             "node": Key(str, REQUIRED),
             "level": Key(str, REQUIRED, one_of("dominant", "recessive")),
-            "start_ms": Key(float, 0.0, non_negative()),
-            "end_ms": Key(float, None, non_negative()),
+            "start_ms": Key(float, 0.0, non_negative_time()),
+            "end_ms": Key(float, None, non_negative_time()),
         },
         _stuck,
     ),
     "disconnect": FaultKind(
         {
             "node": Key(str, REQUIRED),
-            "at_ms": Key(float, REQUIRED, non_negative()),
-            "reconnect_ms": Key(float, None, non_negative()),
+            "at_ms": Key(float, REQUIRED, non_negative_time()),
+            "reconnect_ms": Key(float, None, non_negative_time()),
         },
         _disconnect,
     ),
@@ -158,8 +175,8 @@ FAULTS: dict[str, FaultKind] = {
             "node": Key(str, REQUIRED),
             "id": Key(int, 0, non_negative()),
             "data": Key(str, "ffffffffffffffff"),
-            "start_ms": Key(float, 0.0, non_negative()),
-            "end_ms": Key(float, None, non_negative()),
+            "start_ms": Key(float, 0.0, non_negative_time()),
+            "end_ms": Key(float, None, non_negative_time()),
         },
         _babbling_idiot,
         _check_babbling_idiot,
@@ -186,16 +203,16 @@ def read_fault(rf: Any, i: int, source: str, node_names: set[str]) -> FaultDecl:
     if not isinstance(rf, Mapping):
         raise ScenarioError(f"{loc}: expected a table, got {rf!r}")
     kind = rf.get("kind")
-    if kind not in FAULTS:
-        raise ScenarioError(f"{loc}: kind: {kind!r} is not one of {', '.join(map(repr, FAULT_KINDS))}")
+    if not isinstance(kind, str) or kind not in FAULTS:
+        raise ScenarioError(f"{loc}: kind: {show(kind)} is not one of {', '.join(map(repr, FAULT_KINDS))}")
     fault = FAULTS[kind]
     d = read_table(rf, {**fault.keys, "kind": Key(str, REQUIRED)}, loc)
     if "node" in d and d["node"] not in node_names:
-        raise ScenarioError(f"{loc}: node: {d['node']!r} is not a node of this scenario")
+        raise ScenarioError(f"{loc}: node: {show(d['node'])} is not a node of this scenario")
     if d.get("nodes") is not None:
-        bad = [x for x in d["nodes"] if x not in node_names]
+        bad = [x for x in d["nodes"] if not isinstance(x, str) or x not in node_names]
         if bad:
-            raise ScenarioError(f"{loc}: nodes: {bad[0]!r} is not a node of this scenario")
+            raise ScenarioError(f"{loc}: nodes: {show(bad[0])} is not a node of this scenario (a list of node names)")
     for a, b in _INTERVALS:
         if d.get(b) is not None and d.get(a) is not None and d[b] <= d[a]:
             raise ScenarioError(f"{loc}: {b}: {d[b]!r} must be after {a} {d[a]!r}")
@@ -205,13 +222,17 @@ def read_fault(rf: Any, i: int, source: str, node_names: set[str]) -> FaultDecl:
     return FaultDecl(kind=kind, params=d, index=i)
 
 
-def inject_faults(bus: SimBus, faults: list[FaultDecl]) -> None:
+def inject_faults(bus: SimBus, faults: list[FaultDecl], source: str = "scenario") -> None:
     """Apply the scenario's ``[[faults]]`` with the simulated bus's fault injector, each by its
-    kind's ``inject``."""
+    kind's ``inject``; a value the injector refuses is a `ScenarioError` naming ``source`` and
+    the entry."""
     if not faults:
         return
     from stack import FaultInjector
 
     fi = FaultInjector(bus)
     for f in faults:
-        FAULTS[f.kind].inject(fi, bus, f.params)
+        try:
+            FAULTS[f.kind].inject(fi, bus, f.params)
+        except ValueError as exc:  # a rule the injector keeps beyond the scenario's checks
+            raise ScenarioError(f"{where(source, f'[[faults]] #{f.index}')}: {exc}") from None

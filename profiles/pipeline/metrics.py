@@ -32,7 +32,7 @@ import dataclasses
 from typing import TYPE_CHECKING, Any
 
 from profiles.analysis.rta import ErrorModel, MessageSpec, NodeQueue, analyse
-from profiles.base import Recorder, stats_ms
+from profiles.base import Recorder
 from profiles.registry import profile_kind
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -119,7 +119,7 @@ def message_rows(scenario: Scenario, recorder: Recorder, analysis: dict[str, Any
     for m in scenario.messages:
         tr = recorder.tracks.get(m.name)
         r = results.get(m.name)
-        resp = stats_ms(tr.responses) if tr is not None else None
+        resp = tr.response_stats_ms() if tr is not None else None
         rta = None
         rta_release = None
         schedulable = None

@@ -19,9 +19,11 @@ from profiles.base import Context, Profile, Recorder, frame_of
 from profiles.declarations import NodeDecl, Scenario
 from profiles.pipeline.faults import inject_faults
 from profiles.pipeline.metrics import analyse_scenario, message_rows, summary_of
+from profiles.pipeline.recording import PlotRecords, ReceptionCounter, SampleWriter, plot_window
 from profiles.registry import profile_kind
 from profiles.schema import ScenarioError
 from stack import LocalClock, Received, SimBus
+from stack.bus.trace import DiscardedTrace, TraceWriter
 from stack.cli.runs import run_sliced
 
 __all__ = ["Result", "run_scenario", "run_on_pycan", "build", "Built"]
@@ -57,9 +59,13 @@ class Result:
     wall_s: float = 0.0
     trace: list[Any] = field(default_factory=list)
     tracks: dict[str, Any] = field(default_factory=dict)
+    load: Any = None
+    files: dict[str, Any] = field(default_factory=dict)
 
     def responses_ms(self, name: str) -> list[float]:
-        """Every measured response time of message ``name`` (ms, in release order)."""
+        """The response times of message ``name`` that were kept (ms, in release order): every
+        one of a short run or of one that kept them all (``samples``), else those of the last
+        batch (`profiles.base.Track`)."""
         tr = self.tracks.get(name)
         return [] if tr is None else [v / 1e6 for v in tr.responses]
 
@@ -100,34 +106,74 @@ def _node_config(d: NodeDecl) -> dict[str, Any]:
     return cfg
 
 
-def build(scenario: Scenario, driver: Any, *, bus: Any = None) -> Built:
+def build(scenario: Scenario, driver: Any, *, bus: Any = None, recorder: Recorder | None = None) -> Built:
     """Make the scenario's nodes on ``driver`` (a SimBus or a PyCanDriver) and their profiles,
     call the application hooks (``app = "module:function"``), and return them unstarted."""
-    ctx = Context(scenario, Recorder(), bus=bus)
+    ctx = Context(scenario, recorder or Recorder(), bus=bus)
     nodes = {}
     for d in scenario.nodes:
         nodes[d.name] = driver.node(d.name, **_node_config(d))
     ctx.nodes = dict(nodes)
     profiles: dict[str, Profile] = {}
     for d in scenario.nodes:
-        profiles[d.name] = profile_kind(d.profile).build(nodes[d.name], d, ctx)
+        try:
+            profiles[d.name] = profile_kind(d.profile).build(nodes[d.name], d, ctx)
+        except ScenarioError:
+            raise
+        except ValueError as exc:  # a rule the profile keeps when it builds (a PDO mapping, ...)
+            raise ScenarioError(f"{scenario.source}: [[nodes]] {d.name!r} ({d.profile}): {exc}") from None
         ctx.profiles[d.name] = profiles[d.name]
     for d in scenario.nodes:
         if d.app:
-            _app(d.app, scenario.source, d.name)(nodes[d.name], profiles[d.name], ctx)
+            fn = _app(d.app, scenario.source, d.name)
+            try:
+                fn(nodes[d.name], profiles[d.name], ctx)
+            except Exception as exc:
+                raise ScenarioError(
+                    f"{_app_loc(scenario.source, d.name)}: {d.app} failed: {_where_raised(exc)}"
+                ) from exc
     return Built(scenario, driver, nodes, profiles, ctx)
 
 
+def _app_loc(source: str, node: str) -> str:
+    return f"{source}: [[nodes]] {node!r}: app"
+
+
+def _where_raised(exc: BaseException) -> str:
+    """An exception of application code on one line: its type, message and the innermost place
+    in the traceback (file:line), since the CLI prints no traceback."""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    at = f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}{at}"
+
+
 def _app(spec: str, source: str, node: str) -> Callable[..., Any]:
+    """The function ``module:function`` names, checked to take (node, profile, context)."""
+    import inspect
+
     mod_name, _, fn_name = spec.partition(":")
-    loc = f"{source}: [[nodes]] {node!r}: app"
+    loc = _app_loc(source, node)
     try:
         mod = importlib.import_module(mod_name)
     except ImportError as exc:
         raise ScenarioError(f"{loc}: cannot import module {mod_name!r} ({exc})") from None
-    fn = getattr(mod, fn_name, None)
+    except Exception as exc:  # the module's own code failed while it was imported
+        raise ScenarioError(f"{loc}: importing module {mod_name!r} failed: {_where_raised(exc)}") from None
+    fn: Any = mod
+    for part in fn_name.split("."):
+        fn = getattr(fn, part, None)
     if not callable(fn):
         raise ScenarioError(f"{loc}: module {mod_name!r} has no function {fn_name!r}")
+    try:
+        inspect.signature(fn).bind(None, None, None)
+    except TypeError:
+        raise ScenarioError(
+            f"{loc}: {spec} does not take the arguments an app is called with: (node, profile, context)"
+        ) from None
+    except ValueError:
+        pass  # a builtin without a signature: it is called and says itself what it takes
     return fn
 
 
@@ -141,33 +187,85 @@ def run_scenario(
     record: bool | None = None,
     progress: bool | None = None,
     setup: Callable[[Built], Any] | None = None,
+    plot: bool = False,
+    trace: str | None = None,
+    samples: str | None = None,
+    time_limit: float | None = None,
 ) -> Result:
     """Run ``scenario`` on the simulated bus for its duration and return the `Result`.
 
-    ``record`` keeps the trace (needed for plots; on by default when the scenario injects
-    faults, so that receptions are counted from what each receiver accepted); ``progress``
-    shows a progress bar (None: on a terminal, for runs longer than 2 s); ``setup(built)`` runs after the nodes and profiles are built and
-    before they start (application code). Ctrl-C ends the run early: the result covers the time
-    simulated so far and says ``interrupted``.
+    Memory stays bounded however long the run unless ``record`` asks to keep every trace record
+    in ``Result.trace``. ``plot`` keeps what the plots draw (the timeline window's records, the
+    bus-load bins: `profiles.pipeline.recording.PlotRecords`); ``trace`` streams the trace to
+    that file as the bus runs (python-can's writer for its suffix, timestamps in bus time);
+    ``samples`` writes every instance of every message to that .csv or .parquet file and keeps
+    every response time, so that the p99 is exact; a scenario with faults counts receptions from
+    the attempts each receiver accepted, without keeping them. ``progress`` shows a progress bar
+    (None: on a terminal, for runs longer than 2 s); ``setup(built)`` runs after the nodes and
+    profiles are built and before they start (application code). Ctrl-C (or SIGTERM) ends the
+    run early: the result covers the time simulated so far and says ``interrupted``, and the
+    files hold what was recorded. ``time_limit`` (wall-clock seconds) raises
+    `stack.cli.runs.TimeLimitExceeded` past it.
     """
-    if record is None:
-        record = bool(scenario.faults)
-    bus = SimBus(scenario.bitrate, seed=scenario.seed, name="bus0", record=record)
-    built = build(scenario, bus, bus=bus)
-    inject_faults(bus, scenario.faults)
-    if setup is not None:
-        setup(built)
-    for p in built.profiles.values():
-        p.start()
-    wall0 = time.perf_counter()
-    # the run covers [0, duration): a release at the end would have no time to go out
-    interrupted = not run_sliced(bus, scenario.duration_ns - 1, progress=progress, desc=_desc(scenario))
-    return collect(
-        built,
-        time.perf_counter() - wall0,
-        interrupted=interrupted,
-        t_end=bus.now() if interrupted else scenario.duration_ns,
-    )
+    records = bool(record) or plot or trace is not None or bool(scenario.faults)
+    bus = SimBus(scenario.bitrate, seed=scenario.seed, name="bus0", record=records, keep=bool(record))
+    built = build(scenario, bus, bus=bus, recorder=Recorder(keep_all=samples is not None))
+    inject_faults(bus, scenario.faults, scenario.source)
+    tracks = built.context.recorder.tracks
+    rec = Recording()
+    if scenario.faults:
+        rec.receptions = ReceptionCounter(tracks)
+        bus.on_trace(rec.receptions)
+    if plot:
+        window = plot_window(scenario.plot, scenario.duration_ns)
+        bin_ns = round(scenario.plot.get("bin_ms", 10.0) * 1e6)
+        rec.plots = PlotRecords(window, bin_ns, scenario.duration_ns, scenario.bitrate)
+        bus.on_trace(rec.plots)
+    try:
+        if trace is not None:
+            rec.trace = TraceWriter(trace, channel=bus.name)
+            bus.on_trace(rec.trace.write)
+        if samples is not None:
+            rec.samples = SampleWriter(samples)
+            for tr in tracks.values():
+                tr.sink = rec.samples
+                tr.clock = bus.now
+        if setup is not None:
+            setup(built)
+        for p in built.profiles.values():
+            p.start()
+        wall0 = time.perf_counter()
+        # the run covers [0, duration): a release at the end would have no time to go out
+        done = run_sliced(bus, scenario.duration_ns - 1, progress=progress, desc=_desc(scenario), time_limit=time_limit)
+        result = collect(
+            built,
+            time.perf_counter() - wall0,
+            interrupted=not done,
+            t_end=scenario.duration_ns if done else bus.now(),
+            recording=rec,
+        )
+    finally:
+        rec.close()
+    result.files = _files(rec)
+    return result
+
+
+@dataclass
+class Recording:
+    """What a run recorded beside its metrics (`profiles.pipeline.recording`): receptions of a
+    faulted run, what the plots draw, the trace and samples files as they were written."""
+
+    receptions: ReceptionCounter | None = None
+    plots: PlotRecords | None = None
+    trace: TraceWriter | None = None
+    samples: SampleWriter | None = None
+
+    def close(self) -> None:
+        """Finish the files (what was recorded so far, on an interrupted or failed run too)."""
+        if self.trace is not None:
+            self.trace.close()
+        if self.samples is not None:
+            self.samples.close()
 
 
 def collect(
@@ -178,15 +276,18 @@ def collect(
     driver: str = "simulated",
     t_end: int | None = None,
     bus_load: float | None = None,
+    recording: Recording | None = None,
 ) -> Result:
     """Read the recorder, the bus and the profiles into a `Result` (analysis included)."""
     sc = built.scenario
     bus = built.context.bus
+    rec = recording or Recording()
     t_end = bus.now() if t_end is None else t_end
     for tr in built.context.recorder.tracks.values():
         tr.finish(t_end)
     if bus is not None:
-        _count_receptions(built)
+        for name, tr in built.context.recorder.tracks.items():
+            tr.received = rec.receptions.received[name] if rec.receptions is not None else tr.sent
     analysis = analyse_scenario(sc)
     rows = message_rows(sc, built.context.recorder, analysis)
     profiles_json: dict[str, Any] = {}
@@ -200,6 +301,11 @@ def collect(
             profiles_json.setdefault(kind.result_key, {}).update(kind.summarize(profs, built.context))
     nodes = {name: n.counters() for name, n in built.nodes.items()}
     s = summary_of(bus, t_end)
+    trace: list[Any] = []
+    if bus is not None and bus.record and not isinstance(bus.trace, DiscardedTrace):
+        trace = list(bus.trace)
+    elif rec.plots is not None:
+        trace = rec.plots.records
     return Result(
         scenario=sc,
         duration_s=t_end / 1e9,
@@ -213,33 +319,19 @@ def collect(
         interrupted=interrupted,
         driver=driver,
         wall_s=wall_s,
-        trace=list(bus.trace) if bus is not None and bus.record else [],
+        trace=trace,
         tracks=dict(built.context.recorder.tracks),
+        load=rec.plots,
     )
 
 
-def _count_receptions(built: Built) -> None:
-    """Instances that reached at least one other node. On a fault-free simulated bus a frame that
-    completes is received by every node on it, so it is every sent instance; with faults the
-    trace records say which receivers accepted each attempt (inconsistent omission, double
-    reception)."""
-    bus = built.context.bus
-    tracks = built.context.recorder.tracks
-    if not bus.record or not built.scenario.faults:
-        for tr in tracks.values():
-            tr.received = tr.sent
-        return
-    received = {frame_of(tr.decl).key: 0 for tr in tracks.values()}
-    for rec in bus.trace:
-        key = rec.frame.key
-        if key not in received:
-            continue
-        d = rec.detail or {}
-        # a clean frame (everyone received it), or an attempt some receivers accepted
-        if (rec.kind == "frame" and not d.get("accepted_by") and "error" not in d) or d.get("accepted_by"):
-            received[key] += 1
-    for tr in tracks.values():
-        tr.received = received[frame_of(tr.decl).key]
+def _files(rec: Recording) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if rec.trace is not None:
+        out["trace"] = {"path": rec.trace.path, "records": rec.trace.written, "left_out": rec.trace.left_out}
+    if rec.samples is not None:
+        out["samples"] = {"path": str(rec.samples.path), "rows": rec.samples.rows}
+    return out
 
 
 def run_on_pycan(

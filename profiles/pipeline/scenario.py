@@ -34,24 +34,30 @@ ValueError: the CLI prints it on one line and exits with status 2).
 
 from __future__ import annotations
 
+import math
+import re
 import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from profiles.base import frame_of
 from profiles.declarations import MessageDecl, NodeDecl, Scenario, ms_to_ns
 from profiles.pipeline.faults import read_fault
 from profiles.registry import profile_kind, profile_kinds
 from profiles.schema import (
+    MAX_TIME_S,
     REQUIRED,
     Key,
     ScenarioError,
     identifier_rule,
     in_range,
     non_negative,
+    non_negative_time,
     one_of,
-    positive,
+    positive_time,
     read_table,
+    show,
     where,
 )
 
@@ -72,7 +78,9 @@ __all__ = [
     "PLOT_KEYS",
 ]
 
-MAX_DURATION_S = 1e6  # 11.6 simulated days: longer is a units mistake
+MAX_DURATION_S = MAX_TIME_S  # 11.6 simulated days: longer is a units mistake
+MIN_DURATION_S = 1e-6  # a microsecond: no frame fits in less
+MAX_QUEUE = 1_000_000  # frames in a node's queue: more only holds a backlog that never drains
 
 
 BUS_KEYS = {
@@ -81,7 +89,10 @@ BUS_KEYS = {
         float,
         REQUIRED,
         lambda v: (
-            None if 0 < v <= MAX_DURATION_S else f"{v!r} must be > 0 and at most {MAX_DURATION_S:g} simulated seconds"
+            None
+            if MIN_DURATION_S <= v <= MAX_DURATION_S
+            else f"{v!r} must be at least {MIN_DURATION_S:g} (a microsecond: shorter carries no frame) and at most "
+            f"{MAX_DURATION_S:g} simulated seconds"
         ),
         "simulated seconds",
     ),
@@ -100,15 +111,15 @@ NODE_KEYS = {
     ),
     "profile": Key(str, "csma"),
     "queue": Key(str, "priority", doc="priority | fifo | mailboxes:N | mailboxes-abort:N"),
-    "tx_queue_size": Key(int, 1024, positive("frames")),
-    "rx_fifo_size": Key(int, 64, positive("frames")),
+    "tx_queue_size": Key(int, 1024, in_range(1, MAX_QUEUE, "frames")),
+    "rx_fifo_size": Key(int, 64, in_range(1, MAX_QUEUE, "frames")),
     "drift_ppm": Key(float, 0.0, in_range(-100_000, 100_000, "ppm of the node's oscillator")),
-    "clock_offset_ms": Key(float, 0.0),
+    "clock_offset_ms": Key(float, 0.0, lambda v: non_negative_time("a clock offset")(abs(v))),
     "listen_only": Key(bool, False),
     "app": Key(
         str,
         None,
-        lambda v: None if ":" in v else f"{v!r}: give 'module:function'",
+        lambda v: app_rule(v),
         "application code called with (node, profile, context)",
     ),
     "messages": Key(list, []),
@@ -121,16 +132,16 @@ MESSAGE_KEYS = {
     "dlc": Key(int, REQUIRED, in_range(0, 8, "a CAN 2.0 data frame carries 0..8 bytes")),
     "data": Key(str, None, doc="payload as hex (default zeros)"),
     "remote": Key(bool, False),
-    "period_ms": Key(float, None, positive("a period")),
-    "sporadic_ms": Key(float, None, positive("a minimum inter-arrival time")),
-    "mean_ms": Key(float, None, positive("a mean inter-arrival time")),
-    "offset_ms": Key(float, 0.0, non_negative()),
-    "jitter_ms": Key(float, 0.0, non_negative()),
-    "deadline_ms": Key(float, None, positive("a deadline")),
+    "period_ms": Key(float, None, positive_time("a period")),
+    "sporadic_ms": Key(float, None, positive_time("a minimum inter-arrival time")),
+    "mean_ms": Key(float, None, positive_time("a mean inter-arrival time")),
+    "offset_ms": Key(float, 0.0, non_negative_time("an offset")),
+    "jitter_ms": Key(float, 0.0, non_negative_time("a release jitter")),
+    "deadline_ms": Key(float, None, positive_time("a deadline")),
 }
 
 ANALYSIS_KEYS = {
-    "t_error_ms": Key(float, None, positive("the minimum time between errors of the simple error model")),
+    "t_error_ms": Key(float, None, positive_time("the minimum time between errors of the simple error model")),
     "error_burst": Key(
         int,
         1,
@@ -147,8 +158,33 @@ ANALYSIS_KEYS = {
 
 PLOT_KEYS = {
     "window_ms": Key(list, None, doc="[start, end] of the timeline, ms"),
-    "bin_ms": Key(float, 10.0, positive("the bus-load bin")),
+    "bin_ms": Key(
+        float,
+        10.0,
+        lambda v: (
+            positive_time("the bus-load bin")(v)
+            or (
+                None
+                if v >= MIN_BIN_MS
+                else f"{v!r} is below {MIN_BIN_MS:g} ms (a bin shorter than a bit shows nothing)"
+            )
+        ),
+    ),
 }
+
+MIN_BIN_MS = 0.001
+"""The shortest bus-load bin, ms (a microsecond: a bit at 1 Mbit/s)."""
+
+_DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def app_rule(spec: str) -> str | None:
+    """Rule of ``app``: ``module:function``, each a dotted Python name (the module importable,
+    the function called with (node, profile, context))."""
+    mod, sep, fn = spec.partition(":")
+    if not sep or not _DOTTED.match(mod) or not _DOTTED.match(fn):
+        return f"{show(spec)}: give 'module:function' (e.g. 'my_ecu:setup'), each a Python name"
+    return None
 
 
 def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
@@ -156,11 +192,13 @@ def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
     if text in ("priority", "fifo"):
         return text, None, False
     kind, _, count = text.partition(":")
-    if kind in ("mailboxes", "mailboxes-abort") and count.isdigit() and int(count) >= 1:
-        return "mailbox", int(count), kind == "mailboxes-abort"
+    # isdigit() takes '²' and other digits int() refuses: ASCII digits only
+    if kind in ("mailboxes", "mailboxes-abort") and count.isascii() and count.isdigit() and len(count) <= 4:
+        if int(count) >= 1:
+            return "mailbox", int(count), kind == "mailboxes-abort"
     raise ScenarioError(
-        f"{loc}: queue: {text!r} is not one of 'priority', 'fifo', 'mailboxes:N', "
-        "'mailboxes-abort:N' (N >= 1 transmit mailboxes)"
+        f"{loc}: queue: {show(text)} is not one of 'priority', 'fifo', 'mailboxes:N', "
+        "'mailboxes-abort:N' (N from 1 to 9999 transmit mailboxes)"
     )
 
 
@@ -181,11 +219,16 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: not a text file (a scenario is TOML in UTF-8)") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ScenarioError(f"{p}: not a scenario: its tables or lists are nested too deep to read") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (4,300)
+        raise ScenarioError(f"{p}: not valid TOML: {' '.join(str(exc).split()[:12])}") from None
     return parse_scenario(raw, str(p))
 
 
 def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario:
     """Check a scenario given as the dictionary TOML gives (see the module docstring)."""
+    _check_integers(raw, source)
     kinds = profile_kinds()
     top = {
         "bus": Key(dict, REQUIRED),
@@ -210,9 +253,14 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
     plot = read_table(t["plot"], PLOT_KEYS, where(source, "[plot]"))
     w = plot["window_ms"]
     if w is not None and not (
-        len(w) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in w) and 0 <= w[0] < w[1]
+        len(w) == 2
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in w)
+        and 0 <= w[0] < w[1] <= MAX_TIME_S * 1e3
     ):
-        raise ScenarioError(f"{where(source, '[plot]')}: window_ms: {w!r} must be [start, end] in ms with start < end")
+        raise ScenarioError(
+            f"{where(source, '[plot]')}: window_ms: {show(w)} must be [start, end] in ms with 0 <= start < end "
+            "(finite numbers)"
+        )
     sc = Scenario(
         source=source,
         bitrate=bus["bitrate"],
@@ -227,18 +275,54 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
     for kind in kinds.values():
         if kind.parse is not None:
             kind.parse(sc, {name: raw[name] for name in kind.tables if name in raw})
+    sc.warnings.extend(_frame_time_warnings(sc))
     return sc
 
 
+def _check_integers(raw: Any, source: str, path: str = "") -> None:
+    """Refuse an integer beyond 64 bits anywhere in the file, naming where it is: no key of a
+    scenario takes one, and one of thousands of digits cannot even be printed in a message."""
+    items = raw.items() if isinstance(raw, Mapping) else enumerate(raw) if isinstance(raw, list) else ()
+    for k, v in items:
+        here = f"{path}.{k}" if path and isinstance(k, str) else f"{path}[{k}]" if path else str(k)
+        if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 1 << 64:
+            raise ScenarioError(f"{source}: {here}: {show(v)} is outside any range a scenario uses (at most 64 bits)")
+        if isinstance(v, (Mapping, list)):
+            _check_integers(v, source, here)
+
+
+def _frame_time_warnings(sc: Scenario) -> list[str]:
+    """Periods and deadlines shorter than the message's own frame on this bus (its exact stuffed
+    length with the intermission): allowed, but the queue only grows, or every instance misses.
+    A period shorter than one bit is refused (`ScenarioError`)."""
+    out = []
+    for n in sc.nodes:
+        for m in n.messages:
+            frame_ns = (frame_of(m).bits.length + 3) * 1e9 / sc.bitrate
+            loc = where(sc.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+            what = f"the frame's own time on the bus ({frame_ns / 1e6:.4g} ms at {sc.bitrate} bit/s)"
+            key = "period_ms" if m.period_ns is not None else "sporadic_ms"
+            if m.interval_ns is not None and m.interval_ns * sc.bitrate < 1e9:
+                raise ScenarioError(
+                    f"{loc}: {key}: {m.interval_ns / 1e6:g} is shorter than one bit at {sc.bitrate} bit/s "
+                    f"({1e3 / sc.bitrate:g} ms): nothing on a CAN bus happens that often"
+                )
+            if m.interval_ns is not None and m.interval_ns < frame_ns:
+                out.append(f"{loc}: {key}: {m.interval_ns / 1e6:g} is shorter than {what}: its queue only grows")
+            if m.deadline_ns is not None and m.deadline_ns < frame_ns:
+                out.append(f"{loc}: deadline_ms: {m.deadline_ns / 1e6:g} is shorter than {what}: every instance misses")
+    return out
+
+
 def _node(rn: Any, i: int, source: str) -> NodeDecl:
-    label = f"[[nodes]] #{i}" + (f" {rn.get('name')!r}" if isinstance(rn, Mapping) and "name" in rn else "")
+    label = f"[[nodes]] #{i}" + (f" {show(rn.get('name'))}" if isinstance(rn, Mapping) and "name" in rn else "")
     loc = where(source, label)
     if not isinstance(rn, Mapping):
-        raise ScenarioError(f"{loc}: expected a table, got {rn!r}")
+        raise ScenarioError(f"{loc}: expected a table, got {show(rn)}")
     profile = rn.get("profile", "csma")
     kinds = profile_kinds()
     if not isinstance(profile, str) or profile not in kinds:
-        raise ScenarioError(f"{loc}: profile: {profile!r} is not one of {', '.join(map(repr, sorted(kinds)))}")
+        raise ScenarioError(f"{loc}: profile: {show(profile)} is not one of {', '.join(map(repr, sorted(kinds)))}")
     kind = profile_kind(profile)
     d = read_table(rn, NODE_KEYS, loc, extra=kind.node_keys)
     _policy, mailboxes, abort = parse_queue(d["queue"], loc)
@@ -266,7 +350,9 @@ def _node(rn: Any, i: int, source: str) -> NodeDecl:
 def _message(
     rm: Any, j: int, source: str, node_label: str, node: str, timed: bool, extra: Mapping[str, Key]
 ) -> MessageDecl:
-    label = f"[[nodes.messages]] #{j}" + (f" {rm.get('name')!r}" if isinstance(rm, Mapping) and "name" in rm else "")
+    label = f"[[nodes.messages]] #{j}" + (
+        f" {show(rm.get('name'))}" if isinstance(rm, Mapping) and "name" in rm else ""
+    )
     loc = where(source, node_label, label)
     d = read_table(rm, MESSAGE_KEYS, loc, extra=extra)
     rule = identifier_rule(d["extended"])(d["id"])
@@ -291,7 +377,7 @@ def _message(
         try:
             data = bytes.fromhex(d["data"])
         except ValueError:
-            raise ScenarioError(f"{loc}: data: {d['data']!r} is not hex bytes") from None
+            raise ScenarioError(f"{loc}: data: {show(d['data'])} is not hex bytes") from None
         if len(data) != d["dlc"]:
             raise ScenarioError(
                 f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {d['dlc']}"

@@ -90,8 +90,10 @@ from profiles.schema import (
     identifier_rule,
     in_range,
     non_negative,
+    non_negative_time,
     one_of,
     positive,
+    positive_time,
     read_table,
     where,
 )
@@ -135,7 +137,7 @@ DUP_MAC_KEYS = {
     ),
 }
 MASTER_KEYS = {
-    "cycle_ms": Key(float, REQUIRED, positive("the poll cycle"), "the poll cycle, ms"),
+    "cycle_ms": Key(float, REQUIRED, positive_time("the poll cycle", "ms"), "the poll cycle, ms"),
     "poll": Key(
         list,
         REQUIRED,
@@ -144,8 +146,10 @@ MASTER_KEYS = {
     ),
     "mac_id": Key(int, 0, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
     "plan": Key(str, "devicenet", one_of(*ids.PLANS), "identifier plan: devicenet | custom"),
-    "offset_ms": Key(float, 0.0, non_negative(), "start of the first cycle"),
-    "timeout_ms": Key(float, None, positive("a response timeout"), "default response timeout of the entries"),
+    "offset_ms": Key(float, 0.0, non_negative_time("", "ms"), "start of the first cycle"),
+    "timeout_ms": Key(
+        float, None, positive_time("a response timeout", "ms"), "default response timeout of the entries"
+    ),
     "retries": Key(int, 1, non_negative("retries"), "default retries after a timeout"),
     "lost_after": Key(int, 3, positive("missed polls"), "missed polls in a row that make a slave lost"),
     "lost_poll_every": Key(int, 10, positive("cycles"), "a lost slave is polled every this many cycles"),
@@ -154,7 +158,7 @@ MASTER_KEYS = {
     "epr_ms": Key(
         float,
         None,
-        positive("an expected packet rate"),
+        positive_time("an expected packet rate", "ms"),
         "expected packet rate of the poll and bit-strobe connections (default: cycle_ms)",
     ),
 }
@@ -173,19 +177,24 @@ SLAVE_MESSAGE_KEYS = {
 SLAVE_KEYS = {
     "mac_id": Key(int, None, in_range(0, ids.MAC_MAX, "a DeviceNet MAC ID")),
     "processing_ms": Key(
-        float, 0.0, non_negative("a processing delay"), "longest delay from the end of a request to queuing the answer"
+        float,
+        0.0,
+        non_negative_time("a processing delay", "ms"),
+        "longest delay from the end of a request to queuing the answer",
     ),
-    "processing_min_ms": Key(float, None, non_negative("a processing delay"), "shortest delay (default: the longest)"),
+    "processing_min_ms": Key(
+        float, None, non_negative_time("a processing delay", "ms"), "shortest delay (default: the longest)"
+    ),
     "watchdog_ms": Key(
         float,
         None,
-        positive("a watchdog time"),
+        positive_time("a watchdog time", "ms"),
         "loss of master after this long without a request (default: 4 x the master's epr_ms)",
     ),
     "ack_timeout_ms": Key(
         float,
         16.0,
-        positive("an acknowledge timer"),
+        positive_time("an acknowledge timer", "ms"),
         "an acknowledged COS/cyclic message unacknowledged this long is sent again (DeviceNet default 16 ms)",
     ),
     "retry_limit": Key(
@@ -208,11 +217,13 @@ POLL_KEYS = {
     "extended": Key(bool, False),
     "response_id": Key(int, None, non_negative()),
     "response_ids": Key(list, None),
-    "timeout_ms": Key(float, None, positive("a response timeout")),
+    "timeout_ms": Key(float, None, positive_time("a response timeout", "ms")),
     "retries": Key(int, None, non_negative("retries")),
     "ack": Key(bool, True, doc="cos: the master acknowledges each COS/cyclic message"),
     "ack_id": Key(int, None, non_negative()),
-    "epr_ms": Key(float, None, positive("an expected packet rate"), "cos: the connection's expected packet rate"),
+    "epr_ms": Key(
+        float, None, positive_time("an expected packet rate", "ms"), "cos: the connection's expected packet rate"
+    ),
 }
 
 # keys that mean something only for some styles (the others refuse them)

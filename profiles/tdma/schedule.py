@@ -53,7 +53,19 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from profiles.analysis.rta import ERROR_FRAME_BITS, frame_bits_worst
-from profiles.schema import REQUIRED, Key, ScenarioError, in_range, non_negative, one_of, positive, read_table, where
+from profiles.schema import (
+    REQUIRED,
+    Key,
+    ScenarioError,
+    in_range,
+    non_negative,
+    non_negative_time,
+    one_of,
+    positive,
+    positive_time,
+    read_table,
+    where,
+)
 from stack import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -311,7 +323,7 @@ TDMA_KEYS = {
     ),
     "reference_extended": Key(bool, False),
     "time_masters": Key(list, REQUIRED, doc="potential time masters (node names), highest priority first"),
-    "basic_cycle_us": Key(float, REQUIRED, positive("the basic cycle"), "µs"),
+    "basic_cycle_us": Key(float, REQUIRED, positive_time("the basic cycle", "us"), "µs"),
     "matrix_cycles": Key(
         int,
         1,
@@ -323,7 +335,7 @@ TDMA_KEYS = {
         ),
     ),
     "tx_enable_us": Key(
-        float, None, positive("the Tx_Enable window"), f"default {DEFAULT_TX_ENABLE_NTU} NTU; 1..16 NTU"
+        float, None, positive_time("the Tx_Enable window", "us"), f"default {DEFAULT_TX_ENABLE_NTU} NTU; 1..16 NTU"
     ),
     "level": Key(
         int,
@@ -339,7 +351,10 @@ TDMA_KEYS = {
         int, DEFAULT_INITIAL_REF_OFFSET, in_range(0, REF_OFFSET_LIMIT, "NTU, the backup masters' Initial_Ref_Offset")
     ),
     "watch_trigger_us": Key(
-        float, None, positive("the Watch_Trigger"), "cycle time at which a missing reference message is an error"
+        float,
+        None,
+        positive_time("the Watch_Trigger", "us"),
+        "cycle time at which a missing reference message is an error",
     ),
     "error_budget_bits": Key(int, 0, non_negative("bits an error may add inside a window")),
     "tur": Key(
@@ -353,14 +368,16 @@ TDMA_KEYS = {
         ),
         "level 2: NTU / CAN clock period",
     ),
-    "can_clock_mhz": Key(float, None, positive("a CAN clock"), "level 2: the clock the NTU is counted in, MHz"),
+    "can_clock_mhz": Key(
+        float, None, in_range(1, 1000, "MHz, a CAN controller's clock"), "level 2: the clock the NTU is counted in, MHz"
+    ),
     "gap_mode": Key(bool, False, doc="Next_is_Gap (event-synchronised cycles): not modelled, refused"),
     "windows": Key(list, REQUIRED),
 }
 
 WINDOW_KEYS = {
-    "start_us": Key(float, REQUIRED, non_negative(), "cycle time of the window's start, µs"),
-    "length_us": Key(float, REQUIRED, positive("a window length"), "µs"),
+    "start_us": Key(float, REQUIRED, non_negative_time("", "us"), "cycle time of the window's start, µs"),
+    "length_us": Key(float, REQUIRED, positive_time("a window length", "us"), "µs"),
     "kind": Key(str, REQUIRED, one_of(EXCLUSIVE, ARBITRATING, FREE)),
     "messages": Key(list, []),
     "base_cycle": Key(int, 0, non_negative(), "the first basic cycle of the matrix that uses the window"),
@@ -446,6 +463,11 @@ def parse_schedule(scenario: Scenario, raw: Any) -> Schedule:
         tx_enable = round(DEFAULT_TX_ENABLE_NTU * ntu)
     ref_dlc = 1 if level == 1 else 4
     ref_ns = frame_ns_worst(ref_dlc, ref_ext, False, bit_ns)
+    if basic < ref_ns:
+        raise ScenarioError(
+            f"{loc}: basic_cycle_us: {t['basic_cycle_us']:g} µs is shorter than the reference message that "
+            f"starts every basic cycle ({ref_ns / 1000:g} µs at {bitrate} bit/s, worst-case stuffing)"
+        )
     offset = t["initial_ref_offset"]
     latest_ref = basic + round(offset * ntu) + ref_ns
     if t["watch_trigger_us"] is None:

@@ -34,7 +34,7 @@ from typing import Any
 from stack.bus.bitlevel import BitLevelAttempts
 from stack.bus.delivery import LOG_LIMIT, LazyDelivery
 from stack.bus.stats import BusStatistics, IdStats
-from stack.bus.trace import TraceRecord
+from stack.bus.trace import DiscardedTrace, TraceRecord
 from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
 from stack.controller.events import TxDone
 from stack.controller.node import Node, Timer
@@ -54,7 +54,9 @@ SUSPEND_BITS = 8
 class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
 
-    ``record`` keeps a `TraceRecord` per bus event in ``trace``; ``seed`` seeds ``rng`` (used by
+    ``record`` keeps a `TraceRecord` per bus event in ``trace`` — or, with ``keep=False``, only
+    hands each to the `on_trace` listeners (a trace streamed to a file, receptions counted: memory
+    stays flat however long the run); ``seed`` seeds ``rng`` (used by
     fault injection and by scenario code that asks for randomness). It is a driver for nodes in
     the sense of `stack.controller.contract` and knows everything a node can be told.
     """
@@ -108,7 +110,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         "__weakref__",
     )
 
-    def __init__(self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0", record: bool = True) -> None:
+    def __init__(
+        self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0", record: bool = True, keep: bool = True
+    ) -> None:
         if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
             raise ValueError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
         self.bitrate = bitrate
@@ -116,7 +120,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self.seed = seed
         self.rng = random.Random(seed)
         self.record = record
-        self.trace: list[TraceRecord] = []
+        self.trace: list[TraceRecord] = [] if keep else DiscardedTrace()
         self.nodes: list[Node] = []
         self._dur = [n * 1_000_000_000 // bitrate for n in range(1024)]
         self._ifs_ns = self._dur[INTERMISSION_BITS]

@@ -62,6 +62,7 @@ class BusStatistics:
     busy_ns: int
     id_stats: dict[int, IdStats]
     now_ns: int
+    _idle_at: int
     _bus_listeners: list[Callable[[TraceRecord], Any]]
 
     @property
@@ -71,8 +72,12 @@ class BusStatistics:
 
     def bus_load(self) -> float:
         """Fraction of elapsed time the bus was not idle (frames and error frames with their
-        intermission), 0..1."""
-        return self.busy_ns / self.now_ns if self.now_ns else 0.0
+        intermission), 0..1: the intermission of the last frame counts only up to now (a run
+        that ends inside it would otherwise count time it never reached)."""
+        if not self.now_ns:
+            return 0.0
+        busy = self.busy_ns - max(0, self._idle_at - self.now_ns)
+        return min(1.0, max(0, busy) / self.now_ns)
 
     def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
         """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""

@@ -14,7 +14,16 @@ import can
 
 from stack.wire.frame import Frame
 
-__all__ = ["TraceRecord", "save_messages", "load_messages", "check_suffix", "SUFFIXES", "error_frame_content"]
+__all__ = [
+    "TraceRecord",
+    "DiscardedTrace",
+    "TraceWriter",
+    "save_messages",
+    "load_messages",
+    "check_suffix",
+    "SUFFIXES",
+    "error_frame_content",
+]
 
 SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4", ".txt", ".db")
 
@@ -208,6 +217,16 @@ class TraceRecord:
         )
 
 
+class DiscardedTrace(list):  # type: ignore[type-arg]
+    """The trace of a bus that records without keeping (``SimBus(record=True, keep=False)``):
+    always empty, its records go only to the bus's `on_trace` listeners."""
+
+    __slots__ = ()
+
+    def append(self, rec: TraceRecord) -> None:
+        """Keep nothing."""
+
+
 def check_suffix(path: str | Path) -> str:
     """The trace file's suffix, lowercased; ValueError naming the file when python-can has no
     writer for it."""
@@ -220,20 +239,63 @@ def check_suffix(path: str | Path) -> str:
 
 
 def save_messages(messages: Iterable[can.Message], path: str | Path) -> int:
-    """Write messages with python-can's writer for the suffix; returns how many were written.
+    """Write messages with python-can's writer for the suffix (`TraceWriter`: timestamps as
+    given, .asc and .blf counted from 0); returns how many were written.
 
     A .trc file (PCAN-View) cannot hold remote or error frames: python-can's writer drops each
     one with a warning of its own, so they are left out here, quietly, and not counted; the
     caller says how many (``canstack`` prints one line)."""
-    suffix = check_suffix(path)
-    n = 0
-    with can.Logger(str(path)) as writer:  # type: ignore[abstract]
+    with TraceWriter(path) as writer:
         for msg in messages:
-            if suffix == ".trc" and (msg.is_remote_frame or msg.is_error_frame):
-                continue
-            writer.on_message_received(msg)
-            n += 1
-    return n
+            writer.message(msg)
+    return writer.written
+
+
+class TraceWriter:
+    """A trace file written as the bus runs (python-can's writer for the suffix): `write` takes
+    each `TraceRecord` — give it to ``SimBus.on_trace`` on a bus made with ``keep=False`` and the
+    trace costs no memory however long the run — and `close` finishes the file.
+
+    Timestamps are bus time, in every format: python-can's .asc writer counts from its first
+    event and its .blf writer from its first message, so both are started at bus time 0 (an
+    .asc comment event at 0, the .blf start time at 0); the others write the timestamps as they
+    are. A .trc file holds no remote or error frames: they are counted in ``left_out``."""
+
+    def __init__(self, path: str | Path, channel: Any = None) -> None:
+        self.suffix = check_suffix(path)
+        self.path = str(path)
+        self.channel = channel
+        self.written = 0
+        self.left_out = 0
+        self._writer: Any = can.Logger(self.path)  # type: ignore[abstract]
+        if isinstance(self._writer, can.ASCWriter):
+            self._writer.log_event(f"canstack: timestamps are bus time of {channel or 'the bus'}", timestamp=0.0)
+        elif isinstance(self._writer, can.BLFWriter):
+            self._writer.start_timestamp = 0.0
+
+    def write(self, rec: TraceRecord) -> None:
+        """Write one record (an error frame for a failed attempt)."""
+        self.message(rec.to_message(self.channel))
+
+    def message(self, msg: can.Message) -> None:
+        """Write one python-can message (its timestamp in bus seconds)."""
+        if self.suffix == ".trc" and (msg.is_remote_frame or msg.is_error_frame):
+            self.left_out += 1
+            return
+        self._writer.on_message_received(msg)
+        self.written += 1
+
+    def close(self) -> None:
+        """Finish the file (idempotent)."""
+        if self._writer is not None:
+            self._writer.stop()
+            self._writer = None
+
+    def __enter__(self) -> TraceWriter:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 def load_messages(path: str | Path) -> list[can.Message]:

@@ -6,11 +6,13 @@ with a progress bar on a terminal and Ctrl-C that stops between slices.
 
 from __future__ import annotations
 
+import _thread
 import importlib.util
 import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
@@ -25,6 +27,8 @@ __all__ = [
     "writing",
     "run_sliced",
     "show_progress",
+    "TimeLimitExceeded",
+    "GRACE_S",
     "WRITER_EXTRAS",
     "MAX_SIM_SECONDS",
     "trace_note",
@@ -143,29 +147,67 @@ def show_progress(requested: bool | None) -> bool:
         return False
 
 
+class TimeLimitExceeded(RuntimeError):
+    """A run went past its wall-clock time limit (`run_sliced`'s ``time_limit``)."""
+
+
+#: Seconds a run may take to reach the end of its slice after Ctrl-C (or SIGTERM) before it is
+#: stopped where it is: a slice holds at most 100 ms of bus time, but one event that never ends
+#: (a timer re-armed at the same instant) would keep it from ever ending.
+GRACE_S = 1.0
+
+
 class _Interrupt:
     """Ctrl-C as a flag, checked between slices, so that the simulation is never left in the
-    middle of an event (the summary so far stays consistent); a second Ctrl-C interrupts at
-    once."""
+    middle of an event (the summary so far stays consistent). A second Ctrl-C — or the first
+    when the slice has not ended within `GRACE_S` — stops it where it is (KeyboardInterrupt in
+    the loop); so does a wall-clock ``limit`` (`TimeLimitExceeded`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, limit: float | None = None) -> None:
         self.requested = False
+        self.timed_out = False
         self._old: Any = None
         self._installed = False
+        self._timers: list[threading.Timer] = []
+        self._limit = limit
 
     def __enter__(self) -> _Interrupt:
         if threading.current_thread() is threading.main_thread():
             self._old = signal.signal(signal.SIGINT, self._handle)
             self._installed = True
+            if self._limit is not None:
+                self._later(self._limit + GRACE_S, self._time_up)
         return self
 
+    def _later(self, seconds: float, action: Callable[[], None]) -> None:
+        t = threading.Timer(seconds, action)
+        t.daemon = True
+        t.start()
+        self._timers.append(t)
+
+    def _time_up(self) -> None:
+        if self._installed:
+            self.timed_out = True
+            _thread.interrupt_main(signal.SIGINT)
+
+    def _escalate(self) -> None:
+        if self._installed:
+            _thread.interrupt_main(signal.SIGINT)
+
     def _handle(self, signum: int, frame: Any) -> None:
+        if self.timed_out:
+            raise TimeLimitExceeded
         if self.requested:
             raise KeyboardInterrupt
         self.requested = True
+        # a slice that does not end in time is stopped where it is
+        self._later(GRACE_S, self._escalate)
 
     def __exit__(self, *exc: Any) -> None:
-        if self._installed:
+        installed, self._installed = self._installed, False  # a timer firing now does nothing
+        for t in self._timers:
+            t.cancel()
+        if installed:
             signal.signal(signal.SIGINT, self._old)
 
 
@@ -176,14 +218,23 @@ def _slices(start: int, until: int, step: int) -> Iterator[int]:
         yield t
 
 
-def run_sliced(bus: Any, until_ns: int, *, progress: bool | None = None, desc: str = "simulating") -> bool:
+def run_sliced(
+    bus: Any,
+    until_ns: int,
+    *,
+    progress: bool | None = None,
+    desc: str = "simulating",
+    time_limit: float | None = None,
+) -> bool:
     """Run a `SimBus` to ``until_ns`` in slices of simulated time (the same result as one
     ``bus.run(until=until_ns)``: the run stops at each slice's end and goes on from there).
 
-    A progress bar (tqdm, in simulated seconds) is drawn on stderr when `show_progress` says so;
-    on a terminal it appears only for runs longer than 2 s of wall clock. Ctrl-C stops the run
-    at the end of the current slice: returns False then, True when the run reached
-    ``until_ns``."""
+    A progress bar (tqdm, in simulated seconds, with the time left) is drawn on stderr when
+    `show_progress` says so; on a terminal it appears only for runs longer than 2 s of wall
+    clock. Ctrl-C (and SIGTERM, which `stack.cli.main` turns into it) stops the run at the end of
+    the current slice, or where it is when that does not come within `GRACE_S`: returns False
+    then, True when the run reached ``until_ns``. ``time_limit`` (wall-clock seconds) raises
+    `TimeLimitExceeded` when the run takes longer."""
     show = show_progress(progress)
     step = max(1_000_000, min(100_000_000, (until_ns - bus.now()) // 200 or 1))
     bar = None
@@ -200,16 +251,26 @@ def run_sliced(bus: Any, until_ns: int, *, progress: bool | None = None, desc: s
             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.3f}/{total:.3f} s simulated [{elapsed}<{remaining}]",
         )
     done = 0.0
+    deadline = None if time_limit is None else time.monotonic() + time_limit
     try:
-        with _Interrupt() as stop:
-            for t in _slices(bus.now(), until_ns, step):
-                bus.run(until=t)
-                if bar is not None:
-                    now = round(t / 1e9, 3)
-                    bar.update(now - done)
-                    done = now
-                if stop.requested:
-                    return False
+        with _Interrupt(time_limit) as stop:
+            try:
+                for t in _slices(bus.now(), until_ns, step):
+                    bus.run(until=t)
+                    if bar is not None:
+                        now = round(t / 1e9, 3)
+                        bar.update(now - done)
+                        done = now
+                    if stop.requested:
+                        return False
+                    if deadline is not None and time.monotonic() > deadline:
+                        raise TimeLimitExceeded
+            except KeyboardInterrupt:
+                return False  # stopped inside a slice: what was simulated so far
+    except TimeLimitExceeded:
+        raise TimeLimitExceeded(
+            f"stopped after the time limit of {time_limit:g} s (wall clock) at {bus.now() / 1e9:.6g} s simulated"
+        ) from None
     finally:
         if bar is not None:
             bar.close()

@@ -178,10 +178,11 @@ def test_faults_are_injected_and_receptions_counted_from_what_receivers_accepted
     }
     sc = _scenario(msgs, duration=0.5, faults=[{"kind": "bit_errors", "rate": 2e-3}])
     res = run_scenario(sc)
-    assert res.error_frames > 0 and res.trace
+    # receptions are counted as the bus runs: faults keep no trace (memory stays flat)
+    assert res.error_frames > 0 and res.trace == []
     for r in res.to_json()["messages"]:
         assert r["received"] >= r["sent"] * 0.99  # retransmitted: every instance arrives in the end
-        assert r["released"] >= r["sent"]
+        assert r["released"] >= r["received"] and r["released"] >= r["sent"]  # instances, not attempts
 
 
 def test_application_hooks_run_before_the_start(tmp_path, monkeypatch):
@@ -302,4 +303,4 @@ def test_result_json_has_the_documented_keys():
         "rta_ms",
         "schedulable",
     } <= set(row)
-    assert set(row["response_ms"]) == {"min", "mean", "p99", "max"}
+    assert set(row["response_ms"]) == {"min", "mean", "p99", "max", "p99_error"}

@@ -308,7 +308,11 @@ def test_a_run_that_raises_is_recorded_with_its_error(tmp_path, monkeypatch):
     raw = small_raw()
     raw["nodes"][0]["app"] = "sweep_hooks:hook"
     res = run_sweep(raw, "s.toml", [vary(raw, "bus.bitrate=125000,250000,500000")])
-    assert [r.get("error") for r in res.rows] == [None, "RuntimeError: the ECU crashed", None]
+    errors = [r.get("error") for r in res.rows]
+    assert errors[0] is None and errors[2] is None
+    # the scenario's location, the app and the exception with where it was raised
+    assert errors[1].startswith("s.toml: [[nodes]] 'engine': app: sweep_hooks:hook failed: RuntimeError: the ECU crashed")
+    assert "sweep_hooks.py:3" in errors[1]
     assert not res.interrupted and len(res.rows) == 3
 
 
