@@ -24,37 +24,21 @@ varying fastest, then the replicates — whatever order they finished in.
 
 from __future__ import annotations
 
-import copy
 import csv
 import hashlib
 import itertools
 import math
 import re
-import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
 from profiles.declarations import Scenario
-from profiles.pipeline.faults import FAULT_KEYS
-from profiles.pipeline.scenario import (
-    ANALYSIS_KEYS,
-    BUS_KEYS,
-    MESSAGE_KEYS,
-    NODE_KEYS,
-    PLOT_KEYS,
-    parse_scenario,
-)
-from profiles.registry import profile_kind, profile_kinds
-from profiles.schema import Key
+from profiles.pipeline.overrides import KeyPathError, apply_values, resolve_key, typed_value
+from profiles.pipeline.scenario import parse_scenario
 from profiles.sweeps.execute import Execution, execute
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = [
     "SweepError",
@@ -172,136 +156,24 @@ def parse_vary(spec: str) -> Vary:
     return Vary(key, tuple(parse_values(text, key)))
 
 
-def _typed(token: Any, types: tuple[type, ...] | None) -> Any:
-    """A --vary token as the scenario's schema expects it: kept as text for string keys, else read
-    as a TOML value (``10``, ``2.5``, ``0x100``, ``true``, ``"quoted"``), else the word itself (the
-    schema then says what is wrong with it, in the failed run's row)."""
-    if not isinstance(token, str):
-        return token  # a range: already numbers
-    if types is not None and set(types) <= {str}:
-        return token
-    try:
-        return tomllib.loads(f"v = {token}")["v"]
-    except tomllib.TOMLDecodeError:
-        return token
-
-
 # --- keys ----------------------------------------------------------------------------------------
 
 
-def _schema_for(raw: Mapping[str, Any], path: Sequence[str | int]) -> Mapping[str, Key] | None:
-    """The keys the scenario schema allows in the table at ``path`` (None: a table the spine does
-    not know, such as a profile's own; then only keys the file has can be varied)."""
-    if len(path) == 1 and path[0] in ("bus", "analysis", "plot"):
-        return {"bus": BUS_KEYS, "analysis": ANALYSIS_KEYS, "plot": PLOT_KEYS}[str(path[0])]
-    if len(path) in (2, 4) and path[0] == "nodes":
-        node = raw["nodes"][path[1]]
-        profile = node.get("profile", "csma")
-        extra: Mapping[str, Key] = {}
-        if isinstance(profile, str) and profile in profile_kinds():
-            kind = profile_kind(profile)
-            extra = kind.node_keys if len(path) == 2 else kind.message_keys
-        if len(path) == 2:
-            return {**NODE_KEYS, **extra}
-        if path[2] == "messages":
-            return {**MESSAGE_KEYS, **extra}
-    if len(path) == 2 and path[0] == "faults":
-        kind = raw["faults"][path[1]].get("kind")
-        if kind in FAULT_KEYS:
-            return {**FAULT_KEYS[kind], "kind": Key(str)}
-    return None
-
-
-def _element(items: list[Any], seg: str, where: str, key: str) -> int:
-    """The index of the list element named ``seg`` (its ``name`` key), else ``seg`` as an index."""
-    for i, item in enumerate(items):
-        if isinstance(item, Mapping) and item.get("name") == seg:
-            return i
-    if re.fullmatch(r"\d+", seg) and int(seg) < len(items):
-        return int(seg)
-    names = [str(it["name"]) for it in items if isinstance(it, Mapping) and "name" in it]
-    have = (f"names: {', '.join(names)}" if names else f"indices 0..{len(items) - 1}") if items else "it is empty"
-    raise SweepError(f"--vary {key}: {where} has no element {seg!r} ({have})")
-
-
 def resolve_vary(raw: Mapping[str, Any], vary: Vary) -> Vary:
-    """Find ``vary.key`` in the raw scenario and type its values by the schema.
-
-    Every segment but the last must exist (a table, or a list element by name or index; the
-    optional tables ``analysis`` and ``plot`` may be absent); the last must be a key the schema
-    allows there (or, in a table the schema does not know, a key the file has). Raises
-    `SweepError` naming the key and what exists instead."""
-    segs = vary.key.split(".")
-    if segs == ["bus", "seed"]:
+    """Find ``vary.key`` in the raw scenario and type its values by the schema
+    (`profiles.pipeline.overrides.resolve_key`: every segment but the last must exist, the last
+    must be a key the schema allows there). Raises `SweepError` naming the key and what exists
+    instead."""
+    if vary.key == "bus.seed":
         raise SweepError(
             "--vary bus.seed: each run's seed is derived from the sweep seed and its parameters; "
             "use --seed S for the sweep seed and --seeds N for N seeds per combination"
         )
-    cur: Any = raw
-    path: list[str | int] = []
-    where = "the scenario"
-    for seg in segs[:-1]:
-        if isinstance(cur, list):
-            idx = _element(cur, seg, where, vary.key)
-            path.append(idx)
-            cur = cur[idx]
-            where = f"{where}.{seg}"
-        elif isinstance(cur, Mapping):
-            if seg not in cur:
-                if not path and seg in ("analysis", "plot"):
-                    cur = {}
-                    path.append(seg)
-                    where = seg
-                    continue
-                have = ", ".join(str(k) for k in cur) or "nothing"
-                raise SweepError(f"--vary {vary.key}: {where} has no {seg!r} (it has: {have})")
-            path.append(seg)
-            cur = cur[seg]
-            where = seg if where == "the scenario" else f"{where}.{seg}"
-        else:
-            raise SweepError(f"--vary {vary.key}: {where} is a value, not a table or list")
-    leaf = segs[-1]
-    if isinstance(cur, list):
-        raise SweepError(
-            f"--vary {vary.key}: {where} is a list: name an element and a key in it (e.g. {vary.key}.<key>)"
-        )
-    if not isinstance(cur, Mapping):
-        raise SweepError(f"--vary {vary.key}: {where} is a value, not a table")
-    schema = _schema_for(raw, path)
-    if isinstance(cur.get(leaf), (Mapping, list)):
-        raise SweepError(
-            f"--vary {vary.key}: is a {'table' if isinstance(cur[leaf], Mapping) else 'list'}; "
-            "vary a single value (a key inside it)"
-        )
-    if leaf not in cur and (schema is None or leaf not in schema):
-        allowed = sorted(schema) if schema is not None else [str(k) for k in cur]
-        raise SweepError(f"--vary {vary.key}: {where} has no key {leaf!r} (keys: {', '.join(allowed)})")
-    if schema is not None and leaf in schema and schema[leaf].type in (list, dict):
-        raise SweepError(
-            f"--vary {vary.key}: {leaf!r} holds a {'list' if schema[leaf].type is list else 'table'}; "
-            "vary a single value"
-        )
-    types: tuple[type, ...] | None = None
-    if schema is not None and leaf in schema:
-        t = schema[leaf].type
-        types = t if isinstance(t, tuple) else (t,)
-    elif leaf in cur:
-        types = (type(cur[leaf]),)
-    path.append(leaf)
-    return Vary(vary.key, vary.texts, tuple(_typed(v, types) for v in vary.texts), tuple(path))
-
-
-def apply_values(raw: Mapping[str, Any], assignments: Iterable[tuple[Sequence[str | int], Any]]) -> dict[str, Any]:
-    """A deep copy of ``raw`` with each (path, value) set; missing tables on a path are created."""
-    out = copy.deepcopy(dict(raw))
-    for path, value in assignments:
-        cur: Any = out
-        for seg in path[:-1]:
-            if isinstance(cur, dict) and seg not in cur:
-                cur[seg] = {}
-            cur = cur[seg]
-        cur[path[-1]] = value
-    return out
+    try:
+        path, types = resolve_key(raw, vary.key, "--vary")
+    except KeyPathError as exc:
+        raise SweepError(str(exc)) from None
+    return Vary(vary.key, vary.texts, tuple(typed_value(v, types) for v in vary.texts), path)
 
 
 # --- runs --------------------------------------------------------------------------------------
