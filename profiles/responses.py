@@ -123,7 +123,8 @@ class ResponseStats:
             "mean": mean / 1e6,
             "p99": p99 / 1e6,
             "max": hi / 1e6,
-            "p99_error": 0.0 if self.exact else RELATIVE_ACCURACY,
+            # one value throughout leaves the sketch nothing to approximate
+            "p99_error": 0.0 if self.exact or lo == hi else RELATIVE_ACCURACY,
         }
 
 

@@ -1,51 +1,146 @@
 """`canstack experiment SCENARIO.toml`: run a scheduling scenario and print its metrics beside the
-response-time analysis (registered under the ``canstack.commands`` entry point group)."""
+response-time analysis (registered under the ``canstack.commands`` entry point group).
+
+Every output named on the command line is checked before the run (a long run must not end in
+an error with nothing written), and written before anything is printed (output piped into
+``head`` must not lose a file); overrides (``--seed``, ``--bitrate``, ``--duration``, ``--set``)
+change the scenario as it was read, and its own checks see the result.
+"""
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from pathlib import Path
 from typing import Any
 
-from stack.cli import CliError, seconds_type
-from stack.cli.runs import check_output, check_plot_dir
+from stack.cli import CliError, parse_bitrate, seconds_type
+from stack.cli.runs import check_output, check_plot_dir, check_trace_output, trace_note, writing
 
-__all__ = ["register"]
+__all__ = ["register", "check_samples_output", "scenario_with_overrides", "add_override_options", "warn"]
+
+#: the longest run the command line asks for: a scenario file's own limit (`profiles.schema.MAX_TIME_S`)
+MAX_SECONDS = 1e6
+
+
+def warn(text: str) -> None:
+    """One warning line on stderr (what is allowed but likely a mistake)."""
+    print(f"canstack: warning: {text}", file=sys.stderr)
+
+#: --out suffixes: the JSON result, or the message rows as CSV
+OUT_SUFFIXES = (".json", ".csv")
+
+
+def check_samples_output(path: str, option: str = "--samples") -> None:
+    """A samples file: .csv, or .parquet with pyarrow installed (the ``parquet`` extra), in a
+    writable place."""
+    import importlib.util
+
+    check_output(path, option)
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise CliError(f"{option} {path!r}: write .csv or .parquet")
+    if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
+        raise CliError(
+            f"{option} {path!r}: Parquet needs pyarrow, which is not installed: "
+            "pip install 'canstack[parquet]' (or write .csv)"
+        )
+
+
+def scenario_with_overrides(args: argparse.Namespace) -> Any:
+    """The scenario file with ``--set KEY=VALUE``, ``--seed``, ``--bitrate`` and ``--duration``
+    applied to it as read, then checked by its own rules (a value that breaks one is named as the
+    file's own would be)."""
+    from profiles.pipeline.overrides import override
+    from profiles.pipeline.scenario import load_scenario, parse_scenario
+
+    scenario = load_scenario(args.scenario)
+    specs = list(args.set or [])
+    for option, key in (("seed", "bus.seed"), ("bitrate", "bus.bitrate"), ("duration", "bus.duration")):
+        value = getattr(args, option, None)
+        if value is not None:
+            if any(s.partition("=")[0].strip() == key for s in specs):
+                raise CliError(f"--{option} and --set {key}=... both given: give one")
+            specs.append(f"{key}={value!r}")
+    if getattr(args, "data_bitrate", None) is not None:
+        # the hook for CAN FD: the scenario has no data phase yet, so nothing could use it
+        raise CliError(
+            "--data-bitrate: scenarios run CAN 2.0 frames (no data phase to switch to); it applies once "
+            "CAN FD messages reach scenario files"
+        )
+    if not specs:
+        return scenario
+    return parse_scenario(override(scenario.raw, specs), scenario.source)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    if args.plot:
+        check_plot_dir(args.plot)
+    if args.out:
+        check_output(args.out, "--out")
+        if Path(args.out).suffix.lower() not in OUT_SUFFIXES:
+            raise CliError(f"--out {args.out!r}: write .json (the result) or .csv (one row per message)")
+    if args.trace:
+        check_trace_output(args.trace)
+    if args.samples:
+        check_samples_output(args.samples)
+    if (args.interface is None) != (args.channel is None):
+        raise CliError("--interface and --channel go together (a python-can bus), or neither (the simulated bus)")
+    if args.interface:
+        for option, value in (("--plot", args.plot), ("--trace", args.trace), ("--samples", args.samples)):
+            if value:
+                raise CliError(f"{option} needs the simulated bus here (on a python-can bus record with python -m can.logger)")
 
 
 def _experiment(args: argparse.Namespace) -> int:
     from profiles.pipeline.metrics import format_table
     from profiles.pipeline.runner import run_on_pycan, run_scenario
-    from profiles.pipeline.scenario import load_scenario
 
-    if args.plot:
-        check_plot_dir(args.plot)
-    if args.out:
-        check_output(args.out, "--out")
-    if (args.interface is None) != (args.channel is None):
-        raise CliError("--interface and --channel go together (a python-can bus), or neither (the simulated bus)")
-    scenario = load_scenario(args.scenario)
+    _check_outputs(args)
+    scenario = scenario_with_overrides(args)
+    for w in scenario.warnings:
+        warn(w)
     if args.interface:
-        if args.plot:
-            raise CliError("--plot needs the simulated bus (the timeline is drawn from the simulation's trace)")
         result = run_on_pycan(scenario, args.interface, args.channel, duration_s=args.duration)
     else:
-        if args.duration is not None:
-            scenario.duration_ns = round(args.duration * 1e9)
-        result = run_scenario(scenario, record=bool(args.plot) or None, progress=args.progress)
+        result = run_scenario(
+            scenario, plot=bool(args.plot), progress=args.progress, trace=args.trace, samples=args.samples
+        )
     data = result.to_json()
-    text = json.dumps(data, indent=2) if args.json else format_table(data)
-    print(text)
+    # the files first: a reader that closes stdout early (| head) must not cost one of them
     if args.out:
-        Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
+        writing(args.out, "--out", lambda: _write_out(args.out, data))
+    files: list[str] = []
     if args.plot:
         from profiles.pipeline.plots import write_plots
 
-        files = write_plots(result, args.plot, extra=_profile_plots(scenario))
-        print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
-    return 130 if result.interrupted else 0
+        written = writing(args.plot, "--plot", lambda: write_plots(result, args.plot, extra=_profile_plots(scenario)))
+        files.append(f"plots: {', '.join(str(f) for f in written)}")
+    for kind, what in (("trace", "record"), ("samples", "instance")):
+        f = result.files.get(kind)
+        if f is not None:
+            n = f["records"] if kind == "trace" else f["rows"]
+            note = trace_note(f["path"], f["left_out"]) if kind == "trace" else ""
+            files.append(f"{kind}: {n:,} {what}{'' if n == 1 else 's'} written to {f['path']}{note}")
+    print(json.dumps(data, indent=2) if args.json else format_table(data))
+    for line in files:
+        print(line, file=sys.stderr)
+    if result.interrupted:
+        print(f"canstack: interrupted at {result.duration_s:.6g} s: the results so far", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _write_out(path: str, data: dict[str, Any]) -> None:
+    if Path(path).suffix.lower() == ".csv":
+        from profiles.pipeline.metrics import message_csv_rows
+
+        with open(path, "w", newline="", encoding="utf-8") as f:
+            csv.writer(f).writerows(message_csv_rows(data))
+    else:
+        Path(path).write_text(json.dumps(data, indent=2) + "\n")
 
 
 def _profile_plots(scenario: Any) -> dict[str, Any]:
@@ -64,6 +159,31 @@ def _profile_plots(scenario: Any) -> dict[str, Any]:
     return out
 
 
+def add_override_options(p: argparse.ArgumentParser, *, duration: bool = True) -> None:
+    """--seed, --bitrate, --data-bitrate, --set (and --duration): a scenario changed on the
+    command line, as `scenario_with_overrides` applies them."""
+    if duration:
+        p.add_argument(
+            "--duration",
+            type=seconds_type(MAX_SECONDS),
+            help="run this many simulated seconds instead of the scenario's [bus] duration",
+        )
+    p.add_argument("--seed", type=int, help="the scenario's [bus] seed instead (jitter, sporadic releases, bit errors)")
+    p.add_argument("--bitrate", type=parse_bitrate, help="the scenario's [bus] bitrate instead (bit/s)")
+    p.add_argument(
+        "--data-bitrate",
+        type=parse_bitrate,
+        help="CAN FD data phase (bit/s): for scenarios with FD messages (none yet: refused)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="set a key of the scenario (repeatable): the keys of sweep --vary, e.g. "
+        "nodes.engine.queue=fifo or nodes.engine.messages.EngineData.period_ms=5",
+    )
+
+
 def register(sub: Any) -> None:
     """Add the `experiment` subcommand."""
     p = sub.add_parser(
@@ -71,22 +191,35 @@ def register(sub: Any) -> None:
         help="run a scheduling scenario (TOML) and compare it with the response-time analysis",
         description="Run a scenario file's nodes and profiles on the simulated bus (or on a python-can bus with "
         "--interface/--channel) and print, per message, the measured response times, jitter and deadline misses "
-        "beside the worst case of the CAN schedulability analysis (Davis et al. 2007).",
+        "beside the worst case of the CAN schedulability analysis (Davis et al. 2007). Memory stays bounded "
+        "however long the run; Ctrl-C (or SIGTERM) stops it and prints the results so far.",
     )
-    p.add_argument("scenario", help="the scenario file (TOML; see examples/*.toml)")
+    p.add_argument("scenario", help="the scenario file (TOML; see canstack examples)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
-    p.add_argument("--out", help="also write the JSON result to this file")
+    p.add_argument("--out", help="also write the result to this file: .json (the JSON object) or .csv (the messages)")
     p.add_argument(
-        "--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here (needs the plot extra)"
+        "--plot",
+        metavar="DIR",
+        help="write timeline.png, response_times.png, response_cdf.png, bus_load.png here (created; the plot extra)",
     )
     p.add_argument(
-        "--duration", type=seconds_type(1e6), help="run this many seconds instead of the scenario's [bus] duration"
+        "--trace",
+        metavar="FILE",
+        help="write the bus trace, streamed as the run goes (.asc, .blf, .log, .csv, .trc, .mf4; timestamps in bus "
+        "time; .mf4 needs the mf4 extra, .trc holds no remote or error frames)",
     )
+    p.add_argument(
+        "--samples",
+        metavar="FILE",
+        help="write every instance of every message (.csv, or .parquet with the parquet extra): message, node, "
+        "outcome, nominal release, queued, SOF, EOF, response, missed; makes the p99 exact",
+    )
+    add_override_options(p)
     p.add_argument(
         "--progress",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
-        help="draw a progress bar (default: on a terminal, for runs over 2 s)",
+        help="progress bar with the time left on stderr (default: on a terminal, for runs over 2 s)",
     )
     p.add_argument("--interface", help="run on this python-can interface (socketcan, virtual, canstack, ...)")
     p.add_argument("--channel", help="the python-can channel (vcan0, tcp://127.0.0.1:PORT/bus0, ...)")

@@ -34,11 +34,12 @@ from typing import TYPE_CHECKING, Any
 from profiles.analysis.rta import ErrorModel, MessageSpec, NodeQueue, analyse
 from profiles.base import Recorder
 from profiles.registry import profile_kind
+from profiles.text import id_text, ms, table
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.declarations import Scenario
 
-__all__ = ["analyse_scenario", "message_rows", "summary_of", "format_table"]
+__all__ = ["analyse_scenario", "message_rows", "summary_of", "format_table", "message_csv_rows", "CSV_COLUMNS"]
 
 
 DEADLINE_REFERENCE = "nominal release (release jitter included)"
@@ -172,13 +173,87 @@ def summary_of(bus: Any, t_end: int) -> dict[str, Any]:
     return {"bus_load": bus.bus_load(), "frames": bus.frames_ok, "error_frames": bus.error_frames}
 
 
-def _ms(v: float | None, width: int = 8) -> str:
-    return f"{v:{width}.3f}" if v is not None else f"{'-':>{width}}"
+#: the columns of ``experiment --out r.csv`` (one row per message), in the JSON's own words
+CSV_COLUMNS = (
+    "name", "node", "id", "extended", "dlc", "period_ms", "sporadic_ms", "deadline_ms", "released", "sent",
+    "received", "failed", "dropped", "deadline_misses", "response_min_ms", "response_mean_ms", "response_p99_ms",
+    "response_max_ms", "response_p99_error", "release_response_max_ms", "jitter_ms", "rta_ms", "rta_release_ms",
+    "rta_method", "schedulable", "tightness", "rta_note",
+)  # fmt: skip
+
+
+def message_csv_rows(result_json: dict[str, Any]) -> list[list[Any]]:
+    """The messages of a result as CSV rows (header first; `CSV_COLUMNS`; empty cells for none)."""
+    rows: list[list[Any]] = [list(CSV_COLUMNS)]
+    for m in result_json["messages"]:
+        resp = m["response_ms"] or {}
+        flat = dict(m)
+        for k in ("min", "mean", "p99", "max"):
+            flat[f"response_{k}_ms"] = resp.get(k)
+        flat["response_p99_error"] = resp.get("p99_error")
+        rows.append(["" if flat.get(c) is None else flat[c] for c in CSV_COLUMNS])
+    return rows
+
+
+def _badness(m: dict[str, Any]) -> tuple[float, float]:
+    """Worst offenders first: deadline misses, then the largest response relative to the deadline."""
+    worst = m["response_ms"]["max"] if m["response_ms"] else 0.0
+    d = m["deadline_ms"] or 0.0
+    return (-m["deadline_misses"], -(worst / d if d else 0.0))
+
+
+def _message_lines(messages: list[dict[str, Any]]) -> list[str]:
+    headers = [
+        "message", "node", "ID", "period", "deadline", "released", "sent", "received", "failed", "dropped",
+        "miss", "resp min", "mean", "p99", "max", "from release", "RTA", "R", "sched", "max/RTA", "jitter",
+    ]  # fmt: skip
+    rows = []
+    approx = False
+    for m in sorted(messages, key=_badness):
+        resp = m["response_ms"] or {}
+        inexact = bool(resp.get("p99_error"))
+        approx |= inexact
+        interval = m["period_ms"] if m["period_ms"] is not None else m["sporadic_ms"]
+        sched = {True: "yes", False: "NO", None: "-"}[m["schedulable"]]
+        rows.append(
+            [
+                m["name"],
+                m["node"],
+                id_text(m["id"], m["extended"]),
+                ("" if m["period_ms"] is not None or interval is None else ">=") + ms(interval, 3),
+                ms(m["deadline_ms"]),
+                m["released"],
+                m["sent"],
+                m["received"],
+                m["failed"],
+                m["dropped"],
+                m["deadline_misses"],
+                ms(resp.get("min")),
+                ms(resp.get("mean")),
+                ms(resp.get("p99"), mark="~" if inexact else ""),
+                ms(resp.get("max")),
+                ms(m["release_response_max_ms"]),
+                ms(m["rta_ms"]),
+                ms(m["rta_release_ms"]),
+                sched,
+                "-" if m["tightness"] is None else f"{m['tightness']:.2f}",
+                ms(m["jitter_ms"]),
+            ]
+        )
+    out = table(headers, rows, left=2, widest={0: 24, 1: 16})
+    out.append(
+        "times in ms; period '>=' a sporadic message's minimum inter-arrival; resp: queued -> end of EOF; from "
+        "release: nominal release -> end of EOF; RTA bounds resp, R bounds from release"
+        + ("; p99~: within ±0.5 % (a DDSketch: --samples keeps every instance for an exact one)" if approx else "")
+    )
+    return out
 
 
 def format_table(result_json: dict[str, Any]) -> str:
-    """The readable summary of a run: bus figures, then one line per message, worst offenders
-    first (deadline misses, then the largest response relative to the deadline)."""
+    """The readable summary of a run: bus figures, one line per message (every figure of the
+    JSON's message objects), worst offenders first (deadline misses, then the largest response
+    relative to the deadline), then each profile's own section, the analysis' notes and the
+    messages with no bound and why."""
     r = result_json
     lines = [
         f"{r['scenario']}: {r['driver']} bus, {r['bitrate'] // 1000} kbit/s, {r['duration']:.3f} s, "
@@ -186,25 +261,10 @@ def format_table(result_json: dict[str, Any]) -> str:
         + (" (interrupted)" if r.get("interrupted") else ""),
         "",
     ]
-
-    def badness(m: dict[str, Any]) -> tuple[float, float]:
-        worst = m["response_ms"]["max"] if m["response_ms"] else 0.0
-        d = m["deadline_ms"] or 0.0
-        return (-m["deadline_misses"], -(worst / d if d else 0.0))
-
-    lines.append(
-        f"{'message':<16} {'node':<10} {'ID':>10} {'sent':>6} {'miss':>5} "
-        f"{'resp min':>8} {'mean':>8} {'p99':>8} {'max':>8} {'RTA':>8} {'max/RTA':>7} {'jitter':>8}  (ms)"
-    )
-    for m in sorted(r["messages"], key=badness):
-        resp = m["response_ms"] or {}
-        ident = f"0x{m['id']:08X}" if m["extended"] else f"0x{m['id']:03X}"
-        tight = f"{m['tightness']:7.2f}" if m["tightness"] is not None else f"{'-':>7}"
-        lines.append(
-            f"{m['name'][:16]:<16} {m['node'][:10]:<10} {ident:>10} {m['sent']:>6} {m['deadline_misses']:>5} "
-            f"{_ms(resp.get('min'))} {_ms(resp.get('mean'))} {_ms(resp.get('p99'))} {_ms(resp.get('max'))} "
-            f"{_ms(m['rta_ms'])} {tight} {_ms(m['jitter_ms'])}"
-        )
+    if r["messages"]:
+        lines.extend(_message_lines(r["messages"]))
+    else:
+        lines.append("no messages declared in the scenario: the profiles' own traffic is below")
     from profiles.registry import profile_kinds
 
     for kind in profile_kinds().values():
@@ -218,10 +278,23 @@ def format_table(result_json: dict[str, Any]) -> str:
             f"RTA: bound on {BOUND_REFERENCE}, as resp measures it (to the end of EOF); "
             f"deadlines, misses and schedulable: from the {DEADLINE_REFERENCE}"
         )
-    notes = r.get("analysis", {}).get("notes") or []
-    for n in notes:
+    a = r.get("analysis", {})
+    methods = {m["rta_method"] for m in r["messages"] if m["rta_method"]}
+    if len(methods) > 1:
+        for method in sorted(methods):
+            names = [m["name"] for m in r["messages"] if m["rta_method"] == method]
+            lines.append(f"analysis: {method}: {', '.join(names)}")
+    if a.get("error_model"):
+        e = a["error_model"]
+        lines.append(f"analysis: errors: at most {e['burst']} every {e['t_error_ms']:g} ms")
+    for n in a.get("notes") or []:
         lines.append(f"analysis: {n}")
+    for m in r["messages"]:
+        if m["rta_note"]:
+            lines.append(f"analysis: {m['name']}: {m['rta_note']}")
     unsched = [m["name"] for m in r["messages"] if m["schedulable"] is False]
     if unsched:
         lines.append("analysis: not schedulable: " + ", ".join(unsched))
+    if r.get("driver_errors"):
+        lines.append(f"driver errors: {'; '.join(r['driver_errors'])}")
     return "\n".join(lines)

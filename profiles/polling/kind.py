@@ -19,6 +19,7 @@ from profiles.polling.master import Master
 from profiles.polling.plots import poll_cycle
 from profiles.polling.slave import Slave
 from profiles.registry import ProfileKind
+from profiles.text import intervals_ms, table
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.analysis.rta import MessageSpec
@@ -151,37 +152,73 @@ def _f(v: Any, width: int = 7) -> str:
     return f"{v:{width}.3f}" if v is not None else f"{'-':>{width}}"
 
 
+def _lost(s: dict[str, Any]) -> str:
+    """A slave's lost intervals (ms; poll and COS/cyclic connections)."""
+    spans = sorted([*s.get("lost_ms", []), *s.get("cos_lost_ms", [])], key=lambda x: x[0])
+    if not spans and (s["lost"] or s.get("cos_lost")):
+        return "yes"
+    return intervals_ms(spans)
+
+
+def _master_lost(s: dict[str, Any]) -> str:
+    """When a slave lost its master (watchdog) and got it back, ms."""
+    lost, back = s.get("master_lost_ms", []), s.get("master_back_ms", [])
+    spans = [[a, back[i] if i < len(back) else None] for i, a in enumerate(lost)]
+    return intervals_ms(spans)
+
+
 def text(figures: dict[str, Any]) -> list[str]:
     """The readable table's lines of ``master_slave``: per master its measured cycle beside the
-    worst case, per transaction its slowest exchange beside its bound, per slave what happened."""
+    worst case and what happened to it (overruns, unsent requests, stops, slaves lost and back),
+    per transaction its slowest exchange beside its bound, per slave what happened — the
+    intervals it was lost and those it lost its master included."""
     lines = []
     for name, m in figures.get("masters", {}).items():
         c, clean = m["cycle_ms"] or {}, m["clean_cycle_ms"] or {}
         lines.append(
-            f"master {name}: {m['cycles']} cycles of {m['cycle_period_ms']:g} ms, {m['overruns']} overruns; "
-            f"cycle {_f(c.get('min'), 0)}..{_f(c.get('max'), 0)} ms (answered in time: max "
-            f"{_f(clean.get('max'), 0)}), worst case {_f(m['cycle_bound_ms'], 0)} ms by {m['bound_method']}"
+            f"master {name}: {m['cycles']} cycles of {m['cycle_period_ms']:g} ms, {m['overruns']} overruns, "
+            f"{m['unsent']} requests not sent; cycle {_f(c.get('min'), 0)}..{_f(c.get('max'), 0)} ms (answered in "
+            f"time: max {_f(clean.get('max'), 0)}), worst case {_f(m['cycle_bound_ms'], 0)} ms by {m['bound_method']}"
         )
-        lines.append(
-            f"{'transaction':<16} {'style':<10} {'exchange max':>12} {'bound':>7}  (ms, request SOF -> end of "
-            "the last answer)"
-        )
+        if m.get("bound_note"):
+            lines.append(f"  {m['bound_note']}")
+        events = ", ".join(f"{k} {v}" for k, v in (m.get("events") or {}).items())
+        if events:
+            lines.append(f"  events: {events}")
+        if m.get("stopped_ms"):
+            lines.append(f"  stopped (bus off) at: {', '.join(f'{t:.3f}' for t in m['stopped_ms'])} ms")
+        rows = []
         for t in m["transactions"]:
             bound = t["bound_ms"] if m["bound_method"].startswith("frame") else t["rta_bound_ms"]
-            lines.append(f"{t['name'][:16]:<16} {t['style']:<10} {_f(t['response_ms_max'], 12)} {_f(bound)}")
+            rows.append([t["name"], t["style"], _f(t["response_ms_max"], 0), _f(bound, 0)])
+        lines += table(["transaction", "style", "exchange max", "bound"], rows, left=2, widest={0: 24})
+        lines[-len(rows) - 1] += "  (ms, request SOF -> end of the last answer)"
     slaves = figures.get("slaves", {})
     if slaves:
-        lines.append(
-            f"{'slave':<12} {'polls':>6} {'answers':>7} {'timeouts':>8} {'missed':>6} {'lost':>5} "
-            f"{'resp max':>8} {'jitter':>7} {'cos':>5} {'master lost':>11}"
-        )
+        rows = []
         for name, s in slaves.items():
             r = s["response_ms"] or {}
-            lines.append(
-                f"{name[:12]:<12} {s['polls']:>6} {s['responses']:>7} {s['timeouts']:>8} {s['missed']:>6} "
-                f"{'yes' if s['lost'] or s.get('cos_lost') else 'no':>5} {_f(r.get('max'), 8)} {_f(s['jitter_ms'])} {s['cos']:>5} "
-                f"{s.get('master_lost', 0):>11}"
+            rows.append(
+                [
+                    name,
+                    s["polls"],
+                    s["responses"],
+                    s["timeouts"],
+                    s["missed"],
+                    _f(r.get("max"), 0),
+                    _f(s["jitter_ms"], 0),
+                    s["cos"],
+                    _lost(s),
+                    _master_lost(s),
+                ]
             )
+        lines += table(
+            ["slave", "polls", "answers", "timeouts", "missed", "resp max", "jitter", "cos", "lost (ms)",
+             "master lost (ms)"],
+            rows,
+            left={0, 8, 9},
+            widest={0: 16},
+        )  # fmt: skip
     return lines
 
 

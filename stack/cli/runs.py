@@ -101,14 +101,21 @@ def check_plot_output(path: str, option: str = "--plot") -> None:
 
 
 def check_plot_dir(path: str, option: str = "--plot") -> None:
-    """A directory for plots: an existing directory, or a new one in an existing parent, and
-    matplotlib installed (the optional ``plot`` extra)."""
+    """A directory for plots: an existing directory, or new ones (``a/b``: both are made) under
+    the first part of the path that exists, which must be a writable directory; and matplotlib
+    installed (the optional ``plot`` extra)."""
+    if not path:
+        raise CliError(f"{option} needs a directory name")
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise CliError(f"{option} {path!r}: is a file; give a directory for the plots")
-    parent = p if p.exists() else p.parent
-    if not parent.exists():
-        raise CliError(f"{option} {path!r}: the directory {str(parent)!r} does not exist")
+    probe = p.absolute()
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise CliError(f"{option} {path!r}: {str(probe)!r} is a file, not a directory")
+    if not os.access(probe, os.W_OK):
+        raise CliError(f"{option} {path!r}: directory {str(probe)!r} is not writable")
     if importlib.util.find_spec("matplotlib") is None:
         raise CliError(f"{option} needs matplotlib, which is not installed: pip install 'canstack[plot]'")
 
