@@ -17,17 +17,25 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from stack.cli import CliError, count_type, plural, seconds_type
+from stack.cli import CliError, count_type, parse_bitrate, plural, seconds_type
 from stack.cli.runs import check_output, check_plot_dir, writing
 
 __all__ = ["register", "register_sweep", "register_study", "check_table_output"]
 
 DEFAULT_METRICS = ("worst_misses", "bus_load")
+
+DEFAULT_TIME_LIMIT = 900.0
+"""Wall-clock seconds a run of a sweep or study may take before it is stopped and recorded as
+failed (a run that never ends must not stall the others)."""
+
+#: exit status when some runs failed (their rows carry the error; the table is written)
+FAILED_RUNS = 1
 
 
 def check_table_output(path: str, option: str = "--out") -> None:
@@ -57,15 +65,51 @@ def _int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
 
 
+#: the longest period a study draws, ms (an hour: a set with longer periods holds no instance in a run)
+MAX_PERIOD_MS = 3_600_000.0
+#: the fewest utilisation a random set may have: less makes periods longer than `MAX_PERIOD_MS`
+MIN_UTILISATION = 0.001
+#: messages in a random set: each needs its own 11-bit identifier
+MAX_SET_MESSAGES = 0x800
+
+
 def _period_range(text: str) -> tuple[float, float]:
     lo, sep, hi = text.partition(",")
     try:
         a, b = float(lo), float(hi)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: give MIN,MAX in ms (e.g. 0.1,1000)") from None
-    if not sep or not 0 < a < b:
-        raise argparse.ArgumentTypeError(f"{text!r}: give MIN,MAX in ms with 0 < MIN < MAX")
+    if not sep or not (math.isfinite(a) and math.isfinite(b)) or not 0 < a < b:
+        raise argparse.ArgumentTypeError(f"{text!r}: give MIN,MAX in ms with 0 < MIN < MAX (finite numbers)")
+    if a < 1e-3 or b > MAX_PERIOD_MS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: periods from 0.001 ms (a microsecond) to {MAX_PERIOD_MS:g} ms (an hour)"
+        )
     return a, b
+
+
+def _utilisation(text: str) -> float:
+    try:
+        f = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a utilisation (a fraction, 0.5 for 50 %)") from None
+    if not (math.isfinite(f) and MIN_UTILISATION <= f <= 1.5):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a utilisation is from {MIN_UTILISATION:g} to 1.5 (a fraction: 0.5 is 50 %)"
+        )
+    return f
+
+
+def _bounded_count(what: str, most: int) -> Any:
+    base = count_type(what)
+
+    def parse(text: str) -> int:
+        v = base(text)
+        if v > most:
+            raise argparse.ArgumentTypeError(f"{text}: {what} is at most {most:,}")
+        return v
+
+    return parse
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -93,9 +137,17 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="DIR", help="write the plots into DIR (the plot extra)")
     p.add_argument(
         "--progress",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
-        help="draw the progress bar (default: when stderr is a terminal)",
+        help="progress bar of the runs with the time left on stderr (default: when stderr is a terminal)",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=seconds_type(1e6),
+        default=DEFAULT_TIME_LIMIT,
+        metavar="S",
+        help=f"stop a run that takes longer than S seconds of wall clock and record it as failed (default "
+        f"{DEFAULT_TIME_LIMIT:g})",
     )
 
 
@@ -154,7 +206,8 @@ def _check_metrics(metrics: Sequence[str], scenario: Any) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from profiles.pipeline.scenario import load_scenario
+    from profiles.pipeline.cli import warn
+    from profiles.pipeline.scenario import load_scenario, parse_scenario
     from profiles.sweeps.sweep import parse_vary, resolve_vary, run_sweep, write_table
 
     if args.out:
@@ -171,6 +224,9 @@ def _sweep(args: argparse.Namespace) -> int:
     raw = scenario.raw
     if args.duration is not None:
         raw = dict(raw, bus=dict(raw["bus"], duration=args.duration))
+        scenario = parse_scenario(raw, scenario.source)  # the scenario's own rule on the duration
+    for w in scenario.warnings:
+        warn(w)
     varies = [resolve_vary(raw, parse_vary(spec)) for spec in (args.vary or [])]
     metrics = args.metric or list(DEFAULT_METRICS)
     if args.plot:
@@ -185,6 +241,7 @@ def _sweep(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         engine=args.engine,
         progress=args.progress,
+        time_limit=args.time_limit,
     )
     if args.out:
         writing(args.out, "--out", lambda: write_table(res.rows, res.columns, args.out))
@@ -211,10 +268,40 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.plot and res.rows:
         from profiles.sweeps.plots import write_sweep_plots
 
-        files = write_sweep_plots(res.rows, res.keys, metrics, args.plot)
+        files = write_sweep_plots(res.rows, res.keys, metrics, args.plot, log_x=args.log_x)
         print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
     _report(res.total, len(res.rows), len(res.failed), res.interrupted, res.engine, res.wall_s, args.out)
-    return 130 if res.interrupted else 0
+    if args.seeds > 1 and not res.interrupted:
+        same = _same_replicates(res.rows, res.keys)
+        if same:
+            warn(
+                f"{scenario.source}: every one of the {args.seeds} seeds of each combination gave the same row: "
+                "nothing in this scenario is drawn at random (no release jitter, sporadic message, random "
+                "processing delay or bit errors), so --seeds adds nothing"
+            )
+    return _status(res.interrupted, res.failed)
+
+
+def _status(interrupted: bool, failed: list[dict[str, Any]]) -> int:
+    """130 after Ctrl-C, `FAILED_RUNS` when a run failed (its row says why), else 0."""
+    if interrupted:
+        return 130
+    return FAILED_RUNS if failed else 0
+
+
+def _same_replicates(rows: list[dict[str, Any]], keys: list[str]) -> bool:
+    """True when the replicates of every combination gave one and the same row (all columns but
+    run, replicate and seed): the scenario drew nothing at random."""
+    groups: dict[tuple[str, ...], set[str]] = {}
+    for r in rows:
+        if r.get("error"):
+            return False
+        combo = tuple(repr(r.get(k)) for k in keys)
+        rest = json.dumps(
+            {k: v for k, v in r.items() if k not in ("run", "replicate", "seed")}, sort_keys=True, default=str
+        )
+        groups.setdefault(combo, set()).add(rest)
+    return bool(groups) and all(len(v) == 1 for v in groups.values()) and len(rows) > len(groups)
 
 
 def _report(total: int, done: int, failed: int, interrupted: bool, engine: str, wall_s: float, out: str | None) -> None:
@@ -251,6 +338,12 @@ def register_sweep(sub: Any) -> None:
         "--duration", type=seconds_type(1e6), help="simulated seconds of every run instead of [bus] duration"
     )
     p.add_argument(
+        "--log-x",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="--plot: the varied key on a logarithmic axis (default: when its values span two decades or more)",
+    )
+    p.add_argument(
         "--metric",
         action="append",
         metavar="COLUMN",
@@ -276,8 +369,10 @@ def _utilisations(text: str) -> list[float]:
             f = float(v)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{v!r} is not a utilisation (a fraction, 0.1 for 10 %)") from None
-        if not 0 < f <= 1.5:
-            raise argparse.ArgumentTypeError(f"{v!r}: a utilisation is > 0 and at most 1.5 (a fraction: 0.5 is 50 %)")
+        if not (math.isfinite(f) and MIN_UTILISATION <= f <= 1.5):
+            raise argparse.ArgumentTypeError(
+                f"{v!r}: a utilisation is from {MIN_UTILISATION:g} to 1.5 (a fraction: 0.5 is 50 %)"
+            )
         out.append(f)
     return out
 
@@ -297,8 +392,10 @@ def _study_table(study: Any) -> str:
             f"{100 * p['utilisation']:>5.0f} {p['sets']:>5} {pct(p['analysis']):>11} {pct(p['opa']):>10} "
             f"{pct(p['simulation']):>12} {pct(p['fifo_analysis']):>11} {pct(p['fifo']):>11}"
         )
-    for curve, u in study.breakdown.items():
-        lines.append(f"breakdown utilisation ({curve}, 50 % of sets): " + ("-" if u is None else f"{100 * u:.1f} %"))
+    from profiles.sweeps.schedulability import breakdown_text
+
+    for curve in study.breakdown:
+        lines.append(f"{curve} (where 50 % of the sets stop passing): {breakdown_text(study, curve)}")
     return "\n".join(lines)
 
 
@@ -325,6 +422,7 @@ def _schedulability(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         engine=args.engine,
         progress=args.progress,
+        time_limit=args.time_limit,
     )
     if args.out:
         cols = table_columns(study.rows, ["utilisation", "set"])
@@ -366,21 +464,24 @@ def _schedulability(args: argparse.Namespace) -> int:
         ]
         print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
     _report(study.total, len(study.rows), len(study.failed), study.interrupted, study.engine, study.wall_s, args.out)
-    return 130 if study.interrupted else 0
+    return _status(study.interrupted, study.failed)
 
 
 def _profiles_table(study: Any) -> str:
+    from profiles.text import id_text, table
+
     rows = [r for r in study.rows if not r.get("error")]
-    head = f"{'message':<12} {'ID':>6} {'period':>9} " + " ".join(f"{r['profile'][:22]:>22}" for r in rows)
-    lines = [head, f"{'':<12} {'':>6} {'(ms)':>9} " + " ".join(f"{'worst / jitter / miss':>22}" for _ in rows)]
+    body = []
     for m in sorted(study.mset.messages, key=lambda m: (m.extended, m.can_id)):  # priority order
         cells = []
         for r in rows:
             mx, jt, ms = r.get(f"{m.name}.max_ms"), r.get(f"{m.name}.jitter_ms"), r.get(f"{m.name}.misses")
-            cells.append(f"{_fmt3(mx)} / {_fmt3(jt)} / {'-' if ms is None else ms}".rjust(22))
-        lines.append(f"{m.name[:12]:<12} {m.can_id:>#6x} {m.period_ns / 1e6:>9.3f} " + " ".join(cells))
-    lines.append(f"{'bus load %':<29} " + " ".join(f"{100 * r['bus_load']:>22.1f}" for r in rows))
-    lines.append(f"{'deadline misses':<29} " + " ".join(f"{r['deadline_misses']:>22}" for r in rows))
+            cells.append(f"{_fmt3(mx)} / {_fmt3(jt)} / {'-' if ms is None else ms}")
+        body.append([m.name, id_text(m.can_id, m.extended), f"{m.period_ns / 1e6:.3f}", *cells])
+    body.append(["bus load %", "", "", *(f"{100 * r['bus_load']:.1f}" for r in rows)])
+    body.append(["deadline misses", "", "", *(str(r["deadline_misses"]) for r in rows)])
+    lines = ["per profile: worst response / start-to-start jitter / deadline misses (ms)"]
+    lines += table(["message", "ID", "period ms", *(r["profile"] for r in rows)], body, left=1, widest={0: 24})
     for r in study.rows:
         if r.get("error"):
             lines.append(f"{r['profile']}: failed: {r['error']}")
@@ -429,7 +530,12 @@ def _profiles(args: argparse.Namespace) -> int:
     if args.duration is not None:
         mset = type(mset)(mset.bitrate, mset.messages, args.duration, mset.seed)
     study = profiles_study(
-        mset, workers=args.workers, scheduler=args.scheduler, engine=args.engine, progress=args.progress
+        mset,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        engine=args.engine,
+        progress=args.progress,
+        time_limit=args.time_limit,
     )
     if args.out:
         cols = table_columns(study.rows, ["profile"])
@@ -468,24 +574,30 @@ def _profiles(args: argparse.Namespace) -> int:
         d = Path(args.plot)
         d.mkdir(parents=True, exist_ok=True)
         print(f"plots: {profiles_plot(study, d / 'profiles.png')}", file=sys.stderr)
-    return 130 if study.interrupted else 0
+    failed = [r for r in study.rows if r.get("error")]
+    for r in failed:
+        print(f"canstack: {r['profile']}: failed: {r['error']}", file=sys.stderr)
+    return _status(study.interrupted, failed)
 
 
 def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) -> None:
     p.add_argument(
         "--messages",
-        type=count_type("messages per set"),
+        type=_bounded_count("messages per set (each has its own 11-bit identifier)", MAX_SET_MESSAGES),
         default=messages,
-        help=f"messages per set (default {messages})",
+        help=f"messages per set (default {messages}, at most {MAX_SET_MESSAGES})",
     )
     p.add_argument(
         "--per-node",
-        type=count_type("messages per node"),
+        type=_bounded_count("messages per node", MAX_SET_MESSAGES),
         default=per_node,
         help=f"messages per node (default {per_node})",
     )
     p.add_argument(
-        "--bitrate", type=_int, default=500_000, help="bit/s (default 500000; the loguniform generator chooses its own)"
+        "--bitrate",
+        type=parse_bitrate,
+        default=500_000,
+        help="bit/s (default 500000; the loguniform generator chooses its own)",
     )
     p.add_argument(
         "--period-range",
@@ -536,7 +648,9 @@ def register_study(sub: Any) -> None:
         metavar="U1,U2|A:B:S",
         help="utilisation points, fractions (default 0.1:1.0:0.1, i.e. 10 %% .. 100 %%)",
     )
-    s.add_argument("--sets", type=count_type("sets per point"), default=100, help="sets per point (default 100)")
+    s.add_argument(
+        "--sets", type=_bounded_count("sets per point", 100_000), default=100, help="sets per point (default 100)"
+    )
     _set_options(s, messages=10, per_node=3)
     _common(s)
     s.set_defaults(func=_schedulability)
@@ -547,7 +661,7 @@ def register_study(sub: Any) -> None:
         "converter (express_message_set), and compare worst-case latency, jitter and bus load.",
     )
     q.add_argument("--scenario", help="take the message set from this scenario file (default: a random set)")
-    q.add_argument("--utilisation", type=float, default=0.5, help="utilisation of the random set (default 0.5)")
+    q.add_argument("--utilisation", type=_utilisation, default=0.5, help="utilisation of the random set (default 0.5)")
     q.add_argument(
         "--duration",
         type=seconds_type(1e6),

@@ -66,6 +66,7 @@ def profiles_study(
     scheduler: str | None = None,
     engine: str = "auto",
     progress: bool | None = None,
+    time_limit: float | None = None,
 ) -> ProfilesStudy:
     """Run ``mset`` under every registered profile that has a converter (see the module
     docstring) and return their rows side by side. A converter that raises, or a scenario its
@@ -94,7 +95,14 @@ def profiles_study(
             continue
         tasks.append(ProfileTask(len(tasks), label, raw))
     ex = execute(
-        profile_run, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress, desc="profiles"
+        profile_run,
+        tasks,
+        workers=workers,
+        scheduler=scheduler,
+        engine=engine,
+        progress=progress,
+        desc="profiles",
+        time_limit=time_limit,
     )
     rows = ex.rows + failed
     return ProfilesStudy(mset, rows, skipped, ex.interrupted, ex.engine, ex.wall_s)

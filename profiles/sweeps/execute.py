@@ -35,6 +35,7 @@ import functools
 import importlib.util
 import logging
 import multiprocessing
+import os
 import signal
 import sys
 import threading
@@ -42,6 +43,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import as_completed as futures_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -131,6 +133,15 @@ def error_text(exc: BaseException) -> str:
     return text if len(text) <= 500 else text[:497] + "..."
 
 
+def _within(fn: Callable[[Any], dict[str, Any]], limit: float, task: Task) -> dict[str, Any]:
+    """``fn(task)`` with a wall-clock limit on each simulation it runs (`stack.cli.runs.time_limit`:
+    past it the run raises, and its row records the error)."""
+    from stack.cli.runs import time_limit
+
+    with time_limit(limit):
+        return fn(task)
+
+
 def _guarded(fn: Callable[[Any], dict[str, Any]], task: Task) -> dict[str, Any]:
     """Run ``fn(task)``; an exception becomes the task's row with ``error`` (KeyboardInterrupt
     is not caught: a stopped run is no result)."""
@@ -145,21 +156,36 @@ def _guarded(fn: Callable[[Any], dict[str, Any]], task: Task) -> dict[str, Any]:
 # --- the process pool: its workers' side ------------------------------------------------------
 
 _STOP: Any = None
+_STATE: Any = None
+
+#: a run's state in the pool's shared array: not started, running, done
+_WAITING, _RUNNING, _DONE = 0, 1, 2
+
+#: how often a run may take its worker down with it (killed, out of memory) before it is
+#: recorded as failed: the other runs of a broken pool are rerun on a new one
+WORKER_LOSSES = 2
 
 
-def _pool_init(stop: Any) -> None:
-    """In each pool worker: remember the sweep's stop flag and ignore Ctrl-C between runs (the
-    parent decides what an interrupt means; a run in progress still stops through the runner's
-    own handler)."""
-    global _STOP
+def _pool_init(stop: Any, state: Any) -> None:
+    """In each pool worker: remember the sweep's stop flag and the runs' shared state array, and
+    ignore Ctrl-C between runs (the parent decides what an interrupt means; a run in progress
+    still stops through the runner's own handler, which the parent's SIGINT reaches)."""
+    global _STOP, _STATE
     _STOP = stop
+    _STATE = state
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _pool_call(fn: Callable[[Any], dict[str, Any]], task: Task) -> dict[str, Any] | None:
     if _STOP is not None and _STOP.is_set():
         return None  # the sweep was stopped while this run waited in the queue
-    return _guarded(fn, task)
+    if _STATE is not None:
+        _STATE[task.index] = _RUNNING
+    try:
+        return _guarded(fn, task)
+    finally:
+        if _STATE is not None:
+            _STATE[task.index] = _DONE
 
 
 # --- the three engines ---------------------------------------------------------------------------
@@ -205,10 +231,60 @@ def _sequential(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], out:
     return False
 
 
+def _stop_workers() -> None:
+    """Ask the pool's workers to stop the runs they are in (SIGINT: the runner's handler stops
+    at the end of its slice); idle workers ignore it."""
+    for child in multiprocessing.active_children():
+        try:
+            os.kill(child.pid, signal.SIGINT)  # type: ignore[arg-type]
+        except (OSError, TypeError):
+            pass
+
+
 def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], workers: int, out: _Rows) -> bool:
+    """Run on a process pool. A worker that dies (killed, out of memory) breaks the pool: the
+    runs it did not finish go to a new pool, and a run that was under way in a dead worker
+    `WORKER_LOSSES` times is recorded as failed."""
     ctx = multiprocessing.get_context()
     stop = ctx.Event()
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_init, initargs=(stop,))
+    state = ctx.Array("b", max(1, max((t.index for t in tasks), default=0) + 1), lock=False)
+    losses: dict[int, int] = {}
+    todo = list(tasks)
+    while todo:
+        broken, interrupted = _pool_round(fn, todo, workers, out, ctx, stop, state)
+        if interrupted:
+            return True
+        if not broken:
+            break
+        todo = []
+        for t in broken:
+            if state[t.index] == _RUNNING:  # under way in the worker that died
+                losses[t.index] = losses.get(t.index, 0) + 1
+            if losses.get(t.index, 0) >= WORKER_LOSSES:
+                row = t.head()
+                row["error"] = (
+                    f"the worker process running it died {WORKER_LOSSES} times (killed, or out of memory); "
+                    "the other runs went on"
+                )
+                out.add(t.index, row)
+            else:
+                state[t.index] = _WAITING
+                todo.append(t)
+    return False
+
+
+def _pool_round(
+    fn: Callable[[Any], dict[str, Any]],
+    tasks: Sequence[Task],
+    workers: int,
+    out: _Rows,
+    ctx: Any,
+    stop: Any,
+    state: Any,
+) -> tuple[list[Task], bool]:
+    """One pool over ``tasks``: (the tasks a broken pool left without a row, interrupted)."""
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_init, initargs=(stop, state))
+    broken: list[Task] = []
     interrupted = False
     try:
         futs = {pool.submit(_pool_call, fn, t): t for t in tasks}
@@ -217,7 +293,10 @@ def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], worke
             exc = fut.exception()
             if isinstance(exc, KeyboardInterrupt):
                 raise KeyboardInterrupt
-            if exc is not None:  # the worker died or the task did not pickle
+            if isinstance(exc, BrokenProcessPool):
+                broken.append(t)
+                continue
+            if exc is not None:  # the task did not pickle
                 row = t.head()
                 row["error"] = error_text(exc)
                 out.add(t.index, row)
@@ -228,9 +307,10 @@ def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], worke
     except KeyboardInterrupt:
         interrupted = True
         stop.set()
+        _stop_workers()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-    return interrupted
+    return sorted(broken, key=lambda t: t.index), interrupted
 
 
 def _dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
@@ -326,12 +406,18 @@ def execute(
     engine: str = "auto",
     progress: bool | None = None,
     desc: str = "runs",
+    time_limit: float | None = None,
 ) -> Execution:
     """Run ``fn`` on every task (see the module docstring) and return the rows in canonical order.
 
     ``progress`` draws a tqdm bar of runs done / total with the ETA on stderr (None: when stderr
-    is a terminal). Raises `ExecuteError` before any run when the engine cannot be had."""
+    is a terminal); ``time_limit`` (wall-clock seconds) stops a simulation of a run that takes
+    longer, and the run's row records it. Raises `ExecuteError` before any run when the engine
+    cannot be had."""
     name = choose_engine(workers, scheduler, engine)
+    module = fn.__module__
+    if time_limit is not None:
+        fn = functools.partial(_within, fn, time_limit)
     wall0 = time.perf_counter()
     startup = 0.0
     if name == "dask":
@@ -340,10 +426,10 @@ def execute(
             # every worker imports the run's module now (LocalCluster workers are fresh interpreters:
             # half a second each), so that the start-up is counted as such, not in the first runs
             try:
-                client.run(_warm, fn.__module__)
+                client.run(_warm, module)
             except Exception as exc:
                 raise ExecuteError(
-                    f"the Dask workers cannot import {fn.__module__} ({error_text(exc)}): install "
+                    f"the Dask workers cannot import {module} ({error_text(exc)}): install "
                     "canstack (the same version) on every worker"
                 ) from None
             startup = time.perf_counter() - wall0

@@ -17,12 +17,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from profiles.pipeline.plots import pyplot
+from profiles.sweeps.schedulability import breakdown_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.sweeps.comparison import ProfilesStudy
     from profiles.sweeps.schedulability import SchedulabilityStudy
 
-__all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label"]
+__all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label", "wants_log"]
 
 _LABELS = {
     "bus_load": "bus load (%)",
@@ -55,10 +56,31 @@ def _distinct(values: Sequence[Any]) -> list[Any]:
     return list(dict.fromkeys(values))
 
 
-def sweep_plot(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metric: str, path: str | Path) -> Path:
+#: values of a varied key spanning this ratio or more go on a logarithmic axis
+LOG_SPAN = 100.0
+
+
+def wants_log(values: Sequence[Any]) -> bool:
+    """Whether numbers span two decades or more (all above 0): then a logarithmic axis shows
+    them evenly, where a linear one would crowd the small ones into a corner."""
+    if not values or not _numeric(values) or min(values) <= 0:
+        return False
+    return max(values) / min(values) >= LOG_SPAN
+
+
+def sweep_plot(
+    rows: Sequence[Mapping[str, Any]],
+    keys: Sequence[str],
+    metric: str,
+    path: str | Path,
+    *,
+    log_x: bool | None = None,
+) -> Path:
     """``metric`` against the first varied key, one line per value of the second (if any): the
     mean over the seeds of each combination, their min..max as a band. Failed runs are left out
-    (the title says how many)."""
+    (the title says how many). The key's axis is logarithmic when ``log_x`` says so, or (None)
+    when its values span two decades or more (`wants_log`); the legend goes beside the axes, off
+    the data."""
     if not 1 <= len(keys) <= 2:
         raise ValueError(f"a sweep plot draws one or two varied keys, not {len(keys)}")
     plt = pyplot()
@@ -91,25 +113,33 @@ def sweep_plot(rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metric: s
             )
     if not numeric:
         ax.set_xticks(range(len(xs)), [str(x) for x in xs])
-    ax.set_xlabel(xkey)
+    elif (wants_log(xs) if log_x is None else log_x) and min(xs) > 0:
+        ax.set_xscale("log")
+    ax.set_xlabel(xkey + (" (log scale)" if ax.get_xscale() == "log" else ""))
     ax.set_ylabel(metric_label(metric))
     failed = sum(1 for r in rows if r.get("error"))
     ax.set_title(
         f"{metric_label(metric)} against {xkey}" + (f" ({failed} failed runs left out)" if failed else ""), fontsize=10
     )
     if len(series) > 1:
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.grid(alpha=0.3)
     return _save(fig, path)
 
 
 def write_sweep_plots(
-    rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str], directory: str | Path
+    rows: Sequence[Mapping[str, Any]],
+    keys: Sequence[str],
+    metrics: Sequence[str],
+    directory: str | Path,
+    *,
+    log_x: bool | None = None,
 ) -> list[Path]:
-    """One `sweep_plot` per metric, ``<metric>.png`` in ``directory`` (created if missing)."""
+    """One `sweep_plot` per metric, ``<metric>.png`` in ``directory`` (created, with its parents,
+    if missing)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    return [sweep_plot(rows, keys, m, d / f"{m.replace('/', '_')}.png") for m in metrics]
+    return [sweep_plot(rows, keys, m, d / f"{m.replace('/', '_')}.png", log_x=log_x) for m in metrics]
 
 
 _CURVE_STYLE = {
@@ -133,14 +163,14 @@ def schedulability_plot(
     fifo_analysis), each curve's breakdown utilisation (where it falls through 50 %) as a dotted
     vertical line."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    fig, ax = plt.subplots(figsize=(7.5, 4.5 + 0.3 * len(curves)))
     order = _ORDER_NAMES.get(str(study.settings.get("priorities", "deadline")), "the sets' identifiers")
     for c in curves:
         label, colour, style = _CURVE_STYLE[c]
         label = label.format(order=order)
         pts = [(100 * p["utilisation"], 100 * p[c]) for p in study.points if p[c] is not None]
         b = study.breakdown.get(c)
-        label += f" (breakdown {100 * b:.0f} %)" if b is not None else " (never below 50 %)"
+        label += f" ({breakdown_text(study, c)})"
         ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colour, label=label)
         if b is not None:
             ax.axvline(100 * b, color=colour, linestyle=":", linewidth=1)
@@ -165,7 +195,8 @@ def schedulability_plot(
         ),
         fontsize=9,
     )
-    ax.legend(fontsize=8, loc="lower left")
+    # below the axes: inside, it would cover the curves wherever they run
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=1)
     ax.grid(alpha=0.3)
     return _save(fig, path)
 
@@ -192,7 +223,8 @@ def profiles_plot(study: ProfilesStudy, path: str | Path) -> Path:
         ax.set_ylabel(label)
         ax.grid(axis="y", alpha=0.3)
     axes[0].set_yscale("log")
-    axes[0].legend(fontsize=8)
+    _mark_zeros(axes[0], rows, names, width, "max_ms")
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.3), ncol=min(4, len(rows) + 1))
     axes[2].set_xticks(range(len(rows)), [r["profile"] for r in rows], rotation=45, ha="right", fontsize=8)
     axes[2].set_ylabel("bus load (%)")
     axes[2].set_ylim(0, 100)
@@ -202,9 +234,18 @@ def profiles_plot(study: ProfilesStudy, path: str | Path) -> Path:
     return _save(fig, path)
 
 
+def _mark_zeros(ax: Any, rows: Sequence[Mapping[str, Any]], names: Sequence[str], width: float, col: str) -> None:
+    """On a logarithmic axis a bar of 0 has no height: mark each with a '0' at the bottom."""
+    bottom = ax.get_ylim()[0]
+    for k, r in enumerate(rows):
+        for i, n in enumerate(names):
+            if r.get(f"{n}.{col}") == 0:
+                ax.annotate("0", (i - 0.4 + width * (k + 0.5), bottom), ha="center", va="bottom", fontsize=7)
+
+
 def _save(fig: Any, path: str | Path) -> Path:
     p = Path(path)
     fig.tight_layout()
-    fig.savefig(p, dpi=100)
+    fig.savefig(p, dpi=100, bbox_inches="tight")  # legends beside the axes stay in the image
     pyplot().close(fig)
     return p

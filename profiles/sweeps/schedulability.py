@@ -31,9 +31,17 @@ from profiles.analysis.priority import assign_priorities
 from profiles.sweeps.converters import csma_fifo_scenario, csma_scenario
 from profiles.sweeps.execute import execute
 from profiles.sweeps.random_sets import GENERATORS, PERIOD_RANGES_MS, PRIORITIES, generate_set
-from profiles.sweeps.sweep import run_seed
+from profiles.sweeps.sweep import MAX_RUNS, run_seed
 
-__all__ = ["SchedTask", "schedulability_run", "schedulability_study", "SchedulabilityStudy", "breakdown", "CURVES"]
+__all__ = [
+    "SchedTask",
+    "schedulability_run",
+    "schedulability_study",
+    "SchedulabilityStudy",
+    "breakdown",
+    "breakdown_text",
+    "CURVES",
+]
 
 
 @dataclass(frozen=True)
@@ -128,6 +136,20 @@ def breakdown(points: Sequence[tuple[float, float]], level: float = 0.5) -> floa
     return None
 
 
+def breakdown_text(study: SchedulabilityStudy, curve: str) -> str:
+    """What a curve's breakdown utilisation is, in words: ``breakdown 71.3 %``, or why it has
+    none — below 50 % from the first point, or never below 50 % up to the last."""
+    pts = [(p["utilisation"], p[curve]) for p in study.points if p[curve] is not None]
+    b = study.breakdown.get(curve)
+    if b is not None:
+        return f"breakdown {100 * b:.1f} %"
+    if not pts:
+        return "no sets ran"
+    if pts[0][1] < 0.5:
+        return f"below 50 % from the first point ({100 * pts[0][0]:g} %)"
+    return f"never below 50 % up to {100 * pts[-1][0]:g} %"
+
+
 @dataclass
 class SchedulabilityStudy:
     """Per-set rows (canonical order: utilisation point, then set), per-point fractions, and the
@@ -173,6 +195,7 @@ def schedulability_study(
     scheduler: str | None = None,
     engine: str = "auto",
     progress: bool | None = None,
+    time_limit: float | None = None,
 ) -> SchedulabilityStudy:
     """The schedulability study (see the module docstring): ``sets`` random sets at each
     utilisation, each analysed and simulated; the fractions of sets the analysis accepts (with
@@ -182,6 +205,11 @@ def schedulability_study(
         raise ValueError(f"--sets {sets}: at least 1")
     if not utilisations:
         raise ValueError("no utilisation to study")
+    if len(utilisations) * sets > MAX_RUNS:
+        raise ValueError(
+            f"the study would make {len(utilisations) * sets:,} runs ({len(utilisations)} utilisations × {sets} "
+            f"sets): at most {MAX_RUNS:,}"
+        )
     for u in utilisations:
         if not 0 < u <= 1.5:
             raise ValueError(f"utilisation {u!r}: must be > 0 and at most 1.5")
@@ -215,6 +243,7 @@ def schedulability_study(
         engine=engine,
         progress=progress,
         desc="schedulability",
+        time_limit=time_limit,
     )
     points = []
     for u in utilisations:

@@ -31,7 +31,7 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from decimal import Decimal
+from decimal import Decimal, InvalidOperation, Overflow, localcontext
 from pathlib import Path
 from typing import Any
 
@@ -58,10 +58,14 @@ __all__ = [
     "TABLE_SUFFIXES",
     "FIXED_METRICS",
     "MESSAGE_METRICS",
+    "MAX_RUNS",
 ]
 
 MAX_VALUES = 100_000
 """Most values one --vary may expand to: more is a typo in a range (a step in the wrong unit)."""
+
+MAX_RUNS = 1_000_000
+"""Most runs one sweep or study plans: more is a typo in a range or a count."""
 
 TABLE_SUFFIXES = (".csv", ".parquet")
 
@@ -112,11 +116,21 @@ def _range(token: str, key: str) -> list[int | float]:
     assert start is not None and end is not None and step is not None
     if step == 0:
         raise SweepError(f"--vary {key}: {token!r}: the step of a range must not be 0")
-    if (end - start) * step < 0:
-        raise SweepError(f"--vary {key}: {token!r}: a step of {step} never goes from {start} to {end}")
-    count = int((end - start) / step) + 1
-    if count > MAX_VALUES:
-        raise SweepError(f"--vary {key}: {token!r} gives {count:,} values (at most {MAX_VALUES:,})")
+    try:
+        # in a context of its own: a range of 1e1000000 overflows the default one, and the count
+        # is compared before it is made an integer (int() of a 10**999999 would take minutes)
+        with localcontext() as ctx:
+            ctx.traps[InvalidOperation] = True
+            if (end - start) * step < 0:
+                raise SweepError(f"--vary {key}: {token!r}: a step of {step} never goes from {start} to {end}")
+            span = (end - start) / step
+            too_many = span >= MAX_VALUES
+            counted = f"{int(span) + 1:,}" if too_many and span < 10**15 else f"more than {MAX_VALUES:,}"
+    except (Overflow, InvalidOperation):
+        too_many, counted = True, f"more than {MAX_VALUES:,}"
+    if too_many:
+        raise SweepError(f"--vary {key}: {token!r} gives {counted} values (at most {MAX_VALUES:,})")
+    count = int(span) + 1
     integral = all("." not in p and "e" not in p.lower() for p in (parts if len(parts) == 3 else parts[:2]))
     out: list[int | float] = []
     for i in range(count):
@@ -225,6 +239,14 @@ def plan_runs(
         sweep_seed = bus.get("seed", 0) if isinstance(bus, Mapping) else 0
         if not isinstance(sweep_seed, int) or isinstance(sweep_seed, bool):
             sweep_seed = 0  # the scenario check reports the bad seed in every run
+    total = seeds
+    for v in varies:
+        total *= len(v.values)
+    if total > MAX_RUNS:
+        raise SweepError(
+            f"the sweep would make {total:,} runs ({' × '.join(str(len(v.values)) for v in varies)}"
+            f"{f' × {seeds} seeds' if seeds > 1 else ''}): at most {MAX_RUNS:,}"
+        )
     paths = tuple(v.path for v in varies)
     tasks: list[RunTask] = []
     for combo in itertools.product(*(v.values for v in varies)):
@@ -336,14 +358,23 @@ def run_sweep(
     scheduler: str | None = None,
     engine: str = "auto",
     progress: bool | None = None,
+    time_limit: float | None = None,
 ) -> SweepResult:
     """Run every combination of the varied values × ``seeds`` (see the module docstring) and
     return the table. ``varies`` are resolved here if they are not yet; ``workers``/``scheduler``/
-    ``engine`` choose where the runs go (`profiles.sweeps.execute.execute`)."""
+    ``engine`` choose where the runs go and ``time_limit`` bounds each run's wall-clock time
+    (`profiles.sweeps.execute.execute`)."""
     resolved = [v if v.path else resolve_vary(raw, v) for v in varies]
     tasks = plan_runs(raw, source, resolved, seeds=seeds, sweep_seed=sweep_seed)
     ex: Execution = execute(
-        run_one, tasks, workers=workers, scheduler=scheduler, engine=engine, progress=progress, desc="sweep"
+        run_one,
+        tasks,
+        workers=workers,
+        scheduler=scheduler,
+        engine=engine,
+        progress=progress,
+        desc="sweep",
+        time_limit=time_limit,
     )
     keys = [v.key for v in resolved]
     return SweepResult(

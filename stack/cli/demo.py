@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.bus.sim import SimBus
+from stack.bus.trace import TraceWriter
 from stack.cli import CliError, int_type, parse_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (
     MAX_SIM_SECONDS,
@@ -17,14 +18,13 @@ from stack.cli.runs import (
     check_trace_output,
     run_sliced,
     trace_note,
-    trc_dropped,
     writing,
 )
 from stack.wire.coding import INTERMISSION_BITS, Field
 from stack.wire.fd import worst_case_bits
 from stack.wire.frame import Frame
 
-__all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json"]
+__all__ = ["register", "build_demo", "build_fault_demo", "format_summary", "summary_json", "write_frames_vcd"]
 
 MS = 1_000_000
 
@@ -174,9 +174,10 @@ def _demo(args: argparse.Namespace) -> int:
     if args.plot is not None:
         check_plot_output(args.plot)
     until = int(args.duration * 1e9)
-    # the trace records (one per frame) are kept only when a file is made from them; the
-    # summary comes from the bus's streaming statistics, constant in memory
-    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace or args.vcd))
+    # the records stream to the trace file as they are made (memory stays flat however long the
+    # run); the waveform keeps the frames it draws; the summary comes from the bus's streaming
+    # statistics
+    bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace or args.vcd), keep=False)
     samples: list[tuple[int, dict[str, tuple[int, int]]]] = []
     changes: list[Any] = []
     if args.faults:
@@ -189,7 +190,30 @@ def _demo(args: argparse.Namespace) -> int:
             n.listen(ErrorStateChanged, changes.append)
     else:
         build_demo(bus)
-    complete = run_sliced(bus, until, progress=args.progress, desc="demo")
+    frames: list[tuple[int, Frame]] = []
+    if args.vcd:
+        bus.on_trace(lambda rec: frames.append((rec.start, rec.frame)) if rec.kind == "frame" else None)
+    writer = None
+    try:
+        if args.trace:
+            writer = writing(args.trace, "--trace", lambda: TraceWriter(args.trace, channel=bus.name))
+            bus.on_trace(writer.write)
+        complete = run_sliced(bus, until, progress=args.progress, desc="demo")
+    finally:
+        if writer is not None:
+            writing(args.trace, "--trace", writer.close)
+    # every file before anything is printed: output piped into head must not cost one of them
+    notes = []
+    if args.plot:
+        writing(args.plot, "--plot", lambda: plot_counters(samples, args.plot))
+        notes.append(f"\nplot: TEC/REC over time written to {args.plot}")
+    if writer is not None:
+        notes.append(
+            f"\ntrace: {plural(writer.written, 'record')} written to {args.trace}{trace_note(args.trace, writer.left_out)}"
+        )
+    if args.vcd:
+        n = writing(args.vcd, "--vcd", lambda: write_frames_vcd(frames, bus.bitrate, args.vcd, bus.name))
+        notes.append(f"waveform: CAN_RX of {plural(n, 'frame')} written to {args.vcd} (GTKWave, PulseView)")
     if args.json:
         print(json.dumps(summary_json(bus), indent=2))
     else:
@@ -203,18 +227,8 @@ def _demo(args: argparse.Namespace) -> int:
                 )
             print()
         print(format_summary(bus))
-    if args.plot:
-        writing(args.plot, "--plot", lambda: plot_counters(samples, args.plot))
-        if not args.json:
-            print(f"\nplot: TEC/REC over time written to {args.plot}")
-    if args.trace:
-        n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
-        if not args.json:
-            print(f"\ntrace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}")
-    if args.vcd:
-        n = writing(args.vcd, "--vcd", lambda: write_trace_vcd(bus, args.vcd))
-        if not args.json:
-            print(f"waveform: CAN_RX of {plural(n, 'frame')} written to {args.vcd} (GTKWave, PulseView)")
+        for line in notes:
+            print(line)
     if not complete:
         print(f"canstack: interrupted at {bus.now() / 1e9:.3f} s of {args.duration:g} s", file=sys.stderr)
         return 130
@@ -223,18 +237,26 @@ def _demo(args: argparse.Namespace) -> int:
 
 def write_trace_vcd(bus: SimBus, path: str, samples_per_bit: int = 16) -> int:
     """Render the frames of a simulated trace, at their SOF times, as a CAN_RX waveform in VCD
-    (error attempts are left out: the waveform shows the frames that went through). The
-    waveform starts with 11 recessive bits of bus idle, so its time 0 is 11 bit times before the
-    simulation's: a receiver needs them to join the bus."""
+    (`write_frames_vcd`; error attempts are left out: the waveform shows the frames that went
+    through)."""
+    frames = [(r.start, r.frame) for r in bus.trace if r.kind == "frame"]
+    return write_frames_vcd(frames, bus.bitrate, path, bus.name, samples_per_bit)
+
+
+def write_frames_vcd(
+    frames: list[tuple[int, Frame]], bitrate: int, path: str, name: str = "bus0", samples_per_bit: int = 16
+) -> int:
+    """Render frames (SOF time in ns, frame) as a CAN_RX waveform in VCD. The waveform starts
+    with 11 recessive bits of bus idle, so its time 0 is 11 bit times before the simulation's:
+    a receiver needs them to join the bus. Returns how many frames it holds."""
     from stack.phy.waveform import IDLE_BITS, render_edges, write_vcd
 
-    recs = [r for r in bus.trace if r.kind == "frame"]
-    lead = IDLE_BITS / bus.bitrate
+    lead = IDLE_BITS / bitrate
     runs, _, _ = render_edges(
-        [r.frame for r in recs], bus.bitrate, bus.bitrate * samples_per_bit, times=[lead + r.start / 1e9 for r in recs]
+        [f for _, f in frames], bitrate, bitrate * samples_per_bit, times=[lead + t / 1e9 for t, _ in frames]
     )
-    write_vcd(path, runs, bus.bitrate * samples_per_bit, comment=f"canstack demo, bus {bus.name}")
-    return len(recs)
+    write_vcd(path, runs, bitrate * samples_per_bit, comment=f"canstack demo, bus {name}")
+    return len(frames)
 
 
 #: A CAN FD data-phase bit rate (ISO 11898-1:2015 sets no upper limit; transceivers of ISO

@@ -7,6 +7,8 @@ with a progress bar on a terminal and Ctrl-C that stops between slices.
 from __future__ import annotations
 
 import _thread
+import contextlib
+import contextvars
 import importlib.util
 import os
 import signal
@@ -29,6 +31,7 @@ __all__ = [
     "show_progress",
     "TimeLimitExceeded",
     "GRACE_S",
+    "time_limit",
     "WRITER_EXTRAS",
     "MAX_SIM_SECONDS",
     "trace_note",
@@ -158,6 +161,20 @@ class TimeLimitExceeded(RuntimeError):
     """A run went past its wall-clock time limit (`run_sliced`'s ``time_limit``)."""
 
 
+_TIME_LIMIT: contextvars.ContextVar[float | None] = contextvars.ContextVar("run_time_limit", default=None)
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Inside the block, every `run_sliced` that is given no ``time_limit`` of its own takes
+    ``seconds`` (the sweeps' per-run limit, set around each run in the worker)."""
+    token = _TIME_LIMIT.set(seconds)
+    try:
+        yield
+    finally:
+        _TIME_LIMIT.reset(token)
+
+
 #: Seconds a run may take to reach the end of its slice after Ctrl-C (or SIGTERM) before it is
 #: stopped where it is: a slice holds at most 100 ms of bus time, but one event that never ends
 #: (a timer re-armed at the same instant) would keep it from ever ending.
@@ -241,7 +258,9 @@ def run_sliced(
     clock. Ctrl-C (and SIGTERM, which `stack.cli.main` turns into it) stops the run at the end of
     the current slice, or where it is when that does not come within `GRACE_S`: returns False
     then, True when the run reached ``until_ns``. ``time_limit`` (wall-clock seconds) raises
-    `TimeLimitExceeded` when the run takes longer."""
+    `TimeLimitExceeded` when the run takes longer (default: the enclosing `time_limit` block's)."""
+    if time_limit is None:
+        time_limit = _TIME_LIMIT.get()
     show = show_progress(progress)
     step = max(1_000_000, min(100_000_000, (until_ns - bus.now()) // 200 or 1))
     bar = None

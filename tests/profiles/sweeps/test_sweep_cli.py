@@ -316,21 +316,22 @@ def test_study_profiles_on_a_scenario(tmp_path, capsys):
         assert [r["profile"] for r in csv.DictReader(f)] == [r["profile"] for r in data["rows"]]
     code, stdout, err = run(capsys, "study", "profiles", "--messages", "4", "--utilisation", "0.3")
     assert code == 0, err
-    assert stdout.splitlines()[0].split()[:3] == ["message", "ID", "period"] and "bus load %" in stdout
+    head = stdout.splitlines()[1].split()
+    assert head[:4] == ["message", "ID", "period", "ms"] and "bus load %" in stdout
 
 
 @pytest.mark.parametrize(
     "args,message",
     [
         (["schedulability", "--utilisation", "0:1:0"], "the step of a range must not be 0"),
-        (["schedulability", "--utilisation", "2"], "a utilisation is > 0 and at most 1.5"),
+        (["schedulability", "--utilisation", "2"], "a utilisation is from 0.001 to 1.5"),
         (["schedulability", "--utilisation", "half"], "is not a utilisation"),
         (["schedulability", "--period-range", "5"], "give MIN,MAX in ms"),
         (["schedulability", "--sets", "0"], "at least 1"),
         (["schedulability", "--generator", "magic"], "invalid choice"),
         (["schedulability", "--out", "x.json"], "write .csv or .parquet"),
         (["profiles", "--scenario", "nowhere.toml"], "nowhere.toml: no such scenario file"),
-        (["profiles", "--utilisation", "3"], "utilisation 3.0: must be > 0 and at most 1.5"),
+        (["profiles", "--utilisation", "3"], "'3': a utilisation is from 0.001 to 1.5"),
         (["nosuch"], "invalid choice"),
     ],
 )
