@@ -69,8 +69,9 @@ def profiles_study(
     time_limit: float | None = None,
 ) -> ProfilesStudy:
     """Run ``mset`` under every registered profile that has a converter (see the module
-    docstring) and return their rows side by side. A converter that raises, or a scenario its
-    profile refuses, is that profile's row with an ``error``."""
+    docstring) and return their rows side by side. A converter that refuses the set (ValueError:
+    its profile cannot express it) puts the profile in ``skipped`` with the reason; one that
+    fails otherwise, or a scenario its profile refuses, is that profile's row with an ``error``."""
     tasks: list[ProfileTask] = []
     skipped: dict[str, str] = {}
     failed: list[dict[str, Any]] = []
@@ -88,6 +89,9 @@ def profiles_study(
         label = "/".join(names)
         try:
             raw = fn(mset)
+        except ValueError as exc:  # the converter's word that its profile cannot express this set
+            skipped[label] = " ".join(str(exc).split())
+            continue
         except Exception as exc:
             from profiles.sweeps.execute import error_text
 
