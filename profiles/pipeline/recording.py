@@ -29,9 +29,9 @@ __all__ = ["ReceptionCounter", "PlotRecords", "SampleWriter", "SAMPLE_COLUMNS", 
 SAMPLE_COLUMNS = ("message", "node", "outcome", "nominal_ns", "queued_ns", "sof_ns", "eof_ns", "response_ns", "missed")
 """The columns of a ``--samples`` file (`profiles.base.Instance`; times in bus ns)."""
 
-MAX_BINS = 5_000
-"""Most bus-load bins a plot draws: a finer ``[plot] bin_ms`` over a long run is widened (a
-line of more points than pixels shows nothing more, and each bin costs memory)."""
+MAX_BINS = 500
+"""Most bus-load bins a plot draws: a finer ``[plot] bin_ms`` over a long run is widened (bins
+narrower than a few pixels make a grey band, and each costs memory)."""
 
 TIMELINE_MARGIN_NS = 1_000_000_000
 """Trace kept on each side of the timeline's window: a profile's layer (a TDMA cycle) may start

@@ -61,6 +61,7 @@ class Result:
     tracks: dict[str, Any] = field(default_factory=dict)
     load: Any = None
     files: dict[str, Any] = field(default_factory=dict)
+    id_latency: dict[str, Any] = field(default_factory=dict)
 
     def responses_ms(self, name: str) -> list[float]:
         """The response times of message ``name`` that were kept (ms, in release order): every
@@ -322,6 +323,7 @@ def collect(
         trace=trace,
         tracks=dict(built.context.recorder.tracks),
         load=rec.plots,
+        id_latency=bus.summary()["ids"] if bus is not None else {},
     )
 
 
