@@ -53,10 +53,11 @@ def scenario_with_overrides(args: argparse.Namespace) -> Any:
     """The scenario file with ``--set KEY=VALUE``, ``--seed``, ``--bitrate`` and ``--duration``
     applied to it as read, then checked by its own rules (a value that breaks one is named as the
     file's own would be)."""
+    from profiles.pipeline.examples import scenario_path
     from profiles.pipeline.overrides import override
     from profiles.pipeline.scenario import load_scenario, parse_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(scenario_path(args.scenario))
     specs = list(args.set or [])
     for option, key in (("seed", "bus.seed"), ("bitrate", "bus.bitrate"), ("duration", "bus.duration")):
         value = getattr(args, option, None)

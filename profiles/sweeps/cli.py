@@ -207,6 +207,7 @@ def _check_metrics(metrics: Sequence[str], scenario: Any) -> None:
 
 def _sweep(args: argparse.Namespace) -> int:
     from profiles.pipeline.cli import warn
+    from profiles.pipeline.examples import scenario_path
     from profiles.pipeline.scenario import load_scenario, parse_scenario
     from profiles.sweeps.sweep import parse_vary, resolve_vary, run_sweep, write_table
 
@@ -220,7 +221,7 @@ def _sweep(args: argparse.Namespace) -> int:
     elif args.metric:
         raise CliError("--metric chooses what --plot draws: give --plot DIR too")
     _check_engine(args)
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(scenario_path(args.scenario))
     raw = scenario.raw
     if args.duration is not None:
         raw = dict(raw, bus=dict(raw["bus"], duration=args.duration))
@@ -508,9 +509,10 @@ def _profiles(args: argparse.Namespace) -> int:
         check_plot_dir(args.plot)
     _check_engine(args)
     if args.scenario:
+        from profiles.pipeline.examples import scenario_path
         from profiles.pipeline.scenario import load_scenario
 
-        mset = message_set_from_scenario(load_scenario(args.scenario))
+        mset = message_set_from_scenario(load_scenario(scenario_path(args.scenario)))
     else:
         seed = run_seed(args.seed, (("set", 0),))
         mset = generate_set(
