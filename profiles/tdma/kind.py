@@ -61,10 +61,12 @@ def text(figures: dict[str, Any]) -> list[str]:
         f"{f['master_switches']} master switches; {f['outside']} frames outside their windows",
     ]
     for sw in f["switches"]:
-        lines.append(
-            f"  master switch at {sw['at_ms']:.3f} ms: {sw['from']} -> {sw['to']}, "
-            f"{sw['after_cycle_end_us']:g} us after the end of the cycle"
+        when = (
+            f"{sw['after_reference_us']:g} us after {sw['from']}'s reference, inside its cycle"
+            if sw.get("cut_cycle_short")
+            else f"{sw['after_cycle_end_us']:g} us after the end of the cycle"
         )
+        lines.append(f"  master switch at {sw['at_ms']:.3f} ms: {sw['from']} -> {sw['to']}, {when}")
     rows = [
         [
             w["window"],

@@ -220,12 +220,16 @@ class Monitor:
             if gap > cycle + s.ntu_length:
                 self.late_references += 1
             if priority != last.priority:
+                # a reference of the new master inside the cycle the old one started (the old
+                # one's was late, or both sent theirs) ends that cycle early: no time after its end
                 self.switches.append(
                     {
                         "at_ms": sof / 1e6,
                         "from": s.masters[last.priority],
                         "to": s.masters[priority],
-                        "after_cycle_end_us": (gap - cycle) / 1000,
+                        "after_reference_us": gap / 1000,
+                        "after_cycle_end_us": max(0, gap - cycle) / 1000,
+                        "cut_cycle_short": gap < cycle,
                     }
                 )
         self.reference_messages += 1

@@ -124,9 +124,24 @@ def test_failover_within_the_watch_timeout_and_the_primary_returns_at_a_cycle_bo
     # Initial_Ref_Offset, 127 NTU = 254 µs, and keeps the matrix (Cycle_Count goes on)
     # back at 125 ms, the gateway hears references at 125.508 and 130.508 ms (synchronised at the
     # second, ISO 11898-4 8.3), meets the engine at offset 0 at 135.508 ms and wins arbitration
+    # the time after the previous reference is the 5000 µs basic cycle plus the time after its end
     assert t["switches"] == [
-        {"at_ms": 75.508, "from": "gateway", "to": "engine", "after_cycle_end_us": 254.0},
-        {"at_ms": 135.508, "from": "engine", "to": "gateway", "after_cycle_end_us": 0.0},
+        {
+            "at_ms": 75.508,
+            "from": "gateway",
+            "to": "engine",
+            "after_reference_us": 5254.0,
+            "after_cycle_end_us": 254.0,
+            "cut_cycle_short": False,
+        },
+        {
+            "at_ms": 135.508,
+            "from": "engine",
+            "to": "gateway",
+            "after_reference_us": 5000.0,
+            "after_cycle_end_us": 0.0,
+            "cut_cycle_short": False,
+        },
     ]
     assert t["master_switches"] == 2 and t["late_references"] == 1 and t["cycles_without_reference"] == 0
     refs = [r for r in res.trace if r.kind == "frame" and r.frame.can_id in (0x010, 0x011)]
@@ -186,7 +201,11 @@ def test_a_master_stuck_recessive_goes_bus_off_while_the_backup_keeps_the_schedu
 
     res, data = run(net(m))
     t = data["tdma"]
-    assert t["switches"][0] == {"at_ms": 40.508, "from": "gw", "to": "eng", "after_cycle_end_us": 254.0}
+    first = t["switches"][0]
+    assert (first["at_ms"], first["from"], first["to"], first["after_cycle_end_us"]) == (40.508, "gw", "eng", 254.0)
+    assert first["cut_cycle_short"] is False
+    for sw in t["switches"]:  # never a negative time after a cycle's end
+        assert sw["after_cycle_end_us"] >= 0 and sw["after_reference_us"] >= 0
     assert t["switches"][-1]["to"] == "gw" and t["switches"][-1]["at_ms"] > 120
     assert t["cycles_without_reference"] == 0 and t["outside"] == 0
     assert t["nodes"]["gw"]["bus_off"] >= 1 and t["nodes"]["gw"]["master_mode"] == "current_master"
