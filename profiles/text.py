@@ -59,6 +59,8 @@ def table(
     widths = [max([len(h)] + [len(r[i]) for r in cells]) for i, h in enumerate(headers)]
 
     def line(values: Sequence[str]) -> str:
-        return " ".join(v.ljust(w) if i in lefts else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths))).rstrip()
+        return " ".join(
+            v.ljust(w) if i in lefts else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths))
+        ).rstrip()
 
     return [line(headers)] + [line(r) for r in cells]

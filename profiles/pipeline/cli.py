@@ -29,6 +29,7 @@ def warn(text: str) -> None:
     """One warning line on stderr (what is allowed but likely a mistake)."""
     print(f"canstack: warning: {text}", file=sys.stderr)
 
+
 #: --out suffixes: the JSON result, or the message rows as CSV
 OUT_SUFFIXES = (".json", ".csv")
 
@@ -92,7 +93,9 @@ def _check_outputs(args: argparse.Namespace) -> None:
     if args.interface:
         for option, value in (("--plot", args.plot), ("--trace", args.trace), ("--samples", args.samples)):
             if value:
-                raise CliError(f"{option} needs the simulated bus here (on a python-can bus record with python -m can.logger)")
+                raise CliError(
+                    f"{option} needs the simulated bus here (on a python-can bus record with python -m can.logger)"
+                )
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -110,24 +113,35 @@ def _experiment(args: argparse.Namespace) -> int:
             scenario, plot=bool(args.plot), progress=args.progress, trace=args.trace, samples=args.samples
         )
     data = result.to_json()
-    # the files first: a reader that closes stdout early (| head) must not cost one of them
-    if args.out:
-        writing(args.out, "--out", lambda: _write_out(args.out, data))
+    # the files first: a reader that closes stdout early (| head) must not cost one of them; one
+    # that cannot be written is reported after the table, which is printed all the same
     files: list[str] = []
-    if args.plot:
-        from profiles.pipeline.plots import write_plots
+    failure: CliError | None = None
+    try:
+        if args.out:
+            writing(args.out, "--out", lambda: _write_out(args.out, data))
+        if args.plot:
+            from profiles.pipeline.plots import write_plots
 
-        written = writing(args.plot, "--plot", lambda: write_plots(result, args.plot, extra=_profile_plots(scenario)))
-        files.append(f"plots: {', '.join(str(f) for f in written)}")
+            written = writing(
+                args.plot, "--plot", lambda: write_plots(result, args.plot, extra=_profile_plots(scenario))
+            )
+            files.append(f"plots: {', '.join(str(f) for f in written)}")
+    except CliError as exc:
+        failure = exc
     for kind, what in (("trace", "record"), ("samples", "instance")):
         f = result.files.get(kind)
-        if f is not None:
+        if f is not None and f.get("error") and failure is None:
+            failure = CliError(f"--{kind} {f['path']!r}: cannot write: {f['error']}")
+        elif f is not None:
             n = f["records"] if kind == "trace" else f["rows"]
             note = trace_note(f["path"], f["left_out"]) if kind == "trace" else ""
             files.append(f"{kind}: {n:,} {what}{'' if n == 1 else 's'} written to {f['path']}{note}")
     print(json.dumps(data, indent=2) if args.json else format_table(data))
     for line in files:
         print(line, file=sys.stderr)
+    if failure is not None:
+        raise failure
     if result.interrupted:
         print(f"canstack: interrupted at {result.duration_s:.6g} s: the results so far", file=sys.stderr)
         return 130

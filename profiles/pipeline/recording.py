@@ -115,6 +115,7 @@ class SampleWriter:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.rows = 0
+        self.error: OSError | None = None
         self._batch: list[Instance] = []
         self._parquet = self.path.suffix.lower() == ".parquet"
         self._pq: Any = None
@@ -146,11 +147,17 @@ class SampleWriter:
             self.flush()
 
     def flush(self) -> None:
-        """Write the rows held so far."""
+        """Write the rows held so far; a failed write (a full disk) is kept in ``error`` and
+        stops the writing, not the run."""
         rows, self._batch = self._batch, []
-        if not rows:
+        if not rows or self.error is not None:
             return
-        self.rows += len(rows)
+        try:
+            self._write(rows)
+        except OSError as exc:
+            self.error = exc
+
+    def _write(self, rows: list[Instance]) -> None:
         if self._parquet:
             import pyarrow as pa
 
@@ -160,13 +167,17 @@ class SampleWriter:
             )
         else:
             self._csv.writerows(["" if v is None else v for v in r] for r in rows)
+        self.rows += len(rows)
 
     def close(self) -> None:
-        """Write what is left and close the file (idempotent)."""
+        """Write what is left and close the file (idempotent; a failure is kept in ``error``)."""
         self.flush()
-        if self._pq is not None:
-            self._pq.close()
-            self._pq = None
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        try:
+            if self._pq is not None:
+                pq, self._pq = self._pq, None
+                pq.close()
+            if self._file is not None:
+                f, self._file = self._file, None
+                f.close()
+        except OSError as exc:
+            self.error = self.error or exc

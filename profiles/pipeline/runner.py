@@ -328,11 +328,16 @@ def collect(
 
 
 def _files(rec: Recording) -> dict[str, Any]:
+    """What went into each file: its path, how much, and the error that stopped the writing."""
     out: dict[str, Any] = {}
     if rec.trace is not None:
         out["trace"] = {"path": rec.trace.path, "records": rec.trace.written, "left_out": rec.trace.left_out}
+        if rec.trace.error is not None:
+            out["trace"]["error"] = rec.trace.error.strerror or str(rec.trace.error)
     if rec.samples is not None:
         out["samples"] = {"path": str(rec.samples.path), "rows": rec.samples.rows}
+        if rec.samples.error is not None:
+            out["samples"]["error"] = rec.samples.error.strerror or str(rec.samples.error)
     return out
 
 

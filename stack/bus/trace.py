@@ -248,6 +248,8 @@ def save_messages(messages: Iterable[can.Message], path: str | Path) -> int:
     with TraceWriter(path) as writer:
         for msg in messages:
             writer.message(msg)
+    if writer.error is not None:
+        raise writer.error
     return writer.written
 
 
@@ -259,7 +261,10 @@ class TraceWriter:
     Timestamps are bus time, in every format: python-can's .asc writer counts from its first
     event and its .blf writer from its first message, so both are started at bus time 0 (an
     .asc comment event at 0, the .blf start time at 0); the others write the timestamps as they
-    are. A .trc file holds no remote or error frames: they are counted in ``left_out``."""
+    are. A .trc file holds no remote or error frames: they are counted in ``left_out``.
+
+    A write that fails (a full disk) does not stop the run that feeds the writer: the first
+    error is kept in ``error`` and nothing more is written; the caller reports it."""
 
     def __init__(self, path: str | Path, channel: Any = None) -> None:
         self.suffix = check_suffix(path)
@@ -267,6 +272,7 @@ class TraceWriter:
         self.channel = channel
         self.written = 0
         self.left_out = 0
+        self.error: OSError | None = None
         self._writer: Any = can.Logger(self.path)  # type: ignore[abstract]
         if isinstance(self._writer, can.ASCWriter):
             self._writer.log_event(f"canstack: timestamps are bus time of {channel or 'the bus'}", timestamp=0.0)
@@ -282,14 +288,23 @@ class TraceWriter:
         if self.suffix == ".trc" and (msg.is_remote_frame or msg.is_error_frame):
             self.left_out += 1
             return
-        self._writer.on_message_received(msg)
+        if self.error is not None:
+            return
+        try:
+            self._writer.on_message_received(msg)
+        except OSError as exc:
+            self.error = exc
+            return
         self.written += 1
 
     def close(self) -> None:
-        """Finish the file (idempotent)."""
+        """Finish the file (idempotent; a failure is kept in ``error``)."""
         if self._writer is not None:
-            self._writer.stop()
-            self._writer = None
+            writer, self._writer = self._writer, None
+            try:
+                writer.stop()
+            except OSError as exc:
+                self.error = self.error or exc
 
     def __enter__(self) -> TraceWriter:
         return self

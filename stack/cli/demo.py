@@ -201,19 +201,27 @@ def _demo(args: argparse.Namespace) -> int:
         complete = run_sliced(bus, until, progress=args.progress, desc="demo")
     finally:
         if writer is not None:
-            writing(args.trace, "--trace", writer.close)
-    # every file before anything is printed: output piped into head must not cost one of them
+            writer.close()
+    # every file before anything is printed (output piped into head must not cost one of them);
+    # one that cannot be written is reported after the summary, which is printed all the same
     notes = []
-    if args.plot:
-        writing(args.plot, "--plot", lambda: plot_counters(samples, args.plot))
-        notes.append(f"\nplot: TEC/REC over time written to {args.plot}")
-    if writer is not None:
-        notes.append(
-            f"\ntrace: {plural(writer.written, 'record')} written to {args.trace}{trace_note(args.trace, writer.left_out)}"
-        )
-    if args.vcd:
-        n = writing(args.vcd, "--vcd", lambda: write_frames_vcd(frames, bus.bitrate, args.vcd, bus.name))
-        notes.append(f"waveform: CAN_RX of {plural(n, 'frame')} written to {args.vcd} (GTKWave, PulseView)")
+    failure: CliError | None = None
+    try:
+        if args.plot:
+            writing(args.plot, "--plot", lambda: plot_counters(samples, args.plot))
+            notes.append(f"\nplot: TEC/REC over time written to {args.plot}")
+        if writer is not None:
+            if writer.error is not None:
+                raise CliError(f"--trace {args.trace!r}: cannot write: {writer.error.strerror or writer.error}")
+            notes.append(
+                f"\ntrace: {plural(writer.written, 'record')} written to {args.trace}"
+                f"{trace_note(args.trace, writer.left_out)}"
+            )
+        if args.vcd:
+            n = writing(args.vcd, "--vcd", lambda: write_frames_vcd(frames, bus.bitrate, args.vcd, bus.name))
+            notes.append(f"waveform: CAN_RX of {plural(n, 'frame')} written to {args.vcd} (GTKWave, PulseView)")
+    except CliError as exc:
+        failure = exc
     if args.json:
         print(json.dumps(summary_json(bus), indent=2))
     else:
@@ -229,6 +237,8 @@ def _demo(args: argparse.Namespace) -> int:
         print(format_summary(bus))
         for line in notes:
             print(line)
+    if failure is not None:
+        raise failure
     if not complete:
         print(f"canstack: interrupted at {bus.now() / 1e9:.3f} s of {args.duration:g} s", file=sys.stderr)
         return 130
