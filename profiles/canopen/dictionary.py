@@ -16,6 +16,7 @@ and the owner is told (`ObjectStore.watch`).
 from __future__ import annotations
 
 import configparser
+import logging
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -84,10 +85,26 @@ def type_name(data_type: int | None) -> str:
     return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}")
 
 
-def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionary:
+class _Collect(logging.Handler):
+    """The canopen library's log records while it reads a file: what it would print on its own
+    (a second line under canstack's output) becomes one warning naming the file."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(" ".join(record.getMessage().split()))
+
+
+def load_od(
+    eds: str | os.PathLike[str] | None, node_id: int, warn: Callable[[str], object] | None = None
+) -> ObjectDictionary:
     """Read an EDS or DCF with ``canopen.objectdictionary.import_od`` (``$NODEID`` resolved for
     ``node_id``) and check that a device can run on it (`check_od`); None gives the default
-    device (`DEFAULT_EDS`). Raises `EdsError` naming the file and the problem."""
+    device (`DEFAULT_EDS`). Raises `EdsError` naming the file and the problem. What the library
+    would log on its own (a missing DeviceInfo section, a data type it does not know) goes to
+    ``warn`` as one line naming the file (dropped without it)."""
     path = DEFAULT_EDS if eds is None else Path(eds)
     if path.suffix.lower() not in (".eds", ".dcf"):
         raise EdsError(
@@ -95,6 +112,10 @@ def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionar
         )
     if not path.is_file():
         raise EdsError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    lib = logging.getLogger("canopen")
+    collect = _Collect()
+    lib.addHandler(collect)
+    propagate, lib.propagate = lib.propagate, False
     try:
         od = cod.import_od(str(path), node_id)
     except configparser.Error as exc:
@@ -105,6 +126,12 @@ def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionar
         raise EdsError(f"{path}: a sub-index section names an object that is not defined: {_one_line(exc)}") from None
     except (ValueError, TypeError, AttributeError, IndexError) as exc:
         raise EdsError(f"{path}: malformed entry: {_one_line(exc)}") from None
+    finally:
+        lib.removeHandler(collect)
+        lib.propagate = propagate
+    if warn is not None:
+        for message in dict.fromkeys(collect.messages):
+            warn(f"{path}: {message}")
     check_od(od, str(path))
     return od
 

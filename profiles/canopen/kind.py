@@ -109,7 +109,7 @@ def _check(scenario: Scenario, tables: dict[str, Any]) -> None:
                 if d.options["eds"] is not None:
                     from profiles.canopen.dictionary import load_od
 
-                    load_od(d.options["eds"], nid)
+                    load_od(d.options["eds"], nid, warn=lambda w, loc=loc: scenario.warnings.append(f"{loc}: eds: {w}"))
             else:
                 MasterOptions.parse(d.options["canopen"])
         except ScenarioError:
