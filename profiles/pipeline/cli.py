@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cli import CliError, parse_bitrate, seconds_type
+from stack.cli.demo import parse_data_bitrate
 from stack.cli.runs import check_output, check_plot_dir, check_trace_output, trace_note, writing
 
 __all__ = ["register", "check_samples_output", "scenario_with_overrides", "add_override_options", "warn"]
@@ -187,7 +188,7 @@ def add_override_options(p: argparse.ArgumentParser, *, duration: bool = True) -
     p.add_argument("--bitrate", type=parse_bitrate, help="the scenario's [bus] bitrate instead (bit/s)")
     p.add_argument(
         "--data-bitrate",
-        type=parse_bitrate,
+        type=parse_data_bitrate,
         help="CAN FD data phase (bit/s): for scenarios with FD messages (none yet: refused)",
     )
     p.add_argument(

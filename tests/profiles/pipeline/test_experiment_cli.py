@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -79,3 +80,178 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
     assert out.returncode == 2
     assert out.stdout == "" and len(out.stderr.strip().splitlines()) == 1
     assert message.replace("BAD.toml", str(bad)) in out.stderr.replace(str(EXAMPLES) + "/", ""), out.stderr
+
+
+def _main(capsys, *argv):
+    from stack.cli import main
+
+    rc = main(list(argv))
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_overrides_give_the_run_an_edited_file_gives(tmp_path, capsys):
+    """--seed, --bitrate, --duration and --set change the scenario as a copy edited by hand does."""
+    text = (EXAMPLES / "body_network.toml").read_text()
+    edited = tmp_path / "edited.toml"
+    edited.write_text(
+        text.replace("bitrate = 125000", "bitrate = 250000")
+        .replace("seed = 1\n", "seed = 11\n")
+        .replace('name = "climate"\n', 'name = "climate"\nqueue = "fifo"\n')
+    )
+    assert edited.read_text().count("250000") == 1 and "seed = 11" in edited.read_text()
+    assert 'name = "climate"\nqueue = "fifo"' in edited.read_text()
+    rc, by_hand, err = _main(capsys, "experiment", str(edited), "--json", "--duration", "0.5")
+    assert rc == 0, err
+    rc, overridden, err = _main(
+        capsys,
+        "experiment",
+        str(EXAMPLES / "body_network.toml"),
+        "--json",
+        "--seed",
+        "11",
+        "--bitrate",
+        "250000",
+        "--set",
+        "bus.duration=0.5",
+        "--set",
+        "nodes.climate.queue=fifo",
+    )
+    assert rc == 0, err
+    a, b = json.loads(by_hand), json.loads(overridden)
+    a.pop("scenario"), b.pop("scenario")
+    assert a == b and b["seed"] == 11 and b["bitrate"] == 250000 and b["duration"] == 0.5
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (
+            ["--set", "nodes.nobody.queue=fifo"],
+            "--set nodes.nobody.queue: nodes has no element 'nobody' (names: bcm, cluster",
+        ),
+        (["--set", "bus.bitrate"], "--set 'bus.bitrate': expected KEY=VALUE"),
+        (["--set", "bus.bitrate=2000000"], "[bus]: bitrate: 2000000 is outside 1000..1000000"),
+        (["--seed", "3", "--set", "bus.seed=4"], "--seed and --set bus.seed=... both given"),
+        (["--data-bitrate", "2000000"], "--data-bitrate: scenarios run CAN 2.0 frames"),
+        (["--out", "r.txt"], "write .json (the result) or .csv (one row per message)"),
+        (["--samples", "s.json"], "--samples 's.json': write .csv or .parquet"),
+        (["--trace", "t.xyz"], "unknown suffix '.xyz'"),
+    ],
+)
+def test_bad_overrides_and_outputs_are_one_line(tmp_path, capsys, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = _main(capsys, "experiment", str(EXAMPLES / "body_network.toml"), *args)
+    assert rc == 2 and out == "" and err.count("\n") == 1, err
+    assert message in err
+
+
+def test_out_csv_writes_the_message_rows(tmp_path, capsys):
+    import csv
+
+    rc, out, err = _main(
+        capsys, "experiment", str(EXAMPLES / "body_network.toml"), "--json", "--out", str(tmp_path / "r.csv")
+    )
+    assert rc == 0, err
+    data = json.loads(out)
+    with open(tmp_path / "r.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["name"] for r in rows] == [m["name"] for m in data["messages"]]
+    for r, m in zip(rows, data["messages"]):
+        assert int(r["sent"]) == m["sent"] and float(r["response_max_ms"]) == m["response_ms"]["max"]
+
+
+def test_the_text_shows_every_figure_of_the_messages(capsys):
+    """Each message row carries what its JSON object has: period, deadline, every count, the
+    response figures, the time from release, both bounds, schedulable, jitter; identifiers as
+    0x0C1; a name longer than its column is cut with a mark."""
+    rc, out, _ = _main(capsys, "experiment", str(EXAMPLES / "powertrain_90.toml"), "--json")
+    data = json.loads(out)
+    rc, text, _ = _main(capsys, "experiment", str(EXAMPLES / "powertrain_90.toml"))
+    header = next(line for line in text.splitlines() if line.startswith("message "))
+    for column in ("period", "deadline", "released", "sent", "received", "failed", "dropped", "miss", "p99",
+                   "from release", "RTA", "R", "sched", "max/RTA", "jitter"):  # fmt: skip
+        assert f" {column} " in f" {header} ", column
+    for m in data["messages"]:
+        row = next(line for line in text.splitlines() if line.startswith(m["name"] + " "))
+        cells = row.split()
+        assert f"0x{m['id']:03X}" in cells and f"{m['period_ms']:.3f}" in cells and f"{m['deadline_ms']:.3f}" in cells
+        assert str(m["released"]) in cells and f"{m['release_response_max_ms']:.3f}" in cells
+
+
+def test_tdma_and_master_slave_sections_in_the_text(capsys):
+    rc, text, _ = _main(capsys, "experiment", str(EXAMPLES / "tdma.toml"))
+    assert "2 master switches" in text and "1 late" in text
+    assert "master switch at 75.508 ms: gateway -> engine, 254 us after the end of the cycle" in text
+    assert re.search(r"^window +kind .* intrusions$", text, re.M)
+    rc, text, _ = _main(capsys, "experiment", str(EXAMPLES / "master_slave.toml"))
+    # valve2 is unplugged from 300 to 700 ms: lost, and it loses its master, over those intervals
+    row = next(line for line in text.splitlines() if line.startswith("valve2 "))
+    assert "312.3-710.7" in row and "315.5-710.4" in row
+
+
+@pytest.mark.subprocess
+def test_output_piped_into_head_costs_no_file(tmp_path):
+    """The table is printed after every file is written: a reader that stops after one line
+    (head -1 closes the pipe) takes nothing from the files."""
+    import os
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for argv, files in (
+        (["demo", "--trace", "p.blf", "--vcd", "p.vcd"], ("p.blf", "p.vcd")),
+        (
+            ["experiment", str(EXAMPLES / "tdma.toml"), "--trace", "t.asc", "--samples", "s.csv", "--out", "r.json"],
+            ("t.asc", "s.csv", "r.json"),
+        ),
+    ):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "stack.cli", *argv],
+            cwd=tmp_path,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        try:
+            proc.stdout.readline()
+            proc.stdout.close()  # as head -1 does
+            proc.wait(timeout=120)
+        finally:
+            proc.kill()
+            proc.wait()
+        for f in files:
+            assert (tmp_path / f).stat().st_size > 0, f
+    assert can_frames(tmp_path / "p.blf") > 600
+
+
+def can_frames(path):
+    import can
+
+    return sum(1 for _ in can.LogReader(str(path)))
+
+
+def test_plot_into_new_nested_folders(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    rc, _, err = _main(
+        capsys, "experiment", str(EXAMPLES / "canopen.toml"), "--duration", "0.1", "--plot", str(tmp_path / "a" / "b")
+    )
+    assert rc == 0, err
+    assert {p.name for p in (tmp_path / "a" / "b").iterdir()} >= {
+        "timeline.png",
+        "response_times.png",
+        "response_cdf.png",
+        "bus_load.png",
+    }
+
+
+def test_the_examples_are_listed_copied_and_run_from_anywhere(tmp_path, capsys, monkeypatch):
+    rc, out, _ = _main(capsys, "examples")
+    listed = {line.split()[0] for line in out.splitlines() if line.strip() and not line.startswith("canstack")}
+    assert {p.name for p in EXAMPLES.glob("*.toml")} <= listed
+    rc, out, err = _main(capsys, "examples", "--to", str(tmp_path / "mine"), "tdma", "powertrain_90.toml")
+    assert rc == 0, err
+    assert (tmp_path / "mine" / "tdma.toml").read_bytes() == (EXAMPLES / "tdma.toml").read_bytes()
+    rc, out, err = _main(capsys, "examples", "--to", str(tmp_path / "mine"), "tdma")
+    assert rc == 2 and "tdma.toml is there already (--force replaces it)" in err
+    monkeypatch.chdir(tmp_path)  # no examples/ here: the shipped one runs
+    rc, out, err = _main(capsys, "experiment", "examples/tdma.toml", "--json")
+    assert rc == 0 and json.loads(out)["frames"] == 242 and "the shipped example" in err

@@ -311,7 +311,9 @@ def test_a_run_that_raises_is_recorded_with_its_error(tmp_path, monkeypatch):
     errors = [r.get("error") for r in res.rows]
     assert errors[0] is None and errors[2] is None
     # the scenario's location, the app and the exception with where it was raised
-    assert errors[1].startswith("s.toml: [[nodes]] 'engine': app: sweep_hooks:hook failed: RuntimeError: the ECU crashed")
+    assert errors[1].startswith(
+        "s.toml: [[nodes]] 'engine': app: sweep_hooks:hook failed: RuntimeError: the ECU crashed"
+    )
     assert "sweep_hooks.py:3" in errors[1]
     assert not res.interrupted and len(res.rows) == 3
 
