@@ -161,7 +161,7 @@ _STATE: Any = None
 #: a run's state in the pool's shared array: not started, running, done
 _WAITING, _RUNNING, _DONE = 0, 1, 2
 
-#: how often a run may take its worker down with it (killed, out of memory) before it is
+#: how often a run may lose its worker when it runs alone (killed, out of memory) before it is
 #: recorded as failed: the other runs of a broken pool are rerun on a new one
 WORKER_LOSSES = 2
 
@@ -243,33 +243,41 @@ def _stop_workers() -> None:
 
 def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], workers: int, out: _Rows) -> bool:
     """Run on a process pool. A worker that dies (killed, out of memory) breaks the pool: the
-    runs it did not finish go to a new pool, and a run that was under way in a dead worker
-    `WORKER_LOSSES` times is recorded as failed."""
+    runs it left without a row go to a new pool, except those under way when it broke — one of
+    them took its worker down, and any may have been killed with it — which run again each in a
+    pool of its own, where a loss is its own; a run that loses its worker `WORKER_LOSSES` times
+    alone is recorded as failed."""
     ctx = multiprocessing.get_context()
     stop = ctx.Event()
     state = ctx.Array("b", max(1, max((t.index for t in tasks), default=0) + 1), lock=False)
     losses: dict[int, int] = {}
-    todo = list(tasks)
-    while todo:
+    todo, alone = list(tasks), []
+    while todo or alone:
+        if alone:
+            t = alone.pop(0)
+            broken, interrupted = _pool_round(fn, [t], 1, out, ctx, stop, state)
+            if interrupted:
+                return True
+            if broken:
+                losses[t.index] = losses.get(t.index, 0) + 1
+                if losses[t.index] >= WORKER_LOSSES:
+                    row = t.head()
+                    row["error"] = (
+                        f"the worker process running it died {WORKER_LOSSES} times (killed, or out of memory); "
+                        "the other runs went on"
+                    )
+                    out.add(t.index, row)
+                else:
+                    state[t.index] = _WAITING
+                    alone.insert(0, t)
+            continue
         broken, interrupted = _pool_round(fn, todo, workers, out, ctx, stop, state)
         if interrupted:
             return True
-        if not broken:
-            break
         todo = []
         for t in broken:
-            if state[t.index] == _RUNNING:  # under way in the worker that died
-                losses[t.index] = losses.get(t.index, 0) + 1
-            if losses.get(t.index, 0) >= WORKER_LOSSES:
-                row = t.head()
-                row["error"] = (
-                    f"the worker process running it died {WORKER_LOSSES} times (killed, or out of memory); "
-                    "the other runs went on"
-                )
-                out.add(t.index, row)
-            else:
-                state[t.index] = _WAITING
-                todo.append(t)
+            (alone if state[t.index] == _RUNNING else todo).append(t)
+            state[t.index] = _WAITING
     return False
 
 

@@ -282,3 +282,39 @@ def test_wording(capsys, argv, message):
     rc, _, err = _run(capsys, *argv)
     _one_line(rc, err)
     assert message in err
+
+
+def _spinning_bus():
+    """A bus whose timer re-arms itself at the same instant from 5 ms on: its slice never ends."""
+    bus = SimBus(500_000)
+
+    def again():
+        bus.call_at(bus.now(), again)
+
+    bus.call_at(5_000_000, again)
+    return bus
+
+
+@pytest.mark.wallclock
+def test_ctrl_c_stops_a_slice_that_never_ends(monkeypatch):
+    """The first Ctrl-C asks for the end of the slice; one that does not come within GRACE_S is
+    stopped where it is, and the run returns what it has (issue 26: a 0 ns period ignored
+    Ctrl-C and SIGTERM at 100 % CPU)."""
+    import threading
+
+    bus = _spinning_bus()
+    timer = threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        assert runs.run_sliced(bus, 10**9, progress=False) is False
+    finally:
+        timer.cancel()
+    assert bus.now() == 5_000_000
+
+
+@pytest.mark.wallclock
+def test_a_run_past_its_time_limit_raises():
+    with pytest.raises(runs.TimeLimitExceeded, match=r"time limit of 0.3 s \(wall clock\) at 0.005 s simulated"):
+        runs.run_sliced(_spinning_bus(), 10**9, progress=False, time_limit=0.3)
+    with runs.time_limit(0.3), pytest.raises(runs.TimeLimitExceeded):  # the sweeps' per-run limit
+        runs.run_sliced(_spinning_bus(), 10**9, progress=False)
