@@ -39,6 +39,7 @@ from profiles.canopen.options import MasterOptions
 from profiles.canopen.sdo.client import SdoClient, SdoResult
 from profiles.canopen.stats import summary
 from profiles.canopen.sync import SyncProducer
+from profiles.responses import ResponseStats
 from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxRequest
 
 __all__ = ["CanopenMaster", "ManagedNode", "PdoStats"]
@@ -70,7 +71,7 @@ class PdoStats:
     pdo: str
     transmission_type: int | None = None
     received: int = 0
-    latencies: list[int] = field(default_factory=list)  # ns, SYNC SOF -> end of the PDO
+    latencies: ResponseStats = field(default_factory=ResponseStats)  # ns, SYNC SOF -> end of the PDO
 
     @property
     def synchronous(self) -> bool:
@@ -320,7 +321,7 @@ class CanopenMaster:
         if st is not None:
             st.received += 1
             if self.last_sync is not None and st.synchronous:
-                st.latencies.append(ev.time - self.last_sync)
+                st.latencies.add(ev.time - self.last_sync)
 
     def _on_tx_done(self, ev: TxDone) -> None:
         if ev.frame.can_id == self.sync.cob_id and not ev.frame.remote:

@@ -115,8 +115,8 @@ def summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
                 offsets = (start + message_bits(tx.request, stuffing) * tau, done)
             else:
                 offsets = h.offsets_ns.get(tx.request.name)
-            worst = [p.links[s].response_ns for s in tx.slaves]
-            measured = max((max(a) for a in worst if len(a)), default=None)
+            worst = [p.links[s].response.figures() for s in tx.slaves]
+            measured = max((f[2] for f in worst if f is not None), default=None)
             txs.append(
                 {
                     "name": tx.request.name,

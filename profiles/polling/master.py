@@ -68,10 +68,9 @@ from profiles.polling.stats import CycleStats, SlaveLink
 from stack import ErrorStateChanged, Frame, TxDone, TxFailed
 
 if TYPE_CHECKING:  # pragma: no cover
-    from array import array
-
     from profiles.declarations import MessageDecl, NodeDecl
     from profiles.polling.config import CosLink, MasterConfig, Transaction
+    from profiles.responses import ResponseStats
     from stack import NodeAPI, Received, Timer, TxRequest
 
 __all__ = ["PollMaster", "Master", "Send", "rx_filters"]
@@ -95,14 +94,16 @@ class PollMaster(Reporter):
     ``send`` queues its frames. ``state`` follows `profiles.polling._state`; ``stats`` and
     ``links`` hold what it measured."""
 
-    def __init__(self, node: NodeAPI, config: MasterConfig, *, send: Send) -> None:
+    def __init__(
+        self, node: NodeAPI, config: MasterConfig, *, send: Send, plot_window: tuple[int, int] | None = None
+    ) -> None:
         Reporter.__init__(self)
         self.node = node
         self.config = config
         self.send = send
         self.state = MasterState.IDLE
         self.links = {s: SlaveLink(s) for s in config.slaves}
-        self.stats = CycleStats(config)
+        self.stats = CycleStats(config, plot_window)
         self._answers: dict[int, tuple[Transaction, str]] = {}
         self._reassembly: dict[int, Reassembler] = {}  # fragmented answers, by identifier
         self.fragments = {tx.request.name: io_frames(tx.request) for tx in config.transactions}
@@ -290,7 +291,7 @@ class PollMaster(Reporter):
             # thread handed it over late), answers the attempt that timed out: late
             if tx is self._tx and slave in self._awaiting and ev.time > self._sof and self._to(MasterEvent.ANSWER):
                 link.responses += 1
-                link.response_ns.append(ev.time - self._sof)
+                link.response.add(ev.time - self._sof)
                 link.answered(ev.time)
                 link.in_a_row = 0
                 if link.lost:
@@ -419,7 +420,10 @@ class Master(Profile):
         self.config: MasterConfig = context.scenario.tables[NETWORK_TABLE].masters[decl.name]
         self.frames = {m.name: frame_of(m) for m in decl.messages}
         self._track = {m.name: context.recorder.track(m) for m in decl.messages}
-        self.poller = PollMaster(node, self.config, send=self._send)
+        w = context.scenario.plot.get("window_ms")
+        # the cycles the poll-cycle plot draws: its window ([plot] window_ms, else the first 50 ms)
+        window = (round(w[0] * 1e6), round(w[1] * 1e6)) if w else (0, 50_000_000)
+        self.poller = PollMaster(node, self.config, send=self._send, plot_window=window)
 
     def _send(self, m: MessageDecl, not_after: int | None, data: bytes | None = None) -> TxRequest | None:
         frame = self.frames[m.name] if data is None else Frame(m.can_id, data, extended=m.extended)
@@ -469,12 +473,13 @@ class Master(Profile):
         return self.poller.stats
 
     @property
-    def cycle_ns(self) -> array[int]:
-        """The measured length of every cycle (ns)."""
+    def cycle_ns(self) -> ResponseStats:
+        """The measured length of every cycle (ns: count, min, max, mean, p99; each value while
+        the run is short)."""
         return self.poller.stats.cycle_ns
 
     @property
-    def clean_ns(self) -> array[int]:
+    def clean_ns(self) -> ResponseStats:
         """The measured length of the cycles in which every slave due answered in time (ns)."""
         return self.poller.stats.clean_ns
 

@@ -7,10 +7,9 @@ bus times.
 
 from __future__ import annotations
 
-from array import array
 from typing import TYPE_CHECKING, Any
 
-from profiles.base import stats_ms
+from profiles.responses import ResponseStats
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.polling.config import MasterConfig
@@ -37,7 +36,7 @@ class SlaveLink:
         "lost",
         "lost_cycle",
         "lost_periods",
-        "response_ns",
+        "response",
         "late",
         "cos",
         "acks",
@@ -58,7 +57,7 @@ class SlaveLink:
         self.lost = False
         self.lost_cycle = 0
         self.lost_periods: list[list[int | None]] = []
-        self.response_ns: array[int] = array("q")
+        self.response = ResponseStats()  # request SOF to answer end, bounded in memory
         self.late = 0
         self.cos = 0
         self.acks = 0
@@ -105,7 +104,7 @@ class SlaveLink:
                 [a / 1e6 if a is not None else None, b / 1e6 if b is not None else None] for a, b in self.lost_periods
             ],
             "late": self.late,
-            "response_ms": stats_ms(self.response_ns),
+            "response_ms": self.response.stats_ms(),
             "jitter_ms": jitter,
             "cos": self.cos,
             "acks": self.acks,
@@ -120,16 +119,18 @@ class SlaveLink:
 class CycleStats:
     """A master's cycles: the measured length of each (first request's SOF to the end of the last
     transaction) — of every cycle, and of the *clean* ones, in which every slave due answered in
-    time (no timeout, no request the bus could not take) — overruns, requests the bus could not
-    take (``unsent``), the bus-time windows of the cycles (for the plot), when bus off stopped
+    time (no timeout, no request the bus could not take), as `ResponseStats` (bounded in memory)
+    — overruns, requests the bus could not take (``unsent``), the bus-time windows of the cycles
+    that fall in ``plot_window`` (bus ns: what the poll-cycle plot draws), when bus off stopped
     the master, and per transaction the latest end of its request and of its last answer after
     the cycle's start (``offsets``)."""
 
-    __slots__ = ("cycle_ns", "clean_ns", "overruns", "windows", "unsent", "offsets", "stopped_at")
+    __slots__ = ("cycle_ns", "clean_ns", "overruns", "windows", "unsent", "offsets", "stopped_at", "plot_window")
 
-    def __init__(self, config: MasterConfig) -> None:
-        self.cycle_ns: array[int] = array("q")
-        self.clean_ns: array[int] = array("q")
+    def __init__(self, config: MasterConfig, plot_window: tuple[int, int] | None = None) -> None:
+        self.cycle_ns = ResponseStats()
+        self.clean_ns = ResponseStats()
+        self.plot_window = plot_window
         self.overruns = 0
         self.windows: list[tuple[int, int, bool]] = []  # (first SOF, end) bus ns, overrun
         self.unsent = 0
@@ -148,11 +149,13 @@ class CycleStats:
 
     def cycle(self, length: int, clean: bool, first_sof_bus: int | None, overrun: bool) -> None:
         """A cycle that ran at least one transaction ended, ``length`` ns after its first SOF."""
-        self.cycle_ns.append(length)
+        self.cycle_ns.add(length)
         if clean:
-            self.clean_ns.append(length)
+            self.clean_ns.add(length)
         if first_sof_bus is not None:
-            self.windows.append((first_sof_bus, first_sof_bus + length, overrun))
+            w = self.plot_window
+            if w is None or (first_sof_bus + length >= w[0] and first_sof_bus <= w[1]):
+                self.windows.append((first_sof_bus, first_sof_bus + length, overrun))
 
     def figures(self, cycles: int, state: str, events: list[Any]) -> dict[str, Any]:
         """cycles started, the measured cycle (min/mean/p99/max ms) of every cycle and of the clean
@@ -163,8 +166,8 @@ class CycleStats:
             counts[type(e).__name__] = counts.get(type(e).__name__, 0) + 1
         return {
             "cycles": cycles,
-            "cycle_ms": stats_ms(self.cycle_ns),
-            "clean_cycle_ms": stats_ms(self.clean_ns),
+            "cycle_ms": self.cycle_ns.stats_ms(),
+            "clean_cycle_ms": self.clean_ns.stats_ms(),
             "overruns": self.overruns,
             "unsent": self.unsent,
             "state": state,

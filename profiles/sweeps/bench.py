@@ -16,6 +16,12 @@
   `run_scenario` of the already-checked scenario with the same seeds: (sweep − bare) / bare.
   Target: at most 0.10.
 
+- ``memory``: the peak resident memory of `canstack experiment` on that network (and on
+  examples/master_slave.toml, whose ``[[faults]]`` once kept the whole trace, and with ``--trace``
+  streaming to a .blf file) after a run of T and of 4T simulated seconds, each in a fresh
+  interpreter, and the growth between them per simulated hour: what an hour costs beyond the
+  start. Target: a one-hour run of the powertrain network under 150 MB (the growth near 0).
+
 Sweep figures are the best of ``repeat`` rounds, as `timeit` does: noise only slows a run.
 """
 
@@ -26,7 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["benchmark", "runner_overhead", "sweep_parallel", "sweep_overhead"]
+__all__ = ["benchmark", "runner_overhead", "sweep_parallel", "sweep_overhead", "memory"]
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "powertrain_90.toml"
 
@@ -181,6 +187,51 @@ def sweep_overhead(runs: int = 20, seconds: float = 0.25, repeat: int = 3) -> di
     }
 
 
+_PEAK = """
+import json, resource, sys
+from stack.cli import main
+main(json.loads(sys.argv[1]))
+print(json.dumps(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss), file=sys.stderr)
+"""
+
+
+def _peak_mb(argv: list[str]) -> float:
+    """Peak resident memory (MB) of ``canstack ARGV`` run in a fresh interpreter."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = str(EXAMPLE.parents[1])
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run(
+        [sys.executable, "-c", _PEAK, json.dumps(argv)], capture_output=True, text=True, env=env, check=True
+    )
+    kib = json.loads(out.stderr.strip().splitlines()[-1])
+    return kib / 1024  # ru_maxrss is in KiB on Linux
+
+
+def memory(seconds: float = 15.0) -> dict[str, Any]:
+    """Peak memory of experiment runs of ``seconds`` and 4 × ``seconds`` simulated, each in a
+    fresh interpreter, and the growth per simulated hour between them (see the module
+    docstring)."""
+    import tempfile
+
+    examples = EXAMPLE.parent
+    out: dict[str, Any] = {"simulated_s": [seconds, 4 * seconds]}
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = {
+            "powertrain": [str(EXAMPLE)],
+            "master_slave_faults": [str(examples / "master_slave.toml")],
+            "powertrain_trace": [str(EXAMPLE), "--trace", str(Path(tmp) / "t.blf")],
+        }
+        for name, args in cases.items():
+            peaks = [_peak_mb(["experiment", *args, "--duration", str(t), "--no-progress"]) for t in out["simulated_s"]]
+            growth = (peaks[1] - peaks[0]) / (3 * seconds) * 3600
+            out[name] = {"peak_mb": peaks, "mb_per_simulated_hour": growth}
+    return out
+
+
 def benchmark(seconds: float = 3.0) -> dict[str, Any]:
     """Every figure of the experiments, with the lines `python -m stack.bench` prints."""
     r = runner_overhead(seconds=max(0.5, seconds))
@@ -208,4 +259,16 @@ def benchmark(seconds: float = 3.0) -> dict[str, Any]:
         f"ms vs a bare run_scenario {o['bare_per_run_s'] * 1e3:.1f} ms: {100 * o['overhead']:+.1f} % "
         "(target <= 10 %)"
     )
-    return {"runner_vs_engine": r, "sweep_parallel": p, "sweep_overhead": o, "lines": lines}
+    m = memory(seconds=round(5 * seconds, 3))
+    for name, what in (
+        ("powertrain", "the 90 % powertrain network"),
+        ("master_slave_faults", "master_slave.toml ([[faults]])"),
+        ("powertrain_trace", "the powertrain network with --trace t.blf"),
+    ):
+        f = m[name]
+        lines.append(
+            f"memory of canstack experiment, {what}: peak {f['peak_mb'][0]:.0f} MB at {m['simulated_s'][0]:g} s "
+            f"simulated, {f['peak_mb'][1]:.0f} MB at {m['simulated_s'][1]:g} s: {f['mb_per_simulated_hour']:+.0f} MB "
+            "per simulated hour (target: an hour under 150 MB)"
+        )
+    return {"runner_vs_engine": r, "sweep_parallel": p, "sweep_overhead": o, "memory": m, "lines": lines}

@@ -45,6 +45,7 @@ from profiles.canopen import cob
 from profiles.canopen._state import NmtState
 from profiles.canopen.pdo.common import Pdo, PdoHost
 from profiles.canopen.pdo.mapping import pack
+from profiles.responses import ResponseStats
 from stack import Frame, TxRequest
 
 __all__ = ["Tpdo", "ECHO_WAIT_NS"]
@@ -62,7 +63,7 @@ class Tpdo(Pdo):
     and samples: ``queued``, ``sent``, ``late`` (withdrawn at the window's end), ``refused``,
     ``wire_starts`` (own frames the bus showed the device), ``event_at`` (when the event timer is due),
     ``sync_latencies`` (ns from the SYNC's reception to the end of this PDO's frame, one per
-    synchronous transmission).
+    synchronous transmission: a `ResponseStats`, bounded in memory).
     """
 
     receive = False
@@ -90,7 +91,7 @@ class Tpdo(Pdo):
         self.echoes = False  # the bus shows the device its own frames
         self.unseen = 0  # frames handed to the bus but not yet seen on the wire
         self._echo_timer: Any = None
-        self.sync_latencies: list[int] = []
+        self.sync_latencies = ResponseStats()
         super().__init__(host, n, 0x1800 + n - 1, 0x1A00 + n - 1, cob.TPDO)
 
     # ------------------------------------------------------------------ configuration
@@ -282,7 +283,7 @@ class Tpdo(Pdo):
             self.unseen += 1  # until the bus shows it (when it shows the device its own frames)
         self.started(sof if sof >= 0 else t)
         if t_sync is not None:
-            self.sync_latencies.append(t - t_sync)
+            self.sync_latencies.add(t - t_sync)
         return True
 
     def started(self, sof: int) -> None:

@@ -100,7 +100,7 @@ def test_sync_to_pdo_latency_is_from_the_sync_sof_to_the_pdo_end(bus, network):
     sync_sofs = [s for s, _, f in log if f.can_id == 0x80]
     pdo_ends = [t for _, t, f in log if f.can_id == 0x181]
     expected = [end - max(s for s in sync_sofs if s < end) for end in pdo_ends]
-    assert sorted(m.pdos[0x181].latencies) == sorted(expected)
+    assert sorted(m.pdos[0x181].latencies.values) == sorted(expected)
     lat = {p["cob_id"]: p for p in m.metrics()["pdos"]}[0x181]["sync_latency_ms"]
     assert lat["count"] == len(expected) and lat["min"] == min(expected) / MS and lat["max"] == max(expected) / MS
 
