@@ -98,7 +98,7 @@ def run(duration_s: float = 2.0, seed: int = 1) -> dict[str, Any]:
         "master": master.metrics(),
         "devices": [d.metrics() for d in devices],
         "bus": {"load": round(bus.busy_ns / bus.now(), 4), "frames": bus.frames_ok},
-        "latencies_ns": {p.cob_id: list(p.latencies) for p in master.pdos.values() if p.latencies},
+        "latencies_ns": {p.cob_id: list(p.latencies.values) for p in master.pdos.values() if p.latencies.n},
     }
 
 

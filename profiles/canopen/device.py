@@ -23,6 +23,7 @@ the dictionary and its access rules are `dictionary`'s; the options are `options
 from __future__ import annotations
 
 import os
+from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import Any, NamedTuple
@@ -172,7 +173,8 @@ class CanopenDevice:
         self._clean_syncs = 0
         self.time_received: int | None = None
         self.state_log: list[tuple[int, str]] = []
-        self.communication_errors: list[tuple[int, str]] = []
+        # the latest 1000: a device whose peer is gone reports one every heartbeat period
+        self.communication_errors: deque[tuple[int, str]] = deque(maxlen=1000)
 
     def _check_pdos(self) -> None:
         """A PDO the dictionary makes valid must have a usable mapping: an option naming it is a

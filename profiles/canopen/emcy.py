@@ -28,6 +28,9 @@ from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 from stack import Frame
 
+LOG_KEPT = 1000
+"""EMCY messages a producer keeps in its ``log`` (the latest; ``sent`` counts every one)."""
+
 __all__ = ["EmcyProducer", "Emcy", "decode_emcy", "register_bits", "describe", "ERROR_CODES"]
 
 US = 1_000
@@ -142,7 +145,9 @@ class EmcyProducer:
         self.sent = 0
         self.raised = 0
         self.cleared = 0
-        self.log: list[tuple[int, Emcy]] = []  # (time queued, message) of every EMCY sent
+        # (time queued, message) of the EMCY sent, the latest LOG_KEPT (``sent`` counts them all):
+        # a device that reports and clears an error every SYNC would fill memory on a long run
+        self.log: deque[tuple[int, Emcy]] = deque(maxlen=LOG_KEPT)
         self._queue: deque[bytes] = deque()
         self._next_allowed = 0
         self._timer: Any = None

@@ -25,6 +25,7 @@ frame of the SYNC the master sent (`TxDone.sof`) to the end of the PDO's frame (
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,7 +43,10 @@ from profiles.canopen.sync import SyncProducer
 from profiles.responses import ResponseStats
 from stack import Frame, NodeAPI, NodeError, QueueFull, Received, TxDone, TxRequest
 
-__all__ = ["CanopenMaster", "ManagedNode", "PdoStats"]
+__all__ = ["CanopenMaster", "ManagedNode", "PdoStats", "EVENTS_KEPT"]
+
+EVENTS_KEPT = 1000
+"""Events and EMCY messages per node the master keeps (the latest; EMCY are all counted)."""
 
 MS = 1_000_000
 US = 1_000
@@ -58,7 +62,10 @@ class ManagedNode:
     boot_time: int | None = None
     start_time: int | None = None
     config_errors: list[str] = field(default_factory=list)
-    emcy: list[tuple[int, Emcy]] = field(default_factory=list)
+    # the latest EMCY messages received (all counted in emcy_count, their codes in emcy_codes)
+    emcy: deque[tuple[int, Emcy]] = field(default_factory=lambda: deque(maxlen=EVENTS_KEPT))
+    emcy_count: int = 0
+    emcy_codes: set[int] = field(default_factory=set)
     pdo_types: dict[int, int] = field(default_factory=dict)  # TPDO COB-ID -> transmission type
 
 
@@ -110,7 +117,8 @@ class CanopenMaster:
             else None
         )
         self.pdos: dict[int, PdoStats] = {}
-        self.events: list[tuple[int, int, str]] = []  # (time, node-ID, what)
+        # (time, node-ID, what): the latest EVENTS_KEPT, so that a long run stays in bounded memory
+        self.events: deque[tuple[int, int, str]] = deque(maxlen=EVENTS_KEPT)
         self.last_sync: int | None = None
         self.sync_sent = 0
         self.tx_refused = 0
@@ -314,7 +322,10 @@ class CanopenMaster:
                 return
             if fc == cob.EMCY and can_id != self.sync.cob_id:
                 e = decode_emcy(f.data)
-                self.nodes[nid].emcy.append((ev.time, e))
+                rec = self.nodes[nid]
+                rec.emcy.append((ev.time, e))
+                rec.emcy_count += 1
+                rec.emcy_codes.add(e.code)
                 self._event(nid, f"emcy 0x{e.code:04X}")
                 return
         st = self.pdos.get(can_id)
@@ -381,8 +392,8 @@ class CanopenMaster:
                 "heartbeats_received": m.received if m else 0,
                 "heartbeats_missed": m.missed if m and self.options.heartbeat_consumer_ms else 0,
                 "heartbeat_timeouts": m.timeouts if m and self.options.heartbeat_consumer_ms else 0,
-                "emcy_received": len(rec.emcy),
-                "emcy_codes": sorted({e.code for _, e in rec.emcy}),
+                "emcy_received": rec.emcy_count,
+                "emcy_codes": sorted(rec.emcy_codes),
                 "config_errors": list(rec.config_errors),
             }
             if g is not None:
