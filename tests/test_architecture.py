@@ -117,45 +117,6 @@ def test_no_module_imports_a_private_name_of_another():
     assert bad == []
 
 
-def test_modules_of_the_flat_layout_import_from_their_new_place_with_a_warning():
-    """Users' `from stack.sim import SimBus` keeps working (README: what moved)."""
-    import importlib
-    import sys
-    import warnings
-
-    import stack
-
-    for old, new in stack.MOVED.items():
-        sys.modules.pop(old, None)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            mod = importlib.import_module(old)
-        assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught), old
-        real = importlib.import_module(new)
-        for name in getattr(real, "__all__", [])[:5]:
-            assert getattr(mod, name) is getattr(real, name)
-    from stack.bits import BitDecoder, crc15  # noqa: F401  (the flat module held the decoder too)
-
-
-def test_every_public_name_of_the_flat_layout_still_imports_from_its_old_module():
-    """Nothing a user imported before the split stopped working: each name in the ``__all__`` of
-    each module of the flat layout (recorded from that tree) is still there, under its old module."""
-    import importlib
-    import json
-    import warnings
-    from pathlib import Path
-
-    old_api = json.loads((Path(__file__).parent / "data" / "flat_layout_api.json").read_text())
-    old_api.pop("_comment")
-    missing = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for module, names in old_api.items():
-            mod = importlib.import_module(module)
-            missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
-    assert missing == []
-
-
 def test_the_engine_objects_keep_every_field_of_theirs_in_a_slot():
     """`Node` and `SimBus` declare their fields as slots (the engine reads them once a frame; an
     instance dict of over 30 keys is read more slowly): a field added in ``__init__`` without its

@@ -42,7 +42,7 @@ class BitLevelAttempts:
         overload: dict[Node, int] | None = None,
         leave: dict[Node, int] | None = None,
     ) -> None:
-        """Replay this attempt bit by bit (`stack.errors`) because something can go wrong in it."""
+        """Replay this attempt bit by bit (`stack.bus.attempt`) because something can go wrong in it."""
         nodes = [n for n in self.nodes if n.on_bus]
         res = simulate_attempt(txs, nodes, flips or {}, stuck, deaf, overload, leave)
         res.collision = collision

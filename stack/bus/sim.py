@@ -6,7 +6,7 @@ Model (CAN 2.0 / ISO 11898-1, at frame granularity with bit-exact lengths):
   remote, standard beats extended with the same base ID); losers retry at the next idle.
 - The winning frame occupies the bus for its exact stuffed length (SOF..EOF), then intermission.
 - Every other node on the bus that is not listen-only acknowledges; a transmitter without any
-  acknowledging node gets an ACK error and retransmits (fault confinement hooks in `stack.errors`).
+  acknowledging node gets an ACK error and retransmits (fault confinement hooks in `stack.bus.attempt`).
 - Two nodes sending the same arbitration field but different frames (for example two remote
   frames with the same ID and different DLC) collide after arbitration: the one sending
   recessive where the other sends dominant sees a bit error and the attempt ends in an error
@@ -151,7 +151,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         # receivers whose REC rule 8 must decrement; a dict as an ordered set (insertion order)
         # so that state changes and what their listeners do happen in a deterministic order
         self._rec_nonzero: dict[Node, None] = {}
-        self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
+        self._faults: Any = None  # fault injection (stack.bus.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
         self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
         self._busoff_marks: dict[Node, int] = {}  # recessive-run count when each started recovering
