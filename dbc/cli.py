@@ -194,7 +194,9 @@ def restbus_command(args: argparse.Namespace) -> int:
         complete = run_sliced(bus, int(args.duration * 1e9), progress=args.progress, desc="restbus")
         ran = bus.now() / 1e9
         if args.trace:
-            n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
+            from stack.io.tracefile import save_trace
+
+            n = writing(args.trace, "--trace", lambda: save_trace(bus, args.trace))
             print(
                 f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}",
                 file=info,
@@ -221,12 +223,13 @@ def restbus_command(args: argparse.Namespace) -> int:
                     fn()
                     break
         if args.trace:
-            from stack.bus.trace import save_messages
+            from stack.io.message import to_message
+            from stack.io.tracefile import save_messages
 
             n = writing(
                 args.trace,
                 "--trace",
-                lambda: save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace),
+                lambda: save_messages((to_message(r.frame, timestamp=r.time / 1e9) for r in rb.records), args.trace),
             )
             dropped = sum(1 for r in rb.records if r.frame.remote)
             print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, dropped)}", file=info)

@@ -4,7 +4,8 @@
 - `stack.controller` — fault confinement, queues, filters, the node and its events, the node API;
 - `stack.bus` — the simulated bus, bit-level attempts, fault injection, traces;
 - `stack.phy` — bit timing, synchronisation, waveforms;
-- `stack.io` — the python-can driver and interface, the real-time runner, `canstack serve`;
+- `stack.io` — python-can: the driver and interface, messages and trace files, the real-time
+  runner, `canstack serve`;
 - `stack.cli` — the `canstack` command and the benchmark.
 
 The names most programs need are importable from here (``from stack import SimBus, Frame``): they
@@ -41,6 +42,8 @@ __all__ = [
     "TraceRecord",
     "FaultInjector",
     "PyCanDriver",
+    "to_message",
+    "save_trace",
 ]
 
 # public name -> module that defines it
@@ -68,6 +71,8 @@ _EXPORTS = {
     "TraceRecord": "stack.bus.trace",
     "FaultInjector": "stack.bus.faults",
     "PyCanDriver": "stack.io.driver",
+    "to_message": "stack.io.message",
+    "save_trace": "stack.io.tracefile",
 }
 
 

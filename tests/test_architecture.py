@@ -1,12 +1,22 @@
-"""The architecture, checked: the import-linter layer contracts of pyproject.toml, no import
-cycles between modules, and no module importing another module's private name."""
+"""The architecture, checked: the import-linter contracts of pyproject.toml (the layers, and the
+sans-IO core without python-can), no import cycles between modules, and no module importing
+another module's private name."""
 
 from __future__ import annotations
 
 import ast
+import shutil
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("stack", "profiles", "dbc")
@@ -22,6 +32,86 @@ def test_import_linter_contracts_are_kept():
         assert importlinter.lint_imports() == 0, "a layer contract is broken: run `lint-imports` for the chain"
     finally:
         os.chdir(cwd)
+
+
+SANS_IO_CORE = ("stack.wire", "stack.controller", "stack.bus")
+
+
+def _contract(name_part: str) -> dict:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    found = [c for c in config["contracts"] if name_part in c["name"]]
+    assert len(found) == 1, f"one contract named '...{name_part}...' in pyproject.toml"
+    return {**found[0], "include_external_packages": config.get("include_external_packages", False)}
+
+
+@pytest.mark.subprocess
+def test_the_sans_io_core_is_forbidden_python_can_and_the_contract_bites(tmp_path):
+    """The contract names the three layers and python-can, external packages are in the graph
+    (else import-linter cannot see `can` at all), and it breaks when one module of the core
+    imports python-can: checked on a copy of the packages with such an import added."""
+    contract = _contract("does not import python-can")
+    assert contract["type"] == "forbidden" and contract["include_external_packages"] is True
+    assert set(contract["source_modules"]) == set(SANS_IO_CORE) and contract["forbidden_modules"] == ["can"]
+    for pkg in PACKAGES:
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    events = tmp_path / "stack" / "controller" / "events.py"
+    events.write_text(events.read_text() + "\nimport can  # the break under test\n")
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from importlinter.cli import lint_imports; sys.exit(lint_imports())"],
+        cwd=tmp_path,  # the copy is the first on sys.path, before the installed checkout
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 1, out.stdout[-2000:] + out.stderr[-2000:]
+    assert "stack.controller is not allowed to import can" in out.stdout
+    assert "stack.controller.events -> can" in out.stdout
+
+
+CORE_WITHOUT_PYTHON_CAN = """
+import importlib, pkgutil, sys
+from types import SimpleNamespace
+
+sys.modules["can"] = None  # `import can` raises ImportError from here on
+for name in {core!r}:
+    package = importlib.import_module(name)
+    for info in pkgutil.walk_packages(package.__path__, name + "."):
+        importlib.import_module(info.name)
+
+from stack.bus.faults import FaultInjector
+from stack.bus.sim import SimBus
+from stack.wire.frame import Frame
+
+bus = SimBus(500_000, seed=1, record=True)
+engine, body, dash = bus.node("engine"), bus.node("body"), bus.node("dash")  # dash acknowledges
+got = []
+body.subscribe(lambda ev: got.append(ev.frame))
+engine.send(Frame(0x123, b"\\x01\\x02"))
+# a can.Message, read by its attributes (what python-can's would carry)
+engine.send(SimpleNamespace(arbitration_id=0x1ABCDE, data=bytearray(b"\\xaa"), dlc=1, is_extended_id=True,
+    is_remote_frame=False, is_error_frame=False, is_fd=False, bitrate_switch=False, error_state_indicator=False))
+FaultInjector(bus).flip(can_id=0x123, occurrence=1, field="crc", bit=3, nodes=["body"])
+bus.run(until=2_000_000)
+print(sorted((f.can_id, f.extended, f.data.hex()) for f in got))
+print([r.kind for r in bus.trace], body.rec, engine.tec)
+print(sorted(m for m in sys.modules if m == "can" or m.startswith("can.")))
+"""
+
+
+@pytest.mark.subprocess
+def test_the_sans_io_core_runs_a_simulation_where_python_can_cannot_be_imported():
+    script = textwrap.dedent(CORE_WITHOUT_PYTHON_CAN.format(core=SANS_IO_CORE))
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    frames, trace, modules = out.stdout.splitlines()
+    # both frames arrive; the extended one (base ID 0x006) wins the first arbitration
+    assert frames == str(sorted([(0x123, False, "0102"), (0x1ABCDE, True, "aa")]))
+    # body alone sees the CRC error of 0x123: rules 1 + 2 give it REC 9, the retransmission it
+    # receives takes 1 off (rule 8); the transmitter's error flag adds 8 (rule 3), the
+    # retransmission takes 1 off (rule 7; the first frame went when TEC was 0 already)
+    assert trace == str(["frame", "error", "frame"]) + " 8 7"
+    assert modules == "['can']"  # only the blocked entry: nothing of python-can was loaded
 
 
 def _runtime_imports(path: Path, module: str) -> set[str]:

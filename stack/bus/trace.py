@@ -1,22 +1,16 @@
-"""Trace records of the simulated bus and their export through python-can's writers (asc, blf, log, csv, trc, mf4, ...).
+"""Trace records of the simulated bus, and the SocketCAN error frame a failed attempt reads as.
 
-canstack does not write log formats itself: `can.Logger` picks the writer from the file suffix,
-so Vector tools, candump tools and SavvyCAN read what we write.
+Writing them to files (asc, blf, log, csv, trc, mf4, ... through python-can's writers) is
+`stack.io.tracefile`; as `can.Message` objects, `stack.io.message`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
-
-import can
 
 from stack.wire.frame import Frame
 
-__all__ = ["TraceRecord", "save_messages", "load_messages", "check_suffix", "SUFFIXES", "error_frame_content"]
-
-SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4", ".txt", ".db")
+__all__ = ["TraceRecord", "error_frame_content", "CAN_ERR_DLC"]
 
 # SocketCAN error frames (linux/can/error.h): the error class in the identifier, details in the
 # 8 data bytes. Names and values as in the kernel header.
@@ -185,58 +179,8 @@ class TraceRecord:
             tuple(sorted((self.detail or {}).items())),
         )
 
-    def to_message(self, channel: Any = None) -> can.Message:
-        """python-can message of this record (an error frame for 'error'/'collision', its
-        content as SocketCAN encodes one: `error_frame_content`)."""
-        if self.kind == "frame":
-            return self.frame.to_message(timestamp=self.end / 1e9, channel=channel)
-        can_id, data = error_frame_content(self)
-        return can.Message(
-            timestamp=self.end / 1e9,
-            is_error_frame=True,
-            channel=channel,
-            arbitration_id=can_id,
-            dlc=CAN_ERR_DLC,
-            data=data,
-            check=False,
-        )
-
     def __repr__(self) -> str:
         return (
             f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
             f" bits={self.bits} losses={self.losses}{' ' + str(self.detail) if self.detail else ''})"
         )
-
-
-def check_suffix(path: str | Path) -> str:
-    """The trace file's suffix, lowercased; ValueError naming the file when python-can has no
-    writer for it."""
-    suffix = "".join(Path(path).suffixes[-1:]).lower()
-    if suffix not in SUFFIXES:
-        raise ValueError(
-            f"trace file {str(path)!r}: unknown suffix {suffix or '(none)'!r}; use one of {', '.join(SUFFIXES)}"
-        )
-    return suffix
-
-
-def save_messages(messages: Iterable[can.Message], path: str | Path) -> int:
-    """Write messages with python-can's writer for the suffix; returns how many were written.
-
-    A .trc file (PCAN-View) cannot hold remote or error frames: python-can's writer drops each
-    one with a warning of its own, so they are left out here, quietly, and not counted; the
-    caller says how many (``canstack`` prints one line)."""
-    suffix = check_suffix(path)
-    n = 0
-    with can.Logger(str(path)) as writer:  # type: ignore[abstract]
-        for msg in messages:
-            if suffix == ".trc" and (msg.is_remote_frame or msg.is_error_frame):
-                continue
-            writer.on_message_received(msg)
-            n += 1
-    return n
-
-
-def load_messages(path: str | Path) -> list[can.Message]:
-    """Read a trace back with python-can's reader for the suffix."""
-    check_suffix(path)
-    return list(can.LogReader(str(path)))

@@ -208,7 +208,9 @@ def _demo(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"\nplot: TEC/REC over time written to {args.plot}")
     if args.trace:
-        n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
+        from stack.io.tracefile import save_trace
+
+        n = writing(args.trace, "--trace", lambda: save_trace(bus, args.trace))
         if not args.json:
             print(f"\ntrace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}")
     if args.vcd:

@@ -68,7 +68,7 @@ def check_output(path: str, option: str) -> None:
 def check_trace_output(path: str, option: str = "--trace") -> str:
     """A trace file: a writable path, a suffix python-can has a writer for, and that writer's
     library installed. Returns the suffix."""
-    from stack.bus.trace import check_suffix
+    from stack.io.tracefile import check_suffix
 
     check_output(path, option)
     suffix = check_suffix(path)

@@ -20,8 +20,6 @@ from heapq import heappush
 from operator import itemgetter
 from typing import Any
 
-import can
-
 from stack.controller.clock import LocalClock
 from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
 from stack.controller.contract import Driver, Timer
@@ -31,7 +29,7 @@ from stack.controller.filters import AcceptanceFilter
 from stack.controller.periodic import PeriodicTask
 from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, SpecialRequest, TxRequest, make_queue
 from stack.controller.receiver import Receiver, Subscription
-from stack.wire.frame import Frame
+from stack.wire.frame import Frame, MessageLike
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
 
@@ -250,9 +248,10 @@ class Node(Receiver):
 
     # ------------------------------------------------------------------ transmit
     def send(
-        self, frame: Frame | can.Message, *, one_shot: bool | None = None, not_after: int | None = None
+        self, frame: Frame | MessageLike, *, one_shot: bool | None = None, not_after: int | None = None
     ) -> TxRequest:
-        """Queue a frame for transmission; returns its request (state, losses, retries).
+        """Queue a frame for transmission; returns its request (state, losses, retries). A
+        `can.Message` is taken too, read by its attributes (`Frame.from_message`).
 
         ``one_shot`` overrides the node's mode for this frame. ``not_after`` is the latest start
         time (ns on the node's clock): a frame that has not started by then is withdrawn and
@@ -339,7 +338,7 @@ class Node(Receiver):
     def _coerce(frame: Any) -> Frame:
         if isinstance(frame, Frame):
             return frame
-        if isinstance(frame, can.Message):
+        if hasattr(frame, "arbitration_id"):  # a can.Message, or anything with its attributes
             return Frame.from_message(frame)
         raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
 

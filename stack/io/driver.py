@@ -47,6 +47,7 @@ from stack.controller.confinement import BUS_OFF, BUS_OFF_LIMIT, RECOVERY_OCCURR
 from stack.controller.contract import Timer
 from stack.controller.node import Node
 from stack.controller.queues import QUEUED
+from stack.io.message import to_message
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
@@ -374,7 +375,7 @@ class PyCanDriver:
     def _send_one(self, node: Node, req: Any, now: int) -> None:
         frame: Frame = req.frame
         try:
-            self.buses[node].send(frame.to_message(timestamp=time.time()), timeout=0.1)
+            self.buses[node].send(to_message(frame, timestamp=time.time()), timeout=0.1)
         except can.CanError as exc:
             if req.one_shot:
                 self._retry.pop(req, None)

@@ -46,6 +46,7 @@ from can.broadcastmanager import (
 
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
 from stack.io.discovery import local_servers
+from stack.io.message import to_message
 from stack.io.port import NODE_OPTIONS, Port, check_filters
 from stack.io.runner import BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
 from stack.io.serve.client import RemotePort
@@ -593,7 +594,7 @@ class CanstackBus(can.BusABC):
         timestamp = self._port.epoch0 + t_ns / 1e9
         if frame is None:  # a failed one-shot transmission
             return error_frame_of(*extra, timestamp=timestamp, channel=self.channel), True
-        msg = frame.to_message(timestamp=timestamp, channel=self.channel)
+        msg = to_message(frame, timestamp=timestamp, channel=self.channel)
         msg.is_rx = extra
         return msg, True
 
