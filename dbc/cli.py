@@ -10,7 +10,8 @@ import time
 from typing import Any
 
 from stack.cli import CliError, format_id, parse_bitrate, plural
-from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, trace_note, trc_dropped, writing
+from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, trace_note, trc_dropped, writing
+from stack.io.progress import run_sliced
 
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value

@@ -22,7 +22,7 @@ from profiles.pipeline.metrics import analyse_scenario, message_rows, summary_of
 from profiles.registry import profile_kind
 from profiles.schema import ScenarioError
 from stack import LocalClock, Received, SimBus
-from stack.cli.runs import run_sliced
+from stack.io.progress import run_sliced
 
 __all__ = ["Result", "run_scenario", "run_on_pycan", "build", "Built"]
 

@@ -169,7 +169,7 @@ class _Rows:
     """Rows by index, and the progress bar they advance."""
 
     def __init__(self, total: int, progress: bool | None, desc: str) -> None:
-        from stack.cli.runs import show_progress
+        from stack.io.progress import show_progress
 
         self.rows: dict[int, dict[str, Any]] = {}
         self.failed = 0

@@ -15,11 +15,11 @@ from stack.cli.runs import (
     check_output,
     check_plot_output,
     check_trace_output,
-    run_sliced,
     trace_note,
     trc_dropped,
     writing,
 )
+from stack.io.progress import run_sliced
 from stack.wire.coding import INTERMISSION_BITS, Field
 from stack.wire.fd import worst_case_bits
 from stack.wire.frame import Frame

@@ -21,9 +21,9 @@ except ModuleNotFoundError:  # Python 3.10
 import pytest
 
 import stack.cli.demo as demo
-import stack.cli.runs as runs
 from stack.bus.sim import SimBus
 from stack.cli import build_parser, main
+from stack.io.progress import run_sliced
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -124,7 +124,7 @@ def test_a_sliced_run_is_the_same_run():
     demo.build_demo(whole)
     demo.build_demo(sliced)
     whole.run(until=300_000_000)
-    assert runs.run_sliced(sliced, 300_000_000, progress=False)
+    assert run_sliced(sliced, 300_000_000, progress=False)
     assert sliced.now() == whole.now() and _digest(sliced) == _digest(whole)
     assert sliced.summary() == whole.summary()
 
