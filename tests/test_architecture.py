@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+from collections.abc import Collection, Iterable
 from pathlib import Path
 
 import pytest
@@ -114,8 +115,12 @@ def test_the_sans_io_core_runs_a_simulation_where_python_can_cannot_be_imported(
     assert modules == "['can']"  # only the blocked entry: nothing of python-can was loaded
 
 
-def _runtime_imports(path: Path, module: str) -> set[str]:
-    """Modules of the project this file imports when it runs (TYPE_CHECKING blocks left out)."""
+def _runtime_imports(path: Path, module: str, modules: Collection[str]) -> set[str]:
+    """Modules of ``modules`` this file imports when it runs, at module level or inside a function
+    (a cycle through a lazy import is still a knot); imports in ``if TYPE_CHECKING:`` blocks, which
+    only annotations use, are left out. ``from pkg import sub`` of a submodule ``sub`` is an import
+    of ``pkg.sub`` (its package's ``__init__`` runs first for any submodule, which is no edge);
+    ``from pkg import name`` of anything else is an import of ``pkg``."""
     tree = ast.parse(path.read_text())
     out: set[str] = set()
     skip: set[int] = set()
@@ -134,16 +139,17 @@ def _runtime_imports(path: Path, module: str) -> set[str]:
                 parts = pkg.split(".")
                 parent = ".".join(parts[: len(parts) - node.level + 1])
                 base = f"{parent}.{base}" if base else parent
-            out.add(base)
-            out.update(f"{base}.{a.name}" for a in node.names)
-    return {m for m in out if m.split(".")[0] in PACKAGES}
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                out.add(sub if sub in modules else base)
+    return {m for m in out if m in modules and m != module}
 
 
-def _modules() -> dict[str, Path]:
+def _modules(root: Path = ROOT, packages: Iterable[str] = PACKAGES) -> dict[str, Path]:
     mods = {}
-    for pkg in PACKAGES:
-        for p in (ROOT / pkg).rglob("*.py"):
-            rel = p.relative_to(ROOT).with_suffix("")
+    for pkg in packages:
+        for p in (root / pkg).rglob("*.py"):
+            rel = p.relative_to(root).with_suffix("")
             parts = list(rel.parts)
             if parts[-1] == "__init__":
                 parts.pop()
@@ -151,15 +157,11 @@ def _modules() -> dict[str, Path]:
     return mods
 
 
-def test_no_import_cycles_between_modules():
-    """Tarjan's strongly connected components over module-level imports (imports inside functions
-    count too: a cycle through a lazy import is still a knot). A package's __init__ re-exporting
-    its children is not a cycle of the children."""
-    mods = _modules()
-    graph = {
-        m: {i for i in _runtime_imports(p, m) if i in mods and i != m and not m.startswith(i + ".")}
-        for m, p in mods.items()
-    }
+def _import_cycles(mods: dict[str, Path]) -> list[list[str]]:
+    """The import cycles between ``mods``: Tarjan's strongly connected components of the graph of
+    `_runtime_imports` (a package importing its children and a child importing a name its
+    package's ``__init__`` defines are edges like any other)."""
+    graph = {m: _runtime_imports(p, m, mods) for m, p in mods.items()}
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
@@ -192,7 +194,31 @@ def test_no_import_cycles_between_modules():
     for m in sorted(graph):
         if m not in index:
             strong(m)
-    assert cycles == []
+    return cycles
+
+
+def test_no_import_cycles_between_modules():
+    """No two modules import each other, directly or around a longer loop (annotation-only
+    imports excepted)."""
+    assert _import_cycles(_modules()) == []
+
+
+def test_the_cycle_check_sees_two_way_imports_and_leaves_annotations_out(tmp_path):
+    files = {
+        "pkg/__init__.py": "from pkg.child import Child\nNAME = 1\n",
+        "pkg/child.py": "from pkg import NAME\nclass Child: ...\n",  # a name of the package: a cycle
+        "pkg/a.py": "from pkg.b import x\n",
+        "pkg/b.py": "def x():\n    from pkg import a\n",  # lazy, still a cycle
+        "pkg/c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg.d import y\n",
+        "pkg/d.py": "from pkg.c import *\ny = 1\n",  # c imports d only for annotations: no cycle
+        "pkg/sub/__init__.py": "from pkg.sub.leaf import z\n",
+        "pkg/sub/leaf.py": "from pkg.sub import other\nz = 1\n",  # a sibling submodule: no cycle
+        "pkg/sub/other.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert sorted(_import_cycles(_modules(tmp_path, ["pkg"]))) == [["pkg", "pkg.child"], ["pkg.a", "pkg.b"]]
 
 
 def test_no_module_imports_a_private_name_of_another():
