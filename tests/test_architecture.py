@@ -239,10 +239,11 @@ def test_the_engine_objects_keep_every_field_of_theirs_in_a_slot():
     slot lands in ``__dict__``, which this catches. Attributes of users' own still work."""
     from stack.bus.sim import SimBus
     from stack.controller.clock import LocalClock
+    from stack.controller.events import TxDone
 
     bus = SimBus(250_000)
     node = bus.node("a", clock=LocalClock(drift_ppm=10))
-    bus.node("b").listen(object, print)
+    bus.node("b").listen(TxDone, print)
     assert vars(bus) == {} and vars(node) == {}
     node.note = "mine"
     assert vars(node) == {"note": "mine"}

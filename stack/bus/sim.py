@@ -164,6 +164,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             raise ValueError(f"node {node.name!r} is already attached to a bus")
         if any(n.name == node.name for n in self.nodes):
             raise ValueError(f"a node named {node.name!r} is already on bus {self.name!r}")
+        node.check_listeners(self.capabilities)
         node.bus = self
         self.nodes.append(node)
         node.rx_cursor = self.delivered

@@ -22,7 +22,7 @@ from typing import Any
 
 from stack.controller.clock import LocalClock
 from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
-from stack.controller.contract import Driver, Timer
+from stack.controller.contract import CAPABILITIES, REPORTED_WITH, Driver, Timer, listen_refusal
 from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from stack.controller.exceptions import NodeError
 from stack.controller.filters import AcceptanceFilter
@@ -33,6 +33,7 @@ from stack.wire.frame import Frame, MessageLike
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
 
+_EVERY_CAPABILITY = frozenset(CAPABILITIES)
 _new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
 _sender = itemgetter(2)  # of a (time, frame, sender) reception
 
@@ -528,11 +529,32 @@ class Node(Receiver):
 
     def listen(self, event_type: type, callback: Callable[[Any], Any]) -> None:
         """Call ``callback(event)`` for events of ``event_type``: TxDone, TxFailed,
-        ArbitrationLost, ErrorStateChanged."""
+        ArbitrationLost, ErrorStateChanged.
+
+        An event the node's driver never reports is refused rather than waited for in silence
+        (`stack.controller.contract.listen_refusal`): a type that is no event of the node's is a
+        TypeError; an event its driver lacks the capability for (ArbitrationLost on a python-can
+        bus) a `NodeError`, here or when the node is attached to such a driver
+        (`check_listeners`)."""
+        # not attached yet: only the type is checked, the driver's capabilities when it attaches
+        why = listen_refusal(event_type, self.capabilities if self.bus is not None else _EVERY_CAPABILITY)
+        if why is not None:
+            raise (NodeError if event_type in REPORTED_WITH else TypeError)(
+                f"node {self.name!r} cannot listen for {getattr(event_type, '__name__', event_type)}: {why}"
+            )
         self.listeners.setdefault(event_type, []).append(callback)
         self.tx_done_listeners = self.listeners.get(TxDone)
         if self.bus is not None:
             self.bus.node_changed(self)
+
+    def check_listeners(self, capabilities: frozenset[str]) -> None:
+        """Raise `NodeError` when the node listens for an event a driver with ``capabilities``
+        never reports (`stack.controller.contract.listen_refusal`): a driver calls it before it
+        attaches the node, so that a listener added before is held to the same rule as `listen`."""
+        for event_type, callbacks in self.listeners.items():
+            why = listen_refusal(event_type, capabilities) if callbacks else None
+            if why is not None:
+                raise NodeError(f"node {self.name!r} listens for {event_type.__name__}, but {why}")
 
     def unlisten(self, event_type: type, callback: Callable[[Any], Any]) -> bool:
         """Stop calling ``callback`` for ``event_type`` (a layer that stops, e.g. a device taken off

@@ -127,6 +127,7 @@ class PyCanDriver:
             raise ValueError(f"node {node.name!r} is already attached to a bus")
         if any(n.name == node.name for n in self.nodes):
             raise ValueError(f"a node named {node.name!r} is already on this driver")
+        node.check_listeners(self.capabilities)
         if can_bus is None:
             if self._factory is None:
                 raise ValueError("give can_bus, or create the driver with interface/channel or a bus_factory")
