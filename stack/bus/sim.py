@@ -525,9 +525,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                             node.update_head()
                     elif by is not None and not called:
                         # PriorityQueue.head, inlined: the same key again unless a lower key waits
-                        # (one queued while req was on the wire of an attempt that failed: `retry`
-                        # offers req again without looking at the queue; kept although such a
-                        # node's TEC is above 0, which takes the branch below, as `confirm` has it)
+                        # (one queued while req was on the wire: `send` leaves the head alone then)
                         if dq and dq[0].state is QUEUED and q.keys[0] == req.key:
                             nxt = dq[0]
                         else:

@@ -495,17 +495,19 @@ class Node(Receiver):
 
     def retry(self, req: TxRequest) -> None:
         """The driver's report that an attempt of ``req`` failed and will be repeated
-        (automatic retransmission): counts it and offers the request again."""
+        (automatic retransmission): counts it and chooses the head again, as before any
+        arbitration — a priority queue offers a better frame queued during the attempt, and
+        mailboxes with abort may now abort ``req``'s mailbox for one (`TxQueue.reselect`); a
+        FIFO and mailboxes without abort keep their order, so ``req`` is offered again."""
         req.on_wire = False
         req.retries += 1
         self.retransmissions += 1
         if self.bus is not None:
             req.head_since = self.bus.rounds
+        self.queue.reselect()
         if self.offered is req:
-            if self.bus is not None:
-                self.bus.offer(self, req)
-        else:
-            self.update_head()
+            self.offered = None  # so that update_head offers the head even when it is req again
+        self.update_head()
 
     def lost_arbitration(self, t: int, req: TxRequest, winner: Frame) -> None:
         """The driver's report that the offered ``req`` lost the round at bus time ``t`` to

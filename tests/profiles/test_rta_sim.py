@@ -387,12 +387,6 @@ def test_errors_simple_and_burst_forms(burst):
         check(net, simulate(net, PATTERNS[i % 4], i, min(6 * t_error, 1_000 * MS)))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="engine: after a failed attempt Node.retry offers the same request again, even when a "
-    "higher-priority frame was queued on the node during the attempt (a priority queue should "
-    "offer its best frame); reported, stack/ is not this module's to change",
-)
 def test_an_error_does_not_make_a_priority_queue_retry_its_low_frame_first():
     # Node "a" (priority queue): L (0x700) on the wire when H (0x080) is queued; the error
     # strikes L; a priority queue sends H next. Node "b" sends M (0x100) back to back, so that
