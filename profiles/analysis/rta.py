@@ -115,10 +115,9 @@ frame (31 tau worst case) and the retransmission of the longest frame it destroy
 level: E(t) = n (ceil(t / T_error) + 1)(31 tau + max C over the level's messages), added to the
 busy-period and queuing recurrences. At most n ceil(w / T_error) errors fall in a window w; the
 extra n covers those striking m's own transmission. Nodes are assumed to stay error active, and
-a node to offer its best frame again after a failed attempt; the engine at this writing retries
-the failed frame first even when a better one was queued meanwhile (a strict xfail in
-tests/profiles/test_rta_sim.py shows it), so with errors the bounds are tested on nodes with one
-message each.
+a node to choose its queue's head again after a failed attempt, as the engine does
+(`stack.controller.node.Node.retry`): a priority queue does not retransmit a lower frame before
+a better one queued meanwhile, whose retransmission the term would not cover.
 
 Drift: see `profiles.analysis.model` (the shortest real period, a widened jitter).
 
