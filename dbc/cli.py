@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from typing import Any
@@ -15,6 +16,8 @@ from stack.io.progress import run_sliced
 
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value
+from .stimulus import Change, check_changes, parse_assignment, read_stimulus, schedule
+from .validate import validate_database
 
 __all__ = ["register", "restbus_command"]
 
@@ -49,6 +52,27 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
     p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="MESSAGE.SIGNAL=VALUE",
+        help="write a signal of a simulated node at the start (physical value in the DBC's unit, or a choice "
+        "name); repeatable",
+    )
+    p.add_argument(
+        "--stimulus",
+        metavar="FILE",
+        help="timed signal changes: CSV with the header time,message,signal,value (time in s), or the same as "
+        "TOML ([[changes]] tables)",
+    )
+    p.add_argument(
+        "--default-cycle",
+        type=_positive_ms,
+        metavar="MS",
+        help="send every message the DBC gives no send type or cycle time every MS ms, and the messages no node "
+        "sends (Vector__XXX) from a simulated node Vector__XXX",
+    )
+    p.add_argument(
         "--trace",
         metavar="FILE",
         help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; "
@@ -64,6 +88,46 @@ def register(subparsers: Any) -> None:
         help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)",
     )
     p.set_defaults(func=restbus_command)
+
+
+def _positive_ms(text: str) -> int:
+    """A period in whole milliseconds > 0 (the DBC's GenMsgCycleTime unit)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of milliseconds") from None
+    if not 0 < v <= 3_600_000:
+        raise argparse.ArgumentTypeError(f"{v} ms: a period is 1 .. 3600000 ms")
+    return v
+
+
+class _Output:
+    """Standard output that survives its reader going away (``| head -1``): the first
+    BrokenPipeError points stdout at /dev/null, so that the run goes on and the files it
+    was asked for (--trace) are still written."""
+
+    def __init__(self) -> None:
+        self.closed = False
+
+    def write(self, text: str) -> None:
+        if self.closed:
+            return
+        try:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            self.closed = True
+            _stdout_to_devnull()
+
+
+def _stdout_to_devnull() -> None:
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
@@ -146,7 +210,11 @@ def restbus_command(args: argparse.Namespace) -> int:
     if args.trace is not None:
         check_trace_output(args.trace)
     db = load_database(args.dbc)
-    out = sys.stdout
+    validate_database(db, args.dbc)
+    changes = [parse_assignment(a) for a in args.set]
+    if args.stimulus is not None:
+        changes += read_stimulus(args.stimulus)
+    out = _Output()
     # informational lines go with the summary on stdout, as `demo` prints them; with --json,
     # stdout is one JSON object per frame and they go to stderr
     info = sys.stderr if args.json else sys.stdout
@@ -175,23 +243,34 @@ def restbus_command(args: argparse.Namespace) -> int:
             out.write(_line(rec) + "\n")
             shown += 1
 
-    def _check_something_to_simulate(rb: RestBus) -> None:
+    def _check_something_to_simulate(rb: RestBus) -> list[tuple[Change, Any]]:
         skipped = rb.skipped_summary()
         if rb.sent_messages == 0 and skipped is not None:
             raise CliError(f"{args.dbc}: nothing to simulate: {skipped}")
+        checked = check_changes(rb, changes)
+        silent = rb.silent()
+        if silent is not None and not checked:
+            offer = "" if args.default_cycle else "; give --default-cycle MS to send them every MS ms"
+            raise CliError(f"{args.dbc}: nothing to simulate: {silent}{offer}")
         if skipped is not None:
             # a warning on stderr in every mode, so that a JSON consumer sees it too
             print(f"canstack: warning: {args.dbc}: {skipped}", file=sys.stderr)
+        return checked
+
+    def _start(rb: RestBus, checked: list[tuple[Change, Any]]) -> None:
+        rb.start()
+        schedule(checked, min((e.node.now() for e in rb.ecus.values()), default=0))
 
     complete = True
     if args.interface is None:
         from stack.bus.sim import SimBus
 
         bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
-        rb = RestBus(db, bus, dut=args.dut, records=False)
-        _check_something_to_simulate(rb)
+        rb = RestBus(db, bus, dut=args.dut, records=False, start=False, default_cycle_ms=args.default_cycle)
+        checked = _check_something_to_simulate(rb)
         rb.on_record(_count)
         rb.on_record(emit)
+        _start(rb, checked)
         complete = run_sliced(bus, int(args.duration * 1e9), progress=args.progress, desc="restbus")
         ran = bus.now() / 1e9
         if args.trace:
@@ -206,14 +285,16 @@ def restbus_command(args: argparse.Namespace) -> int:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
         failure: str | None = None
         try:
-            rb = RestBus(db, bus, dut=args.dut, records=bool(args.trace), start=False)
-            _check_something_to_simulate(rb)
+            rb = RestBus(
+                db, bus, dut=args.dut, records=bool(args.trace), start=False, default_cycle_ms=args.default_cycle
+            )
+            checked = _check_something_to_simulate(rb)
             rb.on_record(_count)
             rb.on_record(emit)
             if hasattr(bus, "submit"):
-                bus.submit(rb.start)  # ECU timers start on the driver's scheduler thread
+                bus.submit(lambda: _start(rb, checked))  # ECU timers start on the driver's scheduler thread
             else:
-                rb.start()
+                _start(rb, checked)
             ran, complete = _run_driver(bus, args.duration)
             rb.stop()
             failure = _driver_error(bus, args.interface, args.channel, ran)

@@ -13,6 +13,7 @@ cantools gives for the same values.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -25,7 +26,8 @@ from stack import Frame, NodeAPI, QueueFull, Received
 
 from .checks import checks_from_attributes
 from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
-from .interaction import MessageTiming, message_timing, signal_timing
+from .interaction import MessageTiming, SendType, message_timing, signal_timing
+from .multiplex import multiplexer_names, page_of, pages, select_defined_page
 
 __all__ = [
     "Ecu",
@@ -37,7 +39,19 @@ __all__ = [
     "frame_id_of",
     "unsupported_reason",
     "SKIP_KINDS",
+    "NO_NODE",
+    "senderless",
 ]
+
+#: The DBC's placeholder for "no node" (``Vector__XXX``); an `Ecu` of that name sends the
+#: messages that no node sends (a rest bus with ``default_cycle_ms``).
+NO_NODE = "Vector__XXX"
+
+
+def senderless(message: Any) -> bool:
+    """Whether no node sends a cantools message: no sender, or only ``Vector__XXX``."""
+    return all(s == NO_NODE for s in message.senders)
+
 
 #: Why a database message cannot be a CAN 2.0 frame, as `unsupported_reason` names it, in the
 #: order messages are summarised.
@@ -110,33 +124,6 @@ def frame_id_of(message: Any) -> tuple[int, bool]:
     return message.frame_id, bool(message.is_extended_frame)
 
 
-def _mux_ok(message: Any, values: dict[str, Any]) -> None:
-    """Make every multiplexer select a defined branch (its start value may not)."""
-    for tree in message.signal_tree:
-        if isinstance(tree, dict):
-            _fix_mux(message, tree, values)
-
-
-def _fix_mux(message: Any, tree: dict[str, Any], values: dict[str, Any]) -> None:
-    for mux_name, branches in tree.items():
-        sig = message.get_signal_by_name(mux_name)
-        raw = values.get(mux_name)
-        try:
-            rawnum = (
-                sig.conversion.choice_to_number(raw)
-                if isinstance(raw, str)
-                else round(sig.conversion.scaled_to_raw(raw))
-            )
-        except Exception:
-            rawnum = None
-        if rawnum not in branches:
-            rawnum = min(branches)
-            values[mux_name] = sig.conversion.raw_to_scaled(rawnum, False)
-        for sub in branches[rawnum]:
-            if isinstance(sub, dict):
-                _fix_mux(message, sub, values)
-
-
 def initial_values(db: cantools.database.can.Database, message: Any) -> dict[str, Any]:
     """Initial physical value of every signal of ``message``: ``GenSigStartValue`` (raw, through
     the signal's scaling; cantools' ``raw_initial``), else the attribute's default, else raw 0;
@@ -147,7 +134,7 @@ def initial_values(db: cantools.database.can.Database, message: Any) -> dict[str
         if raw is None:
             raw = 0
         values[sig.name] = sig.conversion.raw_to_scaled(raw, False)
-    _mux_ok(message, values)
+    select_defined_page(message, values)
     return values
 
 
@@ -218,6 +205,15 @@ class _TxMessage:
         self.reps_left = 0
         self.active = False
         self.sent = 0
+        # multiplexed: every page in turn, from the one the initial values select, until the
+        # application writes a multiplexer (then that page stays: the application chose it)
+        self.pages = pages(message)
+        self.muxes = multiplexer_names(message)
+        self.rotating = bool(self.pages)
+        self.page_index = 0
+        if self.pages:
+            first = page_of(message, self.values)
+            self.page_index = next((i for i, p in enumerate(self.pages) if p == first), 0)
 
     # ------------------------------------------------------------------ frames
     def build(self) -> Frame:
@@ -240,9 +236,14 @@ class _TxMessage:
         """The frame the next transmission would carry with ``values`` merged over the current
         ones, hooks applied to shallow copies of themselves (an alive counter shows its next
         value without advancing): no state of the message or its hooks changes."""
-        if values is None and self.frame is not None:
+        if values is None and self.frame is not None and not self.rotating:
             return self.frame
-        vals = dict(self.values) if values is None else {**self.values, **values}
+        vals = dict(self.values)
+        if self.rotating and not (values and self.muxes.intersection(values)):
+            for name, raw in self.pages[self.page_index].items():
+                vals[name] = self.signals[name].conversion.raw_to_scaled(raw, False)
+        if values is not None:
+            vals.update(values)
         for h in self.value_hooks:
             copy.copy(h).tx_values(vals)
         data = self.encode(vals, strict=False)
@@ -250,8 +251,19 @@ class _TxMessage:
             data = copy.copy(h).tx_data(data)
         return Frame(self.can_id, data, extended=self.extended)
 
+    def next_page(self) -> None:
+        """Select the page of the next transmission (rotation): the multiplexers' values of
+        page ``page_index``, then advance the index."""
+        page = self.pages[self.page_index]
+        self.page_index = (self.page_index + 1) % len(self.pages)
+        for name, raw in page.items():
+            self.values[name] = self.signals[name].conversion.raw_to_scaled(raw, False)
+        self.frame = None
+
     def transmit(self) -> Any:
         node = self.node
+        if self.rotating:
+            self.next_page()
         frame = self.frame or self.build()
         self.last_tx = node.now()
         self.sent += 1
@@ -297,6 +309,8 @@ class _TxMessage:
     def written(self, name: str, old: Any, new: Any) -> None:
         """A signal was written by the application: decide whether that triggers a send."""
         self.frame = None
+        if name in self.muxes:
+            self.rotating = False
         if not self.running:
             return
         st = self.sig_timing[name]
@@ -418,7 +432,10 @@ class Ecu:
       `SignalRangeError` (strict is the default);
     - ``checks``: alive counter / checksum hooks (`dbc.checks`); None takes those declared in
       the DBC (``CanstackCheck`` attribute), ``[]`` none;
-    - ``start``: start the interaction layer now (else call `start`).
+    - ``start``: start the interaction layer now (else call `start`);
+    - ``default_cycle_ms``: the period of the messages the DBC gives neither a send type nor a
+      cycle time (else they are sent on `send` only). ``name`` may be ``"Vector__XXX"``
+      (`NO_NODE`): that ECU sends the messages no node sends.
 
     Transmitted: every message whose DBC senders include ``name`` (messages longer than 8 bytes
     — CAN FD — and container messages are listed in ``unsupported`` and skipped). Received:
@@ -438,12 +455,15 @@ class Ecu:
         checks: Iterable[Any] | None = None,
         start: bool = True,
         accept_failed: bool = False,
+        default_cycle_ms: int | None = None,
     ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
         self.db = db
         names = node_names(db)
-        if name not in names:
+        if default_cycle_ms is not None and default_cycle_ms <= 0:
+            raise DbcError(f"default cycle {default_cycle_ms} ms: a period must be > 0 ms")
+        if name not in names and not (name == NO_NODE and any(senderless(m) for m in db.messages)):
             raise UnknownNameError(
                 "node", name, names, "in the database" + (f" (nodes: {', '.join(names)})" if len(names) <= 12 else "")
             )
@@ -471,8 +491,11 @@ class Ecu:
                 self.unsupported[m.name] = reason
                 continue
             specs = by_msg.get(m.name, [])
-            if name in m.senders:
-                self._tx[m.name] = _TxMessage(self, m, message_timing(db, m), [s.bind(m) for s in specs])
+            if name in m.senders or (name == NO_NODE and senderless(m)):
+                timing = message_timing(db, m)
+                if default_cycle_ms is not None and timing.on_request_only:
+                    timing = dataclasses.replace(timing, send_type=SendType.CYCLIC, cycle_time=default_cycle_ms)
+                self._tx[m.name] = _TxMessage(self, m, timing, [s.bind(m) for s in specs])
             else:
                 rx = _RxMessage(m, [s.bind(m) for s in specs])
                 self._rx[m.name] = rx
@@ -597,10 +620,11 @@ class Ecu:
         ``signal`` is 'Signal' or 'Message.Signal'.
 
         Multiplexed messages: every signal keeps its own value, whatever page the multiplexer
-        selects. A frame carries the page the multiplexer signal currently selects; a value
-        written for a signal of another page is kept (and read back by `get`) and goes out
-        in the first frame sent after the multiplexer is set to select its page (write the
-        multiplexer signal to switch pages; writing a page's signal does not switch it)."""
+        selects. The message sends every page in turn (one page per frame, in the order of the
+        multiplexer values, from the page the initial values select), so a value written for a
+        signal of any page goes out when its page comes round. Writing a multiplexer signal
+        stops the rotation: from then on every frame carries the page the application selected
+        (`rotate_pages` starts the rotation again)."""
         msg, sig = self._resolve(signal, message, self._tx)
         tx = self._tx_message(msg)
         v = self.check_value(msg, sig, value, clamp=clamp)
@@ -620,6 +644,8 @@ class Ecu:
         old = {k: tx.values.get(k) for k in checked}
         tx.values.update(checked)
         tx.frame = None
+        if tx.muxes.intersection(checked):
+            tx.rotating = False
         if not tx.running:
             return
         t = tx.timing
@@ -665,8 +691,17 @@ class Ecu:
         return rx.values.get(sig, default)
 
     def timing(self, message: str) -> MessageTiming:
-        """Interaction-layer timing of a message (`dbc.interaction.message_timing`)."""
+        """Interaction-layer timing of a message (`dbc.interaction.message_timing`; for a
+        transmitted message, as this ECU sends it, ``default_cycle_ms`` applied)."""
+        tx = self._tx.get(message)
+        if tx is not None:
+            return tx.timing
         return message_timing(self.db, self._message(message))
+
+    def would_be_active(self, message: str) -> bool:
+        """Whether a CyclicIfActive message's current values make it active (any active
+        signal away from its ``GenSigInactiveValue``)."""
+        return self._tx_message(message)._is_active()
 
     # ------------------------------------------------------------------ transmit
     def send(self, message: str, values: Mapping[str, Any] | None = None) -> Any:
@@ -678,8 +713,20 @@ class Ecu:
             for k, v in values.items():
                 _, sig = self._resolve(k, message, self._tx)
                 tx.values[sig] = self.check_value(message, sig, v)
+                if sig in tx.muxes:
+                    tx.rotating = False
             tx.frame = None
         return tx.transmit()
+
+    def rotate_pages(self, message: str, rotate: bool = True) -> None:
+        """Send the pages of a multiplexed message in turn (``rotate``, the default from the
+        start), or keep the page its multiplexers select now (what writing a multiplexer
+        does); `DbcError` for a message without multiplexer."""
+        tx = self._tx_message(message)
+        if not tx.pages:
+            raise DbcError(f"message {message} is not multiplexed: it has no pages to rotate")
+        tx.rotating = rotate
+        tx.frame = None
 
     def encode_frame(self, message: str, values: Mapping[str, Any] | None = None) -> Frame:
         """The frame the ECU path makes for ``message`` with ``values`` (default: its current or
