@@ -249,7 +249,8 @@ def restbus_command(args: argparse.Namespace) -> int:
             raise CliError(f"{args.dbc}: nothing to simulate: {skipped}")
         checked = check_changes(rb, changes)
         silent = rb.silent()
-        if silent is not None and not checked:
+        # a write sends a spontaneous message; one with neither send type nor cycle time stays quiet
+        if silent is not None and all(e.timing(c.message).on_request_only for c, e in checked):
             offer = "" if args.default_cycle else "; give --default-cycle MS to send them every MS ms"
             raise CliError(f"{args.dbc}: nothing to simulate: {silent}{offer}")
         if skipped is not None:

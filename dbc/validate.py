@@ -43,24 +43,23 @@ def validate_database(db: Any, path: str) -> None:
     rule (see the module docstring)."""
     p = str(path)
     lines = _text_lines(p)
-    if lines is not None and p.lower().endswith(".dbc"):
-        _check_complete(db, p, lines)
-    if not db.messages:
-        raise DbcLoadError(p, None, "the database has no messages (no BO_): nothing to simulate")
     seen: dict[tuple[int, bool], str] = {}
     for m in db.messages:
         key = (m.frame_id, bool(m.is_extended_frame))
         if key in seen:
+            dbc_id = m.frame_id | (0x80000000 if m.is_extended_frame else 0)
             raise DbcLoadError(
                 p,
-                _line(
-                    lines,
-                    rf"^\s*BO_\s+{m.frame_id if not m.is_extended_frame else m.frame_id | 0x80000000}\s+{re.escape(m.name)}\b",
-                ),
+                _line(lines, rf"^\s*BO_\s+{dbc_id}\s+{re.escape(m.name)}\b"),
                 f"message {m.name}: frame identifier {m.frame_id:#x} is already message {seen[key]}'s "
                 "(a frame identifier names one message)",
             )
         seen[key] = m.name
+    if lines is not None and p.lower().endswith(".dbc"):
+        _check_complete(db, p, lines)
+    if not db.messages:
+        raise DbcLoadError(p, None, "the database has no messages (no BO_): nothing to simulate")
+    for m in db.messages:
         for name in _TIMES:
             v = attribute(db, m, name)
             if isinstance(v, (int, float)) and v < 0:
