@@ -19,7 +19,7 @@ from .restbus import BusRecord, RestBus, json_value
 from .stimulus import Change, check_changes, parse_assignment, read_stimulus, schedule
 from .validate import validate_database
 
-__all__ = ["register", "restbus_command"]
+__all__ = ["register", "restbus_command", "positive_ms"]
 
 
 def register(subparsers: Any) -> None:
@@ -67,7 +67,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--default-cycle",
-        type=_positive_ms,
+        type=positive_ms,
         metavar="MS",
         help="send every message the DBC gives no send type or cycle time every MS ms, and the messages no node "
         "sends (Vector__XXX) from a simulated node Vector__XXX",
@@ -90,7 +90,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=restbus_command)
 
 
-def _positive_ms(text: str) -> int:
+def positive_ms(text: str) -> int:
     """A period in whole milliseconds > 0 (the DBC's GenMsgCycleTime unit)."""
     try:
         v = int(text)
