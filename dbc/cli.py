@@ -14,6 +14,7 @@ from stack.cli import CliError, format_id, parse_bitrate, plural
 from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, trace_note, trc_dropped, writing
 from stack.io.progress import run_sliced
 
+from .diag.ecu import DEFAULT_VIN
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value
 from .stimulus import Change, check_changes, parse_assignment, read_stimulus, schedule
@@ -66,6 +67,21 @@ def register(subparsers: Any) -> None:
         "TOML ([[changes]] tables)",
     )
     p.add_argument(
+        "--uds",
+        action="append",
+        default=[],
+        type=_uds_spec,
+        metavar="NODE:REQ_ID:RESP_ID",
+        help="a simulated node answers UDS (ISO 14229) over ISO-TP on these identifiers (e.g. ECM:0x7E0:0x7E8): "
+        "session, VIN (0xF190), one DID per signal it sends, DTCs, reset; repeatable",
+    )
+    p.add_argument(
+        "--vin",
+        default=DEFAULT_VIN,
+        type=_vin,
+        help=f"the VIN the --uds nodes give for DID 0xF190 (default {DEFAULT_VIN})",
+    )
+    p.add_argument(
         "--default-cycle",
         type=positive_ms,
         metavar="MS",
@@ -99,6 +115,56 @@ def positive_ms(text: str) -> int:
     if not 0 < v <= 3_600_000:
         raise argparse.ArgumentTypeError(f"{v} ms: a period is 1 .. 3600000 ms")
     return v
+
+
+def _uds_spec(text: str) -> tuple[str, int, int]:
+    """NODE:REQ_ID:RESP_ID, the identifiers 11-bit (hexadecimal with 0x, or decimal)."""
+    node, _, rest = text.partition(":")
+    req, _, resp = rest.partition(":")
+    ids = []
+    for part in (req, resp):
+        try:
+            ids.append(int(part, 0))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: give NODE:REQ_ID:RESP_ID, e.g. ECM:0x7E0:0x7E8") from None
+    if not node or any(not 0 <= i <= 0x7FF for i in ids):
+        raise argparse.ArgumentTypeError(f"{text!r}: give NODE:REQ_ID:RESP_ID with 11-bit identifiers (0..0x7FF)")
+    if ids[0] == ids[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: the request and response identifiers must differ")
+    return node, ids[0], ids[1]
+
+
+def _vin(text: str) -> str:
+    """A VIN: 17 printable ASCII characters (ISO 3779)."""
+    if len(text) != 17 or not text.isascii() or not text.isprintable():
+        raise argparse.ArgumentTypeError(f"{text!r}: a VIN has 17 printable ASCII characters (ISO 3779)")
+    return text
+
+
+def _attach_uds(rb: RestBus, specs: list[tuple[str, int, int]], vin: str, info: Any) -> list[Any]:
+    """A UDS server on each simulated node named; prints its identifiers and DIDs."""
+    from .diag import attach_uds
+    from .errors import UnknownNameError
+
+    servers = []
+    used: dict[int, str] = {}
+    for node, req, resp in specs:
+        ecu = rb.ecus.get(node)
+        if ecu is None:
+            raise UnknownNameError("simulated node", node, rb.ecus, f"(--uds; simulated: {', '.join(rb.ecus)})")
+        for i in (req, resp):
+            if i in used:
+                raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier {i:#x} is already used by --uds {used[i]}")
+            used[i] = node
+        clash = [m.name for m in rb.db.messages if m.frame_id in (req, resp) and not m.is_extended_frame]
+        if clash:
+            raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier of message {clash[0]} in the database")
+        srv = attach_uds(ecu, req, resp, vin=vin)
+        servers.append(srv)
+        print(f"UDS: {node} answers requests on {req:#05x}, responds on {resp:#05x}; DIDs:", file=info)
+        for d in sorted(srv.dids):
+            print(f"  {d:#06x}  {srv.dids[d].name}", file=info)
+    return servers
 
 
 class _Output:
@@ -269,6 +335,7 @@ def restbus_command(args: argparse.Namespace) -> int:
         bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
         rb = RestBus(db, bus, dut=args.dut, records=False, start=False, default_cycle_ms=args.default_cycle)
         checked = _check_something_to_simulate(rb)
+        _attach_uds(rb, args.uds, args.vin, info)
         rb.on_record(_count)
         rb.on_record(emit)
         _start(rb, checked)
@@ -290,6 +357,8 @@ def restbus_command(args: argparse.Namespace) -> int:
                 db, bus, dut=args.dut, records=bool(args.trace), start=False, default_cycle_ms=args.default_cycle
             )
             checked = _check_something_to_simulate(rb)
+            _attach_uds(rb, args.uds, args.vin, info)
+            sys.stdout.flush()
             rb.on_record(_count)
             rb.on_record(emit)
             if hasattr(bus, "submit"):

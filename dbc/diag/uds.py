@@ -272,7 +272,9 @@ class UdsServer:
             mask = request[2]
             hits = sorted((c, s) for c, s in self.dtcs.items() if s & mask & DTC_STATUS_AVAILABILITY)
             if sub == 0x01:
-                body = bytes((0x59, 0x01, DTC_STATUS_AVAILABILITY, DTC_FORMAT_ISO14229_1)) + len(hits).to_bytes(2, "big")
+                body = bytes((0x59, 0x01, DTC_STATUS_AVAILABILITY, DTC_FORMAT_ISO14229_1)) + len(hits).to_bytes(
+                    2, "big"
+                )
             else:
                 body = bytes((0x59, 0x02, DTC_STATUS_AVAILABILITY)) + b"".join(
                     c.to_bytes(3, "big") + bytes((s & DTC_STATUS_AVAILABILITY,)) for c, s in hits
