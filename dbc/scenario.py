@@ -1,4 +1,4 @@
-"""A scheduling scenario from a network description: ``canstack scenario from-dbc``.
+"""A scheduling scenario from a network description (``canstack scenario from-dbc``).
 
 `scenario_from_dbc` turns a DBC into the scenario file the experiment pipeline reads
 (`profiles.pipeline.scenario`): one node per sending ECU, and one message per message that the
@@ -14,27 +14,21 @@ frames only), containers, and messages sent only on request or spontaneously (no
 message with several senders is given to the first (one sender per identifier on a bus). The bit
 rate is ``--bitrate``, else the database's ``Baudrate`` attribute, else 500 kbit/s.
 
-The text written is read back with the pipeline's own reader before it is written, so a file
-``from-dbc`` writes is one ``canstack experiment`` runs.
+``canstack scenario from-dbc`` (`dbc.scenario_cli`) reads the text back with the pipeline's own
+reader before it writes it, so a file it writes is one ``canstack experiment`` runs.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-from stack.cli import CliError, parse_bitrate
-
-from .cli import positive_ms
 from .ecu import NO_NODE, senderless, unsupported_reason
-from .errors import load_database
+from .errors import DbcError
 from .interaction import attribute, message_timing
-from .validate import validate_database
 
-__all__ = ["ScenarioText", "scenario_from_dbc", "register_from_dbc"]
+__all__ = ["ScenarioText", "scenario_from_dbc", "DEFAULT_BITRATE"]
 
 DEFAULT_BITRATE = 500_000
 
@@ -74,7 +68,7 @@ def scenario_from_dbc(
 ) -> ScenarioText:
     """The scenario of a cantools database (see the module docstring); ``default_cycle_ms`` is
     the period of the messages the DBC gives neither send type nor cycle time (as
-    ``canstack restbus --default-cycle``). `CliError` when no message is sent periodically."""
+    ``canstack restbus --default-cycle``). `DbcError` when no message is sent periodically."""
     nodes: dict[str, list[str]] = {}
     notes: list[str] = []
     count = defaulted = 0
@@ -116,7 +110,7 @@ def scenario_from_dbc(
         nodes.setdefault(sender, []).append("\n".join(lines))
         count += 1
     if not count:
-        raise CliError(
+        raise DbcError(
             f"{source}: no message is sent periodically (cyclic or cyclic if active): nothing to put in a "
             f"scenario ({len(db.messages)} message{'s' if len(db.messages) != 1 else ''}"
             + (f"; {notes[0]}" if notes else "")
@@ -146,74 +140,3 @@ def scenario_from_dbc(
         for text in msgs:
             body += ["", text]
     return ScenarioText("\n".join(head + body) + "\n", notes, count, len(nodes))
-
-
-def register_from_dbc(tools: Any) -> None:
-    """Add ``from-dbc`` to the ``canstack scenario`` command (``canstack.scenario`` entry point)."""
-    p = tools.add_parser(
-        "from-dbc",
-        help="write a scenario from a DBC: one node per sender, one message per cyclic message",
-        description="Write the scenario of a network description: one node per sending ECU, one message per "
-        "cyclic or cyclic-if-active message with its identifier, length and period (deadline = period unless "
-        "the DBC's CanstackDeadline says otherwise). Messages a CAN 2.0 scenario cannot hold are left out with a "
-        "note.",
-    )
-    p.add_argument("dbc", metavar="DBC", help="the database (DBC, or anything cantools loads)")
-    p.add_argument("--bitrate", type=parse_bitrate, default=None, help="bit/s (default: the DBC's Baudrate, or 500000)")
-    p.add_argument("--duration", type=_duration, default=1.0, metavar="S", help="simulated seconds (default 1)")
-    p.add_argument(
-        "--default-cycle",
-        type=positive_ms,
-        metavar="MS",
-        help="the period of the messages the DBC gives no send type or cycle time (default: left out)",
-    )
-    p.add_argument("--out", metavar="FILE.toml", help="the scenario file to write (default: standard output)")
-    p.set_defaults(func=_from_dbc)
-
-
-def _duration(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < v <= 1e6:
-        raise argparse.ArgumentTypeError(f"{v:g}: must be > 0 and at most 1e6 simulated seconds")
-    return v
-
-
-def _from_dbc(args: argparse.Namespace) -> int:
-    from stack.cli.runs import check_output
-
-    if args.out is not None:
-        check_output(args.out, "--out")
-    db = load_database(args.dbc)
-    validate_database(db, args.dbc)
-    sc = scenario_from_dbc(
-        db, args.dbc, bitrate=args.bitrate, duration=args.duration, default_cycle_ms=args.default_cycle
-    )
-    _check_readable(sc.text, args.out or "<stdout>")
-    for note in sc.notes:
-        print(f"canstack: note: {note}", file=sys.stderr)
-    if args.out is None:
-        sys.stdout.write(sc.text)
-    else:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(sc.text)
-        print(
-            f"{args.out}: {sc.nodes} node{'s' if sc.nodes != 1 else ''}, {sc.messages} message"
-            f"{'s' if sc.messages != 1 else ''} from {args.dbc}"
-            + (f" ({len(sc.notes)} note{'s' if len(sc.notes) != 1 else ''} on stderr)" if sc.notes else "")
-        )
-    return 0
-
-
-def _check_readable(text: str, source: str) -> None:
-    """Read the scenario back with the experiment pipeline's reader (a bug here, not bad input,
-    if it refuses it)."""
-    from profiles.pipeline.scenario import parse_scenario
-
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    parse_scenario(tomllib.loads(text), source)
