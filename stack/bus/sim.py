@@ -104,6 +104,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         "_busoff",
         "_busoff_marks",
         "_idle_bits",
+        "_unacked",
         "__dict__",
         "__weakref__",
     )
@@ -156,6 +157,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
         self._busoff_marks: dict[Node, int] = {}  # recessive-run count when each started recovering
         self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
+        self._unacked: dict[Any, Any] = {}  # replays of unacknowledged attempts (`BitLevelAttempts`)
 
     # ------------------------------------------------------------------ nodes
     def add(self, node: Node) -> Node:
