@@ -46,6 +46,7 @@ from can.broadcastmanager import (
 
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
 from stack.io.discovery import local_servers
+from stack.io.errors import BusLost
 from stack.io.message import to_message
 from stack.io.port import NODE_OPTIONS, Port, check_filters
 from stack.io.runner import BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
@@ -565,7 +566,7 @@ class CanstackBus(can.BusABC):
             raise can.CanOperationError(f"canstack bus {self.channel!r} is shut down: cannot send")
         inbox = self._inbox
         if inbox.lost_reason is not None:
-            raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
+            raise BusLost(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}", inbox.lost_reason)
         frame = frame_of(msg)
         if self._listen_only:
             raise can.CanOperationError("the node is listen-only (BusState.PASSIVE): it cannot transmit")
@@ -588,7 +589,8 @@ class CanstackBus(can.BusABC):
             return None, True
         if item is None:
             if inbox.lost_reason is not None:
-                raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
+                inbox.rxq.put(None)  # every later recv says so too
+                raise BusLost(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}", inbox.lost_reason)
             return None, True
         t_ns, frame, extra = item
         timestamp = self._port.epoch0 + t_ns / 1e9
@@ -653,7 +655,7 @@ class CanstackBus(can.BusABC):
         left = inbox.size - inbox.free
         if left and inbox.lost_reason is None and self.flush_timeout > 0:
             left = inbox.drain(self._port.can_drain, self.flush_timeout)
-        if left:
+        if left and inbox.lost_reason is None:  # a lost bus was reported as such: not one more line
             LOG.warning(
                 "canstack bus %r: %d queued frame(s) dropped at shutdown (%s)",
                 self.channel,

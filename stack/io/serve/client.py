@@ -15,6 +15,7 @@ from typing import Any
 
 import can
 
+from stack.io.errors import BusLost
 from stack.io.port import PortOwner
 from stack.io.serve import protocol as P
 from stack.wire.frame import Frame
@@ -128,7 +129,7 @@ class RemotePort:
         try:
             self._write(data)
         except OSError as exc:
-            raise can.CanOperationError(f"canstack server connection lost: {exc}") from None
+            raise BusLost(f"canstack server connection lost: {exc}", f"connection lost: {exc}") from None
 
     def send(self, frame: Frame) -> None:
         """Send a frame to the server's node queue (TXEND reports its end)."""
@@ -136,7 +137,7 @@ class RemotePort:
             self._write(P.encode_send(frame))
         except OSError as exc:
             self.owner.tx_finished(str(exc))
-            raise can.CanOperationError(f"canstack server connection lost: {exc}") from None
+            raise BusLost(f"canstack server connection lost: {exc}", f"connection lost: {exc}") from None
 
     def set_filters(self, filters: list[Mapping[str, Any]] | None) -> None:
         """Set the node's acceptance filters on the server (checked before)."""

@@ -105,6 +105,13 @@ class _Session:
         finally:
             self.close("connection closed")
             try:
+                # shut down before closing: a reader thread blocked in recv on this socket is
+                # woken (closing the descriptor alone leaves it blocked, and the connection
+                # open: the client would never hear that the server is gone)
+                self.sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            try:
                 self.sock.close()
             except OSError:
                 pass
@@ -442,8 +449,8 @@ class BusServer:
             sessions = list(self.sessions)
         for s in sessions:
             s.close("server closing")
-            try:
-                s.sock.close()
+            try:  # the client hears it at once, even when its writer is stuck (the writer closes)
+                s.sock.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
         self.sock.close()
