@@ -21,7 +21,8 @@ in several processes contend as on a real bus. Clients join with python-can:
   can.Bus(interface="canstack", channel="unix:///path/to/socket/bus0")     (--unix /path/to/socket)
 
 A plain channel such as "bus0" is NOT this bus: it is a bus private to the process that opens
-it. Clients joining and leaving are logged (node name and peer). Stop with Ctrl-C.
+it. Clients joining and leaving are logged (the program and pid they give, node name and
+peer). Stop with Ctrl-C or SIGTERM.
 """
 
 
@@ -52,9 +53,11 @@ def _serve(args: argparse.Namespace) -> int:
         server = BusServer(args.bitrate, name=args.name, listen=listen, unix=args.unix, allow_remote=args.allow_remote)
     except (ValueError, OSError) as exc:
         raise CliError(f"canstack serve: {exc}") from None
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
-    print(f"serving {args.name} at {args.bitrate} bit/s on {server.url}", flush=True)
+    # from here on every way out closes the server (its announcement file goes with it): a
+    # SIGTERM that comes as soon as the first line is printed too
     try:
+        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+        print(f"serving {args.name} at {args.bitrate} bit/s on {server.url}", flush=True)
         if args.duration is not None:
             time.sleep(args.duration)
         else:

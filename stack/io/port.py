@@ -214,6 +214,10 @@ class Port:
         else:
             self.runner.post(switch)
 
+    def timestamp(self, t_ns: int) -> float:
+        """The wall-clock time (s since the epoch) of bus time ``t_ns``."""
+        return self.epoch0 + t_ns / 1e9
+
     def can_drain(self) -> bool:
         """True while the node's queued frames can still go out: it is on the bus and another
         node there acknowledges (a lone transmitter retransmits for ever)."""

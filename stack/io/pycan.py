@@ -593,7 +593,7 @@ class CanstackBus(can.BusABC):
                 raise BusLost(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}", inbox.lost_reason)
             return None, True
         t_ns, frame, extra = item
-        timestamp = self._port.epoch0 + t_ns / 1e9
+        timestamp = self._port.timestamp(t_ns)
         if frame is None:  # a failed one-shot transmission
             return error_frame_of(*extra, timestamp=timestamp, channel=self.channel), True
         msg = to_message(frame, timestamp=timestamp, channel=self.channel)

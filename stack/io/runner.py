@@ -14,6 +14,7 @@ from typing import Any
 import can
 
 from stack.bus.sim import SimBus
+from stack.io.clock import clock_pair
 
 __all__ = [
     "RealTimeRunner",
@@ -23,11 +24,15 @@ __all__ = [
     "get_runner",
     "BUS_NAME_RE",
     "DEFAULT_BITRATE",
+    "SLICE_NS",
 ]
 
 LOG = logging.getLogger("stack.io.runner")
 
 DEFAULT_BITRATE = 500_000
+SLICE_NS = 20_000_000
+"""Most bus time the runner simulates before it runs the commands waiting (joins, sends, time
+requests): a bus that cannot keep up with real time still answers, and says how far behind it is."""
 BUS_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 """A bus or node name: 1..64 letters, digits, '_', '.' or '-' (it appears in channel URLs)."""
 
@@ -35,10 +40,11 @@ BUS_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 class RealTimeRunner:
     """A `SimBus` paced to the wall clock on its own thread.
 
-    The loop advances the engine to the wall clock (``bus.run(until=wall_ns)``), runs the
-    commands posted by other threads, lets arbitration that became due start, lets each attached
-    port mirror its node's error state, and sleeps until the engine's next event
-    (``bus.next_event_time()``) or until a command wakes it.
+    The loop advances the engine to the wall clock (``bus.run(until=wall_ns)``, at most `SLICE_NS`
+    at a time), runs the commands posted by other threads before that clock was read, lets
+    arbitration that became due start, lets each attached port mirror its node's error state,
+    and sleeps until the engine's next event (``bus.next_event_time()``) or until a command
+    wakes it. ``behind_ns`` says how far the bus is behind real time after the last step.
 
     A port (`stack.io.port.Port`) is anything with ``mirror_state()`` (called on the runner
     thread after each step) and ``closed_by_runner(reason)`` (called if the engine fails).
@@ -52,9 +58,9 @@ class RealTimeRunner:
         self._wake = threading.Event()
         self._stop = False
         self._ports: list[Any] = []
-        self.t0_ns = time.monotonic_ns()
-        self.epoch0 = time.time()
+        self.t0_ns, self.epoch0 = clock_pair()
         self.max_lag_ns = 0
+        self.behind_ns = 0  # how far the bus is behind real time (0 when it keeps up)
         self._thread = threading.Thread(target=self._loop, name=f"canstack-{name}", daemon=True)
         self._thread.start()
 
@@ -115,14 +121,19 @@ class RealTimeRunner:
         t0 = self.t0_ns
         try:
             while True:
+                # the commands posted before the clock is read run after the bus reached that
+                # time: a frame is never queued at a bus time before it was sent (a thread
+                # preempted in the middle of `sim.run` would otherwise queue it in the past)
+                waiting = len(cmds)
                 now = mono() - t0
                 if now > sim.now():
                     nxt = sim.next_event_time()
                     if nxt < now and now - nxt > self.max_lag_ns:
                         self.max_lag_ns = int(now - nxt)
-                    sim.run(until=now)
-                if cmds:
-                    while cmds:
+                    sim.run(until=min(now, sim.now() + SLICE_NS))
+                self.behind_ns = max(0, now - sim.now())
+                if waiting:
+                    for _ in range(waiting):
                         try:
                             cmds.popleft()()
                         except Exception:  # a command must never stop the bus
@@ -132,6 +143,8 @@ class RealTimeRunner:
                     p.mirror_state()
                 if self._stop and not cmds:
                     break
+                if cmds or self.behind_ns:
+                    continue
                 nxt = sim.next_event_time()
                 delay = (nxt - (mono() - t0)) / 1e9 if nxt != float("inf") else 0.5
                 if delay > 0:
