@@ -24,6 +24,8 @@ from typing import Any
 from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
+from profiles.canopen.cob import is_restricted
+from profiles.canopen.edsvalues import EdsValueError, check_values
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 
@@ -86,8 +88,10 @@ def type_name(data_type: int | None) -> str:
 
 def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionary:
     """Read an EDS or DCF with ``canopen.objectdictionary.import_od`` (``$NODEID`` resolved for
-    ``node_id``) and check that a device can run on it (`check_od`); None gives the default
-    device (`DEFAULT_EDS`). Raises `EdsError` naming the file and the problem."""
+    ``node_id``), check the values the library reads leniently (`profiles.canopen.edsvalues`:
+    a value that is no number, a limit, SubNumber, AccessType, a ``$NODEID`` expression) and
+    that a device can run on it (`check_od`); None gives the default device (`DEFAULT_EDS`).
+    Raises `EdsError` naming the file and the problem."""
     path = DEFAULT_EDS if eds is None else Path(eds)
     if path.suffix.lower() not in (".eds", ".dcf"):
         raise EdsError(
@@ -105,6 +109,10 @@ def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionar
         raise EdsError(f"{path}: a sub-index section names an object that is not defined: {_one_line(exc)}") from None
     except (ValueError, TypeError, AttributeError, IndexError) as exc:
         raise EdsError(f"{path}: malformed entry: {_one_line(exc)}") from None
+    try:
+        check_values(od, path, node_id)
+    except EdsValueError as exc:
+        raise EdsError(f"{path}: {exc}") from None
     check_od(od, str(path))
     return od
 
@@ -168,6 +176,16 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
                         f"0x{comm + n:04X} sub-index {sub} must be {type_name(dtype)}, not "
                         f"{type_name(c.subindices[sub].data_type)}"
                     )
+            try:
+                word = int.from_bytes(_initial(c.subindices[1]), "little")
+            except (ValueError, TypeError, OverflowError):
+                word = 0x8000_0000  # a default that does not fit: named by the value check below
+            if not word & 0x8000_0000 and is_restricted(word & 0x7FF):
+                fail(
+                    f"0x{comm + n:04X} sub-index 1 ({kind}{n + 1} COB-ID): CAN-ID 0x{word & 0x7FF:03X} is restricted "
+                    "(CiA 301 7.3.5: reserved for NMT, the default SDOs, error control and LSS); set bit 31 to "
+                    "leave the PDO unused"
+                )
             if not isinstance(m, (ODRecord, ODArray)) or 0 not in m.subindices:
                 fail(
                     f"0x{mapping + n:04X} ({kind}{n + 1} mapping parameter) must be a record with sub-index 0 "
