@@ -25,7 +25,7 @@ from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
 from profiles.canopen.cob import is_restricted
-from profiles.canopen.edsvalues import EdsValueError, check_values
+from profiles.canopen.edsvalues import EdsValueError, check_values, type_name
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 
@@ -43,11 +43,6 @@ Validator = Callable[[int, Any, bytes], None]
 Watcher = Callable[[int, int], None]
 """``watcher(index, sub)``: called after a write was stored."""
 
-_TYPE_NAMES = {
-    v: k
-    for k, v in vars(datatypes).items()
-    if k.isupper() and isinstance(v, int) and k not in ("SIGNED_TYPES", "UNSIGNED_TYPES")
-}
 
 # objects the services read, with the data type CiA 301 gives them (clause 7.5.2.x)
 _TYPES = {
@@ -77,13 +72,6 @@ class EdsError(ValueError):
     """An EDS/DCF that cannot be read or that a device cannot run on: the message names the
     file and the problem (a missing mandatory object, a wrong data type, a value that does not
     fit its type, ...)."""
-
-
-def type_name(data_type: int | None) -> str:
-    """The CiA 301 name of a data type code (0x0007 -> 'UNSIGNED32')."""
-    if data_type is None:
-        return "no type"
-    return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}")
 
 
 def load_od(eds: str | os.PathLike[str] | None, node_id: int) -> ObjectDictionary:

@@ -28,7 +28,7 @@ from typing import Any
 
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
-__all__ = ["EdsValueError", "check_values", "nodeid_expression", "ACCESS_TYPES"]
+__all__ = ["EdsValueError", "check_values", "nodeid_expression", "type_name", "ACCESS_TYPES"]
 
 #: CiA 306-1 4.6.3: the access types of an object description
 ACCESS_TYPES = frozenset({"ro", "wo", "rw", "rwr", "rww", "const"})
@@ -37,6 +37,20 @@ _INDEX = re.compile(r"^([0-9A-Fa-f]{4})$")
 _SUB = re.compile(r"^([0-9A-Fa-f]{4})[Ss]ub([0-9A-Fa-f]+)$")
 _NODEID = re.compile(r"\$nodeid", re.IGNORECASE)
 _FLOATS = (datatypes.REAL32, datatypes.REAL64)
+
+
+_TYPE_NAMES = {
+    v: k
+    for k, v in vars(datatypes).items()
+    if k.isupper() and isinstance(v, int) and k not in ("SIGNED_TYPES", "UNSIGNED_TYPES")
+}
+
+
+def type_name(data_type: int | None) -> str:
+    """The CiA 301 name of a data type code (0x0007 -> 'UNSIGNED32')."""
+    if data_type is None:
+        return "no type"
+    return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}")
 
 
 class EdsValueError(ValueError):
@@ -170,7 +184,7 @@ def _check_value(where: str, key: str, text: str, var: ODVariable, attr: str, no
     if getattr(var, attr) is None and text.strip():
         kind = "a number" if var.data_type in datatypes.NUMBER_TYPES else "hexadecimal bytes"
         raise EdsValueError(
-            f"{where} {key} {text!r}: not {kind}, as its data type ({_type(var)}) needs "
+            f"{where} {key} {text!r}: not {kind}, as its data type ({type_name(var.data_type)}) needs "
             "(the canopen library would read it as no value, 0)"
         )
 
@@ -182,7 +196,7 @@ def _check_limits(where: str, raw: dict[str, str], var: ODVariable) -> None:
         if text is None or not text.strip():
             continue
         if var.data_type not in datatypes.NUMBER_TYPES:
-            raise EdsValueError(f"{where} {key} {text!r}: a limit belongs to a number, not {_type(var)}")
+            raise EdsValueError(f"{where} {key} {text!r}: a limit belongs to a number, not {type_name(var.data_type)}")
         try:
             value = _number(var, text)
         except ValueError:
@@ -193,9 +207,3 @@ def _check_limits(where: str, raw: dict[str, str], var: ODVariable) -> None:
         raise EdsValueError(
             f"{where} LowLimit {raw['LowLimit']!r} is above HighLimit {raw['HighLimit']!r}: no value could be written"
         )
-
-
-def _type(var: ODVariable) -> str:
-    from profiles.canopen.dictionary import type_name
-
-    return type_name(var.data_type)
