@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cli import CliError, seconds_type
-from stack.cli.runs import check_output, check_plot_dir
+from stack.cli.runs import check_output, check_plot_dir, check_trace_output, writing
 
 __all__ = ["register"]
 
@@ -24,28 +24,62 @@ def _experiment(args: argparse.Namespace) -> int:
         check_plot_dir(args.plot)
     if args.out:
         check_output(args.out, "--out")
+    if args.trace:
+        check_trace_output(args.trace)
     if (args.interface is None) != (args.channel is None):
         raise CliError("--interface and --channel go together (a python-can bus), or neither (the simulated bus)")
     scenario = load_scenario(args.scenario)
     if args.interface:
-        if args.plot:
-            raise CliError("--plot needs the simulated bus (the timeline is drawn from the simulation's trace)")
-        result = run_on_pycan(scenario, args.interface, args.channel, duration_s=args.duration)
+        result = run_on_pycan(
+            scenario, args.interface, args.channel, duration_s=args.duration, trace=args.trace, plot=bool(args.plot)
+        )
     else:
         if args.duration is not None:
             scenario.duration_ns = round(args.duration * 1e9)
-        result = run_scenario(scenario, record=bool(args.plot) or None, progress=args.progress)
+        result = run_scenario(scenario, record=bool(args.plot or args.trace) or None, progress=args.progress)
     data = result.to_json()
-    text = json.dumps(data, indent=2) if args.json else format_table(data)
-    print(text)
+    notes: list[str] = []
+    # the files first: a reader that closes stdout early (| head) must not cost one of them
     if args.out:
-        Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
+        writing(args.out, "--out", lambda: Path(args.out).write_text(json.dumps(data, indent=2) + "\n"))
+    if args.trace:
+        notes.append(_write_trace(result, args.trace))
     if args.plot:
         from profiles.pipeline.plots import write_plots
 
-        files = write_plots(result, args.plot, extra=_profile_plots(scenario))
-        print(f"plots: {', '.join(str(f) for f in files)}", file=sys.stderr)
+        # a python-can run has the frames the monitor received, not the simulation's layers
+        extra = _profile_plots(scenario) if not args.interface else None
+        files = writing(args.plot, "--plot", lambda: write_plots(result, args.plot, extra=extra))
+        notes.append(f"plots: {', '.join(str(f) for f in files)}")
+    print(json.dumps(data, indent=2) if args.json else format_table(data))
+    for line in notes:
+        print(line, file=sys.stderr)
+    if result.lost is not None:
+        print(
+            f"canstack experiment: {result.lost.describe()}; the results so far are marked interrupted",
+            file=sys.stderr,
+        )
+        return 1
     return 130 if result.interrupted else 0
+
+
+def _write_trace(result: Any, path: str) -> str:
+    """Write the run's trace (a python-can run streamed it already) and say what was written."""
+    from stack.cli.runs import trace_note
+
+    if result.trace_file is not None:  # a python-can run: written as the run went
+        f = result.trace_file
+        if "trace_error" in result.analysis:
+            raise CliError(f"--trace {result.analysis['trace_error']}")
+        n, left_out = f["records"], f["left_out"]
+    else:
+        from stack.io.message import record_to_message
+        from stack.io.tracefile import save_messages
+
+        messages = [record_to_message(rec, "bus0") for rec in result.trace]
+        n = writing(path, "--trace", lambda: save_messages(messages, path))
+        left_out = len(messages) - n
+    return f"trace: {n:,} message{'' if n == 1 else 's'} written to {path}{trace_note(path, left_out)}"
 
 
 def _profile_plots(scenario: Any) -> dict[str, Any]:
@@ -77,7 +111,16 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument(
-        "--plot", metavar="DIR", help="write timeline.png, response_times.png, bus_load.png here (needs the plot extra)"
+        "--plot",
+        metavar="DIR",
+        help="write timeline.png, response_times.png, bus_load.png here (needs the plot extra; on a python-can "
+        "bus drawn from the frames a monitor received)",
+    )
+    p.add_argument(
+        "--trace",
+        metavar="FILE",
+        help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; timestamps in seconds of bus time from the "
+        "start of the run; on a python-can bus what a monitor received, written as the run goes)",
     )
     p.add_argument(
         "--duration", type=seconds_type(1e6), help="run this many seconds instead of the scenario's [bus] duration"

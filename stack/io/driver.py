@@ -139,6 +139,7 @@ class PyCanDriver:
         self._busy_until = 0
         self._retry: dict[Any, int] = {}
         self.rx_ignored = 0  # FD and error frames seen on the bus (not CAN 2.0 data/remote)
+        self.rx_error_frames: dict[str, int] = {}  # error frames each node's bus reported, by node name
         self.errors: list[str] = []
         self.lost: BusGone | None = None
         self.gone = threading.Event()
@@ -366,6 +367,7 @@ class PyCanDriver:
 
     def _receive(self, t: int, node: Node, msg: can.Message) -> None:
         if msg.is_error_frame:
+            self.rx_error_frames[node.name] = self.rx_error_frames.get(node.name, 0) + 1
             self._error_frame(t, node, msg)
             return
         try:
