@@ -28,8 +28,9 @@ driver turns received frames into `Received`, and frames handed to the bus into 
 What this driver can and cannot know (``capabilities``, see `stack.controller.contract`): received
 frames carry the bus's receive timestamp when it is a wall-clock time (SocketCAN's kernel stamp,
 canstack's end-of-frame time), and their start of frame is estimated from it minus the frame's
-length at the bitrate given (``bitrate`` or ``pace_bitrate``) — exact on the canstack interface,
-whose timestamps are the end of EOF. Arbitration happens in the controller underneath, so no
+length at the bitrate given (``bitrate`` or ``pace_bitrate``; an FD frame with BRS needs ``data_bitrate``
+too) — exact on the canstack interface, whose timestamps are the end of EOF. CAN FD frames go
+both ways on a bus that carries them (python-can's ``fd=True``). Arbitration happens in the controller underneath, so no
 `ArbitrationLost`. Error counters and states are the bus underneath's: when it reports them as
 SocketCAN error frames (controller state, TEC/REC in data[6]/[7], bus off, restarted), the
 node's TEC/REC follow and `ErrorStateChanged` fires with the same meaning as on the simulated
@@ -119,6 +120,10 @@ class PyCanDriver:
         self._factory = bus_factory
         self.pace_bitrate = pace_bitrate
         self.bit_ns: float | None = 1e9 / rate if rate else None
+        self.bitrate: int | None = rate
+        dbr = bus_kwargs.get("data_bitrate")
+        # the data phase of CAN FD frames with BRS (python-can's option for FD interfaces)
+        self.data_bitrate: int | None = dbr if isinstance(dbr, int) and not isinstance(dbr, bool) and dbr > 0 else None
         self.capabilities = frozenset(
             {"bus-time", "one-shot", "latest-start", "error-frames"} | ({"sof-estimate"} if rate else set())
         )
@@ -381,8 +386,15 @@ class PyCanDriver:
             node.send(reply)
 
     def _sof(self, t_end: int, frame: Frame) -> int:
-        """Start of frame estimated from its end: the frame's stuffed length at the bitrate."""
-        return -1 if self.bit_ns is None else t_end - round(frame.bits.length * self.bit_ns)
+        """Start of frame estimated from its end: the frame's stuffed length at the bit rate (an
+        FD frame with BRS: its data phase at the data bit rate, the rest at the nominal one)."""
+        if self.bit_ns is None or self.bitrate is None:
+            return -1
+        if frame.fd and frame.brs:
+            if self.data_bitrate is None:
+                return -1  # its length in time is unknown without the data bit rate
+            return t_end - (frame.encoded or frame.bits).duration_ns(self.bitrate, self.data_bitrate)
+        return t_end - round(frame.bits.length * self.bit_ns)
 
     def _error_frame(self, t: int, node: Node, msg: can.Message) -> None:
         """The bus underneath reports its controller's error state: the node's counters and

@@ -90,6 +90,7 @@ class Port:
         self.owner = owner
         self.own = bool(receive_own_messages)
         self.bitrate: int = runner.bitrate
+        self.data_bitrate: int | None = getattr(runner, "data_bitrate", None)
         self.epoch0: float = runner.epoch0
         self.closed = False
         self._credit: set[Any] = set()

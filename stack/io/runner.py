@@ -24,6 +24,8 @@ __all__ = [
     "get_runner",
     "BUS_NAME_RE",
     "DEFAULT_BITRATE",
+    "DEFAULT_DATA_BITRATE",
+    "fd_capable_bus",
     "SLICE_NS",
     "BUDGET_NS",
 ]
@@ -31,6 +33,8 @@ __all__ = [
 LOG = logging.getLogger("stack.io.runner")
 
 DEFAULT_BITRATE = 500_000
+DEFAULT_DATA_BITRATE = 2_000_000
+"""The data bit rate of a CAN FD bus opened with fd=True and none given (a common 500 k/2 M bus)."""
 SLICE_NS = 5_000_000
 """Bus time the runner simulates in one step while it catches up with the wall clock."""
 BUDGET_NS = 20_000_000
@@ -55,10 +59,11 @@ class RealTimeRunner:
     thread after each step) and ``closed_by_runner(reason)`` (called if the engine fails).
     """
 
-    def __init__(self, name: str, bitrate: int) -> None:
+    def __init__(self, name: str, bitrate: int, data_bitrate: int | None = None) -> None:
         self.name = name
-        self.sim = SimBus(bitrate, name=name, record=False)
+        self.sim = fd_capable_bus(bitrate, data_bitrate, name)
         self.bitrate = bitrate
+        self.data_bitrate = data_bitrate  # None: a classical bus (no CAN FD frames)
         self._cmds: deque[Callable[[], Any]] = deque()
         self._wake = threading.Event()
         self._stop = False
@@ -165,6 +170,20 @@ class RealTimeRunner:
                 p.closed_by_runner("engine failure (see log)")
 
 
+def fd_capable_bus(bitrate: int, data_bitrate: int | None, name: str) -> SimBus:
+    """The simulated bus of a runner: classical, or CAN FD with ``data_bitrate`` when the engine
+    carries FD frames (`SimBus` takes a data bit rate); ValueError saying why not otherwise."""
+    if data_bitrate is None:
+        return SimBus(bitrate, name=name, record=False)
+    try:
+        return SimBus(bitrate, name=name, record=False, data_bitrate=data_bitrate)  # type: ignore[call-arg]
+    except TypeError:
+        raise ValueError(
+            f"data_bitrate {data_bitrate}: this canstack's simulated bus carries CAN 2.0 frames only (no CAN FD "
+            "data phase yet); open the bus without fd=True"
+        ) from None
+
+
 _REGISTRY: dict[str, tuple[RealTimeRunner, int]] = {}
 _REGISTRY_LOCK = threading.Lock()
 
@@ -182,12 +201,18 @@ def get_runner(name: str) -> RealTimeRunner | None:
         return entry[0] if entry is not None else None
 
 
-def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
-    """The in-process bus ``name``, started at ``bitrate`` (default 500000) by its first user.
+def acquire_runner(name: str, bitrate: int | None, data_bitrate: int | None = None, fd: bool = False) -> RealTimeRunner:
+    """The in-process bus ``name``, started at ``bitrate`` (default 500000) by its first user,
+    a CAN FD bus with ``data_bitrate`` when that user asks for ``fd`` (default
+    `DEFAULT_DATA_BITRATE`).
 
     Each call takes a reference that `release_runner` gives back; the bus stops when the last
-    one is released. `can.CanInitializationError` when the bus runs at another bitrate.
+    one is released. `can.CanInitializationError` when the bus runs at another bit rate, or
+    without the data phase an ``fd`` user needs. A user without ``fd`` may join an FD bus (its
+    interface shows it no FD frames, as SocketCAN without CAN_RAW_FD_FRAMES).
     """
+    if fd and data_bitrate is None:
+        data_bitrate = DEFAULT_DATA_BITRATE
     with _REGISTRY_LOCK:
         entry = _REGISTRY.get(name)
         if entry is not None:
@@ -197,10 +222,19 @@ def acquire_runner(name: str, bitrate: int | None) -> RealTimeRunner:
                     f"canstack bus {name!r} runs at {runner.bitrate} bit/s; a node cannot join it at "
                     f"{bitrate} bit/s (every node on a CAN bus uses the same bitrate)"
                 )
+            if fd and runner.data_bitrate is None:
+                raise can.CanInitializationError(
+                    f"canstack bus {name!r} was opened without fd=True: it carries no CAN FD frames"
+                )
+            if fd and data_bitrate != runner.data_bitrate:
+                raise can.CanInitializationError(
+                    f"canstack bus {name!r} runs its data phase at {runner.data_bitrate} bit/s; a node cannot join "
+                    f"it at {data_bitrate} bit/s"
+                )
             _REGISTRY[name] = (runner, refs + 1)
             return runner
         try:
-            runner = RealTimeRunner(name, bitrate or DEFAULT_BITRATE)
+            runner = RealTimeRunner(name, bitrate or DEFAULT_BITRATE, data_bitrate if fd else None)
         except ValueError as exc:
             raise can.CanInitializationError(str(exc)) from None
         _REGISTRY[name] = (runner, 1)

@@ -108,6 +108,9 @@ class RemotePort:
         except (OSError, ValueError) as exc:
             self.sock.close()
             raise can.CanInitializationError(f"canstack server at {where}: {exc}") from None
+        if fd and not welcome.fd:  # an older server that ignored the request
+            self.sock.close()
+            raise can.CanInitializationError(f"canstack server at {where}: its bus carries no CAN FD frames")
         self.bitrate, self.node_name, self.epoch0 = welcome.bitrate, welcome.node, welcome.t0_epoch
         self.fd, self.data_bitrate = welcome.fd, welcome.data_bitrate
         self.behind_ms = welcome.behind_ms

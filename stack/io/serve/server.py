@@ -378,7 +378,8 @@ class BusServer:
     """A simulated bus in real time served to python-can clients over TCP or a unix socket.
 
     ``listen`` is ``(host, port)`` (port 0 picks a free one); non-loopback hosts are refused
-    unless ``allow_remote``. ``unix`` is a socket path. `url` is the channel clients use. A
+    unless ``allow_remote``. ``data_bitrate`` makes it a CAN FD bus (clients join with
+    ``fd=True``; others see no FD frames). ``unix`` is a socket path. `url` is the channel clients use. A
     server announces itself on this machine (`stack.io.discovery`) while it runs. ValueError
     names the address or path when it cannot listen there (in use, missing directory, ...).
     """
@@ -391,6 +392,7 @@ class BusServer:
         listen: tuple[str, int] | None = None,
         unix: str | None = None,
         allow_remote: bool = False,
+        data_bitrate: int | None = None,
     ) -> None:
         if not BUS_NAME_RE.match(name):
             raise ValueError(f"bus name {name!r}: use 1..64 of A-Z a-z 0-9 _ . -")
@@ -404,10 +406,16 @@ class BusServer:
         self.sock.listen(64)
         self.sock.settimeout(0.2)
         self.name = name
-        self.runner = RealTimeRunner(name, bitrate)
+        try:
+            self.runner = RealTimeRunner(name, bitrate, data_bitrate)
+        except ValueError:  # no CAN FD in this engine: nothing is left listening
+            self.sock.close()
+            if unix is not None:
+                os.unlink(unix)
+            raise
         self.bitrate = bitrate
-        self.fd = False  # the simulated bus carries CAN 2.0 frames only
-        self.data_bitrate: int | None = None
+        self.fd = data_bitrate is not None  # a CAN FD bus: its clients may join with fd=True
+        self.data_bitrate = data_bitrate
         self._refusing: str | None = None
         self._behind_logged = False
         self.sessions: set[_Session] = set()
@@ -467,8 +475,8 @@ class BusServer:
         data bit rate than the bus's."""
         if hello.fd and not self.fd:
             raise ValueError(
-                f"bus {self.name!r} is served as CAN 2.0 (classic): it carries no CAN FD frames; open the bus "
-                "without fd=True"
+                f"bus {self.name!r} is served without a data bit rate: it carries no CAN FD frames (serve it with "
+                "--data-bitrate, or open the bus without fd=True)"
             )
         if hello.fd and hello.data_bitrate is not None and hello.data_bitrate != self.data_bitrate:
             raise ValueError(
