@@ -353,7 +353,7 @@ def test_serve_help_describes_every_option_and_the_client_channels():
     register(sub)
     serve = sub.choices["serve"]
     helps = {a.dest: a.help for a in serve._actions if a.dest != "help"}
-    assert set(helps) == {"bitrate", "listen", "unix", "name", "allow_remote", "duration"}
+    assert set(helps) == {"bitrate", "data_bitrate", "listen", "unix", "name", "allow_remote", "duration"}
     assert all(h and h != argparse.SUPPRESS for h in helps.values()), helps
     text = serve.format_help()
     assert "tcp://127.0.0.1:29536/bus0" in text and "unix:///path/to/socket/bus0" in text
