@@ -122,8 +122,13 @@ class PyCanDriver:
         self.bit_ns: float | None = 1e9 / rate if rate else None
         self.bitrate: int | None = rate
         dbr = bus_kwargs.get("data_bitrate")
-        # the data phase of CAN FD frames with BRS (python-can's option for FD interfaces)
-        self.data_bitrate: int | None = dbr if isinstance(dbr, int) and not isinstance(dbr, bool) and dbr > 0 else None
+        dbr = dbr if isinstance(dbr, int) and not isinstance(dbr, bool) and dbr > 0 else None
+        fd = bus_kwargs.get("fd") is True or bus_kwargs.get("protocol") is can.CanProtocol.CAN_FD
+        # a bus that carries CAN FD (python-can's fd=True) has a data bit rate, the contract's sign
+        # of an FD bus to its nodes; without one given, FD frames without bit rate switch only
+        # have a known length in time
+        self._brs_rate = dbr
+        self.data_bitrate: int | None = dbr or (rate if fd else None)
         self.capabilities = frozenset(
             {"bus-time", "one-shot", "latest-start", "error-frames"} | ({"sof-estimate"} if rate else set())
         )
@@ -391,9 +396,9 @@ class PyCanDriver:
         if self.bit_ns is None or self.bitrate is None:
             return -1
         if frame.fd and frame.brs:
-            if self.data_bitrate is None:
+            if self._brs_rate is None:
                 return -1  # its length in time is unknown without the data bit rate
-            return t_end - (frame.encoded or frame.bits).duration_ns(self.bitrate, self.data_bitrate)
+            return t_end - (frame.encoded or frame.bits).duration_ns(self.bitrate, self._brs_rate)
         return t_end - round(frame.bits.length * self.bit_ns)
 
     def _error_frame(self, t: int, node: Node, msg: can.Message) -> None:

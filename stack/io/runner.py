@@ -211,12 +211,12 @@ def acquire_runner(name: str, bitrate: int | None, data_bitrate: int | None = No
     without the data phase an ``fd`` user needs. A user without ``fd`` may join an FD bus (its
     interface shows it no FD frames, as SocketCAN without CAN_RAW_FD_FRAMES).
     """
-    if fd and data_bitrate is None:
-        data_bitrate = DEFAULT_DATA_BITRATE
     with _REGISTRY_LOCK:
         entry = _REGISTRY.get(name)
         if entry is not None:
             runner, refs = entry
+            if fd and data_bitrate is None:
+                data_bitrate = runner.data_bitrate  # joins at the bus's rate, whatever it is
             if bitrate is not None and bitrate != runner.bitrate:
                 raise can.CanInitializationError(
                     f"canstack bus {name!r} runs at {runner.bitrate} bit/s; a node cannot join it at "
@@ -233,6 +233,8 @@ def acquire_runner(name: str, bitrate: int | None, data_bitrate: int | None = No
                 )
             _REGISTRY[name] = (runner, refs + 1)
             return runner
+        if fd and data_bitrate is None:
+            data_bitrate = DEFAULT_DATA_BITRATE
         try:
             runner = RealTimeRunner(name, bitrate or DEFAULT_BITRATE, data_bitrate if fd else None)
         except ValueError as exc:

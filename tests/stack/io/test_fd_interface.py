@@ -73,9 +73,11 @@ def test_fd_messages_go_both_ways_in_process(drain):
         a.send(_fd_msg(64, bitrate_switch=True))
         a.send(_fd_msg(12, error_state_indicator=True))
         got = drain(b, 2, timeout=30.0)
+        # ESI is the transmitter's error state, set by its controller (ISO 11898-1:2015): an
+        # error-active node sends it dominant whatever the message asked
         assert [(len(m.data), m.is_fd, m.bitrate_switch, m.error_state_indicator) for m in got] == [
             (64, True, True, False),
-            (12, True, False, True),
+            (12, True, False, False),
         ]
         assert bytes(got[0].data) == bytes(range(64))
         a.send(can.Message(arbitration_id=0x7, data=b"\x01", is_extended_id=False))
@@ -94,7 +96,7 @@ def test_fd_messages_go_both_ways_through_serve(drain):
         assert a.protocol is can.CanProtocol.CAN_FD and a.data_bitrate == 2_000_000
         a.send(_fd_msg(48, bitrate_switch=True, error_state_indicator=True))
         [m] = drain(b, 1, timeout=30.0)
-        assert (len(m.data), m.is_fd, m.bitrate_switch, m.error_state_indicator) == (48, True, True, True)
+        assert (len(m.data), m.is_fd, m.bitrate_switch, m.error_state_indicator) == (48, True, True, False)
 
 
 @pytest.mark.socket
@@ -130,7 +132,7 @@ def test_the_driver_sends_and_receives_fd_frames_on_a_virtual_bus():
     got = []
     with (
         can.Bus(interface="virtual", channel=ch, protocol=can.CanProtocol.CAN_FD) as peer,
-        PyCanDriver(interface="virtual", channel=ch, protocol=can.CanProtocol.CAN_FD) as drv,
+        PyCanDriver(interface="virtual", channel=ch, protocol=can.CanProtocol.CAN_FD, data_bitrate=2_000_000) as drv,
     ):
         node = drv.add(Node("n"))
         node.subscribe(got.append)
