@@ -178,10 +178,11 @@ def canopen_command(args: argparse.Namespace) -> int:
             f"{plural(sum(r['received'] for r in m['rpdos']), 'RPDO')} received, "
             f"{plural(m['sdo']['requests'], 'SDO request')}, {plural(m['emcy_sent'], 'EMCY')}"
         )
-    for err in driver.errors:
-        print(f"canstack canopen: {err}", file=sys.stderr)
-    if driver.lost is not None:
+    if driver.lost is not None:  # one line: what went before it was that bus failing
         print(f"canstack canopen: {driver.lost.describe()}", file=sys.stderr)
+    else:
+        for err in driver.errors:
+            print(f"canstack canopen: {err}", file=sys.stderr)
     return status
 
 

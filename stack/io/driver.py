@@ -328,6 +328,7 @@ class PyCanDriver:
             for n in self.nodes:
                 n.on_bus = False
             self._ready.clear()
+        self.errors.append(f"{node.name}: {self.lost.describe()}")  # for owners that read errors only
         self.gone.set()
         self._wake.set()
         for cb in list(self.on_lost):

@@ -87,8 +87,9 @@ def test_a_served_bus_that_stops_is_noticed_at_once_with_its_name_and_time():
     assert "closed the connection" in lost.reason
     line = lost.describe()
     assert line.startswith(f"bus canstack {url} lost at ") and "\n" not in line
-    # nothing is handed to a bus that is gone: no frame is retried, no error repeats
-    assert drv.errors == []
+    # nothing is handed to a bus that is gone: no frame is retried, no error repeats; the loss is
+    # the one error (for owners that read only `errors`)
+    assert drv.errors == [f"ecu: {line}"]
 
 
 def test_an_interface_shut_down_under_the_driver_is_noticed():
@@ -109,7 +110,8 @@ def test_a_receive_that_keeps_failing_means_the_bus_is_gone():
     with drv:
         assert drv.gone.wait(30.0)
     assert drv.lost.reason == f"receive keeps failing ({RECV_FAILURES_LOST} tries): Network is down"
-    assert drv.errors == ["n: receive failed: Network is down"]  # said once, not every 50 ms
+    # said once, not every 50 ms, then the loss
+    assert drv.errors == ["n: receive failed: Network is down", f"n: {drv.lost.describe()}"]
     dead.shutdown()
 
 
