@@ -10,8 +10,10 @@
   ``canstack restbus`` (``dbc.cli``);
 - ``dbc.bench``: the ECU's transmit overhead against cantools' encode.
 
-Sample databases live in ``dbc/databases/``. Imports `stack` only: `dbc` and `profiles` are
-independent of each other (an import-linter contract keeps it so).
+- ``dbc.scenario``: ``canstack scenario from-dbc``, a scheduling scenario from a DBC;
+
+Sample databases live in ``dbc/databases/``. `dbc` builds on `stack` and on `profiles` (the
+scenario format); `profiles` never imports `dbc` (an import-linter contract keeps it so).
 """
 
 from pathlib import Path

@@ -39,6 +39,7 @@ __all__ = [
     "crc8_sae_j1850",
     "crc8_autosar",
     "checks_from_attributes",
+    "hook_from_spec",
 ]
 
 
@@ -368,14 +369,21 @@ def checks_from_attributes(db: Any) -> list[Any]:
     for msg in db.messages:
         for sig in msg.signals:
             spec = attribute(db, sig, "CanstackCheck")
-            if not spec:
-                continue
-            spec = str(spec).strip()
-            if spec.lower() in ("counter", "alive", "alive_counter"):
-                hooks.append(AliveCounter(msg.name, sig.name))
-            elif spec.lower().startswith("e2e_p"):
-                prof, _, did = spec[5:].partition(":")
-                hooks.append(E2E(msg.name, int(prof), int(did, 0) if did else None))
-            else:
-                hooks.append(Checksum(msg.name, sig.name, spec.lower()))
+            if spec:
+                hooks.append(hook_from_spec(msg.name, sig.name, str(spec)))
     return hooks
+
+
+def hook_from_spec(message: str, signal: str, spec: str) -> Any:
+    """The hook a ``CanstackCheck`` value declares on ``message.signal``; `DbcError` naming the
+    message and signal when the value names no check."""
+    spec = spec.strip()
+    try:
+        if spec.lower() in ("counter", "alive", "alive_counter"):
+            return AliveCounter(message, signal)
+        if spec.lower().startswith("e2e_p"):
+            prof, _, did = spec[5:].partition(":")
+            return E2E(message, int(prof), int(did, 0) if did else None)
+        return Checksum(message, signal, spec.lower())
+    except (DbcError, ValueError) as exc:
+        raise DbcError(f"message {message} signal {signal}: CanstackCheck {spec!r}: {exc}") from None

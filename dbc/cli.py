@@ -5,17 +5,22 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from typing import Any
 
 from stack.cli import CliError, format_id, parse_bitrate, plural
-from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, run_sliced, trace_note, trc_dropped, writing
+from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, trace_note, trc_dropped, writing
+from stack.io.progress import run_sliced
 
+from .diag.ecu import DEFAULT_VIN
 from .errors import load_database
 from .restbus import BusRecord, RestBus, json_value
+from .stimulus import Change, check_changes, parse_assignment, read_stimulus, schedule
+from .validate import validate_database
 
-__all__ = ["register", "restbus_command"]
+__all__ = ["register", "restbus_command", "positive_ms"]
 
 
 def register(subparsers: Any) -> None:
@@ -48,6 +53,42 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
     p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="MESSAGE.SIGNAL=VALUE",
+        help="write a signal of a simulated node at the start (physical value in the DBC's unit, or a choice "
+        "name); repeatable",
+    )
+    p.add_argument(
+        "--stimulus",
+        metavar="FILE",
+        help="timed signal changes: CSV with the header time,message,signal,value (time in s), or the same as "
+        "TOML ([[changes]] tables)",
+    )
+    p.add_argument(
+        "--uds",
+        action="append",
+        default=[],
+        type=_uds_spec,
+        metavar="NODE:REQ_ID:RESP_ID",
+        help="a simulated node answers UDS (ISO 14229) over ISO-TP on these identifiers (e.g. ECM:0x7E0:0x7E8): "
+        "session, VIN (0xF190), one DID per signal it sends, DTCs, reset; repeatable",
+    )
+    p.add_argument(
+        "--vin",
+        default=DEFAULT_VIN,
+        type=_vin,
+        help=f"the VIN the --uds nodes give for DID 0xF190 (default {DEFAULT_VIN})",
+    )
+    p.add_argument(
+        "--default-cycle",
+        type=positive_ms,
+        metavar="MS",
+        help="send every message the DBC gives no send type or cycle time every MS ms, and the messages no node "
+        "sends (Vector__XXX) from a simulated node Vector__XXX",
+    )
+    p.add_argument(
         "--trace",
         metavar="FILE",
         help="write the bus trace (.asc, .blf, .log, .csv, .trc, .mf4; "
@@ -63,6 +104,96 @@ def register(subparsers: Any) -> None:
         help="progress bar on stderr for the simulated bus (default: on a terminal, for runs over 2 s)",
     )
     p.set_defaults(func=restbus_command)
+
+
+def positive_ms(text: str) -> int:
+    """A period in whole milliseconds > 0 (the DBC's GenMsgCycleTime unit)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of milliseconds") from None
+    if not 0 < v <= 3_600_000:
+        raise argparse.ArgumentTypeError(f"{v} ms: a period is 1 .. 3600000 ms")
+    return v
+
+
+def _uds_spec(text: str) -> tuple[str, int, int]:
+    """NODE:REQ_ID:RESP_ID, the identifiers 11-bit (hexadecimal with 0x, or decimal)."""
+    node, _, rest = text.partition(":")
+    req, _, resp = rest.partition(":")
+    ids = []
+    for part in (req, resp):
+        try:
+            ids.append(int(part, 0))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: give NODE:REQ_ID:RESP_ID, e.g. ECM:0x7E0:0x7E8") from None
+    if not node or any(not 0 <= i <= 0x7FF for i in ids):
+        raise argparse.ArgumentTypeError(f"{text!r}: give NODE:REQ_ID:RESP_ID with 11-bit identifiers (0..0x7FF)")
+    if ids[0] == ids[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: the request and response identifiers must differ")
+    return node, ids[0], ids[1]
+
+
+def _vin(text: str) -> str:
+    """A VIN: 17 printable ASCII characters (ISO 3779)."""
+    if len(text) != 17 or not text.isascii() or not text.isprintable():
+        raise argparse.ArgumentTypeError(f"{text!r}: a VIN has 17 printable ASCII characters (ISO 3779)")
+    return text
+
+
+def _attach_uds(rb: RestBus, specs: list[tuple[str, int, int]], vin: str, info: Any) -> list[Any]:
+    """A UDS server on each simulated node named; prints its identifiers and DIDs."""
+    from .diag import attach_uds
+    from .errors import UnknownNameError
+
+    servers = []
+    used: dict[int, str] = {}
+    for node, req, resp in specs:
+        ecu = rb.ecus.get(node)
+        if ecu is None:
+            raise UnknownNameError("simulated node", node, rb.ecus, f"(--uds; simulated: {', '.join(rb.ecus)})")
+        for i in (req, resp):
+            if i in used:
+                raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier {i:#x} is already used by --uds {used[i]}")
+            used[i] = node
+        clash = [m.name for m in rb.db.messages if m.frame_id in (req, resp) and not m.is_extended_frame]
+        if clash:
+            raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier of message {clash[0]} in the database")
+        srv = attach_uds(ecu, req, resp, vin=vin)
+        servers.append(srv)
+        print(f"UDS: {node} answers requests on {req:#05x}, responds on {resp:#05x}; DIDs:", file=info)
+        for d in sorted(srv.dids):
+            print(f"  {d:#06x}  {srv.dids[d].name}", file=info)
+    return servers
+
+
+class _Output:
+    """Standard output that survives its reader going away (``| head -1``): the first
+    BrokenPipeError points stdout at /dev/null, so that the run goes on and the files it
+    was asked for (--trace) are still written."""
+
+    def __init__(self) -> None:
+        self.closed = False
+
+    def write(self, text: str) -> None:
+        if self.closed:
+            return
+        try:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            self.closed = True
+            _stdout_to_devnull()
+
+
+def _stdout_to_devnull() -> None:
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
@@ -145,7 +276,11 @@ def restbus_command(args: argparse.Namespace) -> int:
     if args.trace is not None:
         check_trace_output(args.trace)
     db = load_database(args.dbc)
-    out = sys.stdout
+    validate_database(db, args.dbc)
+    changes = [parse_assignment(a) for a in args.set]
+    if args.stimulus is not None:
+        changes += read_stimulus(args.stimulus)
+    out = _Output()
     # informational lines go with the summary on stdout, as `demo` prints them; with --json,
     # stdout is one JSON object per frame and they go to stderr
     info = sys.stderr if args.json else sys.stdout
@@ -174,27 +309,42 @@ def restbus_command(args: argparse.Namespace) -> int:
             out.write(_line(rec) + "\n")
             shown += 1
 
-    def _check_something_to_simulate(rb: RestBus) -> None:
+    def _check_something_to_simulate(rb: RestBus) -> list[tuple[Change, Any]]:
         skipped = rb.skipped_summary()
         if rb.sent_messages == 0 and skipped is not None:
             raise CliError(f"{args.dbc}: nothing to simulate: {skipped}")
+        checked = check_changes(rb, changes)
+        silent = rb.silent()
+        # a write sends a spontaneous message; one with neither send type nor cycle time stays quiet
+        if silent is not None and all(e.timing(c.message).on_request_only for c, e in checked):
+            offer = "" if args.default_cycle else "; give --default-cycle MS to send them every MS ms"
+            raise CliError(f"{args.dbc}: nothing to simulate: {silent}{offer}")
         if skipped is not None:
             # a warning on stderr in every mode, so that a JSON consumer sees it too
             print(f"canstack: warning: {args.dbc}: {skipped}", file=sys.stderr)
+        return checked
+
+    def _start(rb: RestBus, checked: list[tuple[Change, Any]]) -> None:
+        rb.start()
+        schedule(checked, min((e.node.now() for e in rb.ecus.values()), default=0))
 
     complete = True
     if args.interface is None:
         from stack.bus.sim import SimBus
 
         bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
-        rb = RestBus(db, bus, dut=args.dut, records=False)
-        _check_something_to_simulate(rb)
+        rb = RestBus(db, bus, dut=args.dut, records=False, start=False, default_cycle_ms=args.default_cycle)
+        checked = _check_something_to_simulate(rb)
+        _attach_uds(rb, args.uds, args.vin, info)
         rb.on_record(_count)
         rb.on_record(emit)
+        _start(rb, checked)
         complete = run_sliced(bus, int(args.duration * 1e9), progress=args.progress, desc="restbus")
         ran = bus.now() / 1e9
         if args.trace:
-            n = writing(args.trace, "--trace", lambda: bus.save_trace(args.trace))
+            from stack.io.tracefile import save_trace
+
+            n = writing(args.trace, "--trace", lambda: save_trace(bus, args.trace))
             print(
                 f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, trc_dropped(bus))}",
                 file=info,
@@ -203,14 +353,18 @@ def restbus_command(args: argparse.Namespace) -> int:
         bus = _open_driver(args.interface, args.channel, args.bitrate)
         failure: str | None = None
         try:
-            rb = RestBus(db, bus, dut=args.dut, records=bool(args.trace), start=False)
-            _check_something_to_simulate(rb)
+            rb = RestBus(
+                db, bus, dut=args.dut, records=bool(args.trace), start=False, default_cycle_ms=args.default_cycle
+            )
+            checked = _check_something_to_simulate(rb)
+            _attach_uds(rb, args.uds, args.vin, info)
+            sys.stdout.flush()
             rb.on_record(_count)
             rb.on_record(emit)
             if hasattr(bus, "submit"):
-                bus.submit(rb.start)  # ECU timers start on the driver's scheduler thread
+                bus.submit(lambda: _start(rb, checked))  # ECU timers start on the driver's scheduler thread
             else:
-                rb.start()
+                _start(rb, checked)
             ran, complete = _run_driver(bus, args.duration)
             rb.stop()
             failure = _driver_error(bus, args.interface, args.channel, ran)
@@ -221,12 +375,13 @@ def restbus_command(args: argparse.Namespace) -> int:
                     fn()
                     break
         if args.trace:
-            from stack.bus.trace import save_messages
+            from stack.io.message import to_message
+            from stack.io.tracefile import save_messages
 
             n = writing(
                 args.trace,
                 "--trace",
-                lambda: save_messages((r.frame.to_message(timestamp=r.time / 1e9) for r in rb.records), args.trace),
+                lambda: save_messages((to_message(r.frame, timestamp=r.time / 1e9) for r in rb.records), args.trace),
             )
             dropped = sum(1 for r in rb.records if r.frame.remote)
             print(f"trace: {plural(n, 'record')} written to {args.trace}{trace_note(args.trace, dropped)}", file=info)

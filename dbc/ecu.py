@@ -12,7 +12,7 @@ cantools gives for the same values.
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -21,11 +21,12 @@ from typing import Any
 
 import cantools
 
-from stack import Frame, NodeAPI, QueueFull, Received
+from stack import Frame, NodeAPI, Received
 
 from .checks import checks_from_attributes
 from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
-from .interaction import MessageTiming, message_timing, signal_timing
+from .interaction import MessageTiming, SendType, message_timing
+from .transmit import SignalLimits, TxMessage, frame_id_of, initial_values
 
 __all__ = [
     "Ecu",
@@ -37,7 +38,19 @@ __all__ = [
     "frame_id_of",
     "unsupported_reason",
     "SKIP_KINDS",
+    "NO_NODE",
+    "senderless",
 ]
+
+#: The DBC's placeholder for "no node" (``Vector__XXX``); an `Ecu` of that name sends the
+#: messages that no node sends (a rest bus with ``default_cycle_ms``).
+NO_NODE = "Vector__XXX"
+
+
+def senderless(message: Any) -> bool:
+    """Whether no node sends a cantools message: no sender, or only ``Vector__XXX``."""
+    return all(s == NO_NODE for s in message.senders)
+
 
 #: Why a database message cannot be a CAN 2.0 frame, as `unsupported_reason` names it, in the
 #: order messages are summarised.
@@ -104,295 +117,6 @@ def node_names(db: cantools.database.can.Database) -> list[str]:
     return [n for n in names if n != "Vector__XXX"]
 
 
-def frame_id_of(message: Any) -> tuple[int, bool]:
-    """(identifier, extended) of a cantools message as it goes on the wire: the DBC's frame
-    id, 29-bit when the DBC marks the message extended (J1939 messages included)."""
-    return message.frame_id, bool(message.is_extended_frame)
-
-
-def _mux_ok(message: Any, values: dict[str, Any]) -> None:
-    """Make every multiplexer select a defined branch (its start value may not)."""
-    for tree in message.signal_tree:
-        if isinstance(tree, dict):
-            _fix_mux(message, tree, values)
-
-
-def _fix_mux(message: Any, tree: dict[str, Any], values: dict[str, Any]) -> None:
-    for mux_name, branches in tree.items():
-        sig = message.get_signal_by_name(mux_name)
-        raw = values.get(mux_name)
-        try:
-            rawnum = (
-                sig.conversion.choice_to_number(raw)
-                if isinstance(raw, str)
-                else round(sig.conversion.scaled_to_raw(raw))
-            )
-        except Exception:
-            rawnum = None
-        if rawnum not in branches:
-            rawnum = min(branches)
-            values[mux_name] = sig.conversion.raw_to_scaled(rawnum, False)
-        for sub in branches[rawnum]:
-            if isinstance(sub, dict):
-                _fix_mux(message, sub, values)
-
-
-def initial_values(db: cantools.database.can.Database, message: Any) -> dict[str, Any]:
-    """Initial physical value of every signal of ``message``: ``GenSigStartValue`` (raw, through
-    the signal's scaling; cantools' ``raw_initial``), else the attribute's default, else raw 0;
-    multiplexers that would select an undefined branch select the lowest defined one."""
-    values: dict[str, Any] = {}
-    for sig in message.signals:
-        raw = signal_timing(db, sig).start_raw
-        if raw is None:
-            raw = 0
-        values[sig.name] = sig.conversion.raw_to_scaled(raw, False)
-    _mux_ok(message, values)
-    return values
-
-
-class _Limits:
-    """A signal's allowed physical range: the DBC minimum/maximum intersected with what the
-    raw bits can hold (through scale and offset)."""
-
-    __slots__ = ("lo", "hi", "dbc_lo", "dbc_hi", "raw_lo", "raw_hi")
-
-    def __init__(self, sig: Any) -> None:
-        conv = sig.conversion
-        if sig.is_float:
-            raw_lo = -math.inf
-            raw_hi = math.inf
-        elif sig.is_signed:
-            raw_lo, raw_hi = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
-        else:
-            raw_lo, raw_hi = 0, (1 << sig.length) - 1
-        a = raw_lo * conv.scale + conv.offset if math.isfinite(raw_lo) else -math.inf * (1 if conv.scale > 0 else -1)
-        b = raw_hi * conv.scale + conv.offset if math.isfinite(raw_hi) else math.inf * (1 if conv.scale > 0 else -1)
-        self.raw_lo, self.raw_hi = min(a, b), max(a, b)
-        self.dbc_lo, self.dbc_hi = sig.minimum, sig.maximum
-        lo, hi = self.raw_lo, self.raw_hi
-        if self.dbc_lo is not None:
-            lo = max(lo, self.dbc_lo)
-        if self.dbc_hi is not None:
-            hi = min(hi, self.dbc_hi)
-        if lo > hi:  # DBC range disjoint from the bits: trust the bits
-            lo, hi = self.raw_lo, self.raw_hi
-        self.lo, self.hi = lo, hi
-
-
-class _TxMessage:
-    """State of one transmitted message: values, interaction layer, hooks, timers."""
-
-    def __init__(self, ecu: Ecu, message: Any, timing: MessageTiming, hooks: list[Any]) -> None:
-        db = ecu.db
-        self.ecu = ecu
-        self.message = message
-        self.name = message.name
-        self.timing = timing
-        self.can_id, self.extended = frame_id_of(message)
-        self.length = message.length
-        self.values = initial_values(db, message)
-        self.signals = {s.name: s for s in message.signals}
-        self.sig_timing = {s.name: signal_timing(db, s) for s in message.signals}
-        self.limits: dict[str, _Limits] = {}
-        self.hooks = hooks
-        self.value_hooks = [h for h in hooks if getattr(h, "modifies_values", True)]
-        self.data_hooks = [h for h in hooks if getattr(h, "modifies_data", True)]
-        self.frame: Frame | None = None  # cached while values and hooks do not change it
-        self.encode = message.encode
-        self.default_trigger = timing.write_trigger()
-        active_sigs = [n for n, st in self.sig_timing.items() if st.send_type == "IfActive"]
-        if not active_sigs:
-            active_sigs = [s.name for s in message.signals if not s.is_multiplexer]
-        self.active_signals = active_sigs
-        # scheduling state
-        self.node = ecu.node
-        self.if_active = timing.if_active
-        self.running = False
-        self.hold_until = 0
-        self.last_tx: int | None = None
-        self.cycle_timer: Any = None
-        self.next_cycle = 0
-        self.spont_timer: Any = None
-        self.rep_timer: Any = None
-        self.reps_left = 0
-        self.active = False
-        self.sent = 0
-
-    # ------------------------------------------------------------------ frames
-    def build(self) -> Frame:
-        """Encode the current values (hooks applied) into a frame."""
-        f = self.frame
-        if f is not None:
-            return f
-        values = self.values
-        for h in self.value_hooks:  # alive counters write into the values: get() shows the last sent
-            h.tx_values(values)
-        data = self.encode(values, strict=False)
-        for h in self.data_hooks:
-            data = h.tx_data(data)
-        f = Frame(self.can_id, data, extended=self.extended)
-        if not self.hooks:
-            self.frame = f
-        return f
-
-    def preview(self, values: Mapping[str, Any] | None = None) -> Frame:
-        """The frame the next transmission would carry with ``values`` merged over the current
-        ones, hooks applied to shallow copies of themselves (an alive counter shows its next
-        value without advancing): no state of the message or its hooks changes."""
-        if values is None and self.frame is not None:
-            return self.frame
-        vals = dict(self.values) if values is None else {**self.values, **values}
-        for h in self.value_hooks:
-            copy.copy(h).tx_values(vals)
-        data = self.encode(vals, strict=False)
-        for h in self.data_hooks:
-            data = copy.copy(h).tx_data(data)
-        return Frame(self.can_id, data, extended=self.extended)
-
-    def transmit(self) -> Any:
-        node = self.node
-        frame = self.frame or self.build()
-        self.last_tx = node.now()
-        self.sent += 1
-        try:
-            return node.send(frame)
-        except QueueFull:
-            self.ecu.tx_overflows += 1
-            return None
-
-    # ------------------------------------------------------------------ interaction layer
-    def start(self, now: int) -> None:
-        self.running = True
-        t = self.timing
-        self.hold_until = now + t.start_delay * 1_000_000
-        if t.cyclic:
-            self._start_cycle(self.hold_until, t.period_ns)
-        elif t.if_active:
-            self.active = self._is_active()
-            if self.active:
-                self._start_cycle(self.hold_until, t.fast_period_ns)
-
-    def stop(self) -> None:
-        self.running = False
-        for tm in (self.cycle_timer, self.spont_timer, self.rep_timer):
-            if tm is not None:
-                tm.cancel()
-        self.cycle_timer = self.spont_timer = self.rep_timer = None
-
-    def _start_cycle(self, first: int, period: int) -> None:
-        self.period = period
-        self.next_cycle = first
-        self.cycle_timer = self.ecu.node.call_at(first, self._cycle)
-
-    def _cycle(self) -> None:
-        # fixed rate: the next period is counted from the schedule, not from when we ran
-        self.transmit()
-        if self.if_active and not self.active:
-            self.cycle_timer = None  # the last transmission carried the inactive values
-            return
-        self.next_cycle = t = self.next_cycle + self.period
-        self.cycle_timer = self.node.call_at(t, self._cycle)
-
-    def written(self, name: str, old: Any, new: Any) -> None:
-        """A signal was written by the application: decide whether that triggers a send."""
-        self.frame = None
-        if not self.running:
-            return
-        st = self.sig_timing[name]
-        kind = st.send_type or self.default_trigger
-        t = self.timing
-        fire = kind == "OnWrite" or (kind == "OnChange" and self.changed(name, old, new))
-        if t.if_active and name in self.active_signals:
-            self.activity(fire)
-        if fire:
-            self.trigger(st.with_repetition or t.with_repetition)
-
-    def changed(self, name: str, old: Any, new: Any) -> bool:
-        """Whether a write changed the value ('Open' and 1 are the same value of a choice)."""
-        if old == new:
-            return False
-        conv = self.signals[name].conversion
-        try:
-            a = conv.choice_to_number(old) if isinstance(old, str) else old
-            b = conv.choice_to_number(new) if isinstance(new, str) else new
-        except Exception:
-            return True
-        return a != b
-
-    def _is_active(self) -> bool:
-        for n in self.active_signals:
-            inactive = self.sig_timing[n].inactive_raw or 0
-            sig = self.signals[n]
-            v = self.values[n]
-            try:
-                raw = sig.conversion.choice_to_number(v) if isinstance(v, str) else sig.conversion.scaled_to_raw(v)
-            except Exception:
-                return True
-            if abs(raw - inactive) > 1e-9:
-                return True
-        return False
-
-    def activity(self, spontaneous: bool) -> None:
-        """Re-evaluate activity after a write; ``spontaneous``: the write also triggers a
-        spontaneous transmission (CyclicIfActiveAndSpontaneous, or a signal's own OnWrite or
-        OnChange send type), which then is the one frame of
-        the event: becoming active, the fast cycle starts one fast period after it (see
-        `_spontaneous`); becoming inactive, it carries the inactive values and the cycle stops.
-        Without a spontaneous send, the cycle starts now (active) or sends the inactive values
-        at its next slot and stops."""
-        was = self.active
-        self.active = active = self._is_active()
-        if active == was:
-            return
-        if active:
-            if self.cycle_timer is None and not spontaneous:
-                start = max(self.ecu.node.now(), self.hold_until)
-                self._start_cycle(start, self.timing.fast_period_ns)
-        elif spontaneous and self.cycle_timer is not None:
-            self.cycle_timer.cancel()
-            self.cycle_timer = None
-
-    def trigger(self, repeat: bool) -> None:
-        """A spontaneous transmission, delayed by the start delay and (WithDelay types) the
-        minimum gap; writes during a pending delay are coalesced."""
-        if self.spont_timer is not None:
-            return
-        node = self.ecu.node
-        now = node.now()
-        t = self.timing
-        at = max(now, self.hold_until)
-        if t.with_delay and self.last_tx is not None:
-            at = max(at, self.last_tx + t.delay_time * 1_000_000)
-        self._repeat = repeat
-        if at <= now:
-            self._spontaneous()
-        else:
-            self.spont_timer = node.call_at(at, self._spontaneous)
-
-    def _spontaneous(self) -> None:
-        self.spont_timer = None
-        self.transmit()
-        t = self.timing
-        last = self.last_tx  # set by transmit
-        if last is not None and self.if_active and self.active and self.cycle_timer is None and self.running:
-            # the spontaneous frame opened the active phase: the fast cycle follows it
-            self._start_cycle(last + t.fast_period_ns, t.fast_period_ns)
-        if self._repeat and t.repetitions and t.fast_period_ns:
-            if self.rep_timer is not None:
-                self.rep_timer.cancel()
-            self.reps_left = t.repetitions
-            self.rep_timer = self.ecu.node.call_later(t.fast_period_ns, self._repetition)
-
-    def _repetition(self) -> None:
-        self.transmit()
-        self.reps_left -= 1
-        if self.reps_left > 0:
-            self.rep_timer = self.ecu.node.call_later(self.timing.fast_period_ns, self._repetition)
-        else:
-            self.rep_timer = None
-
-
 class _RxMessage:
     __slots__ = ("message", "name", "hooks", "values", "decode", "time", "count", "muxed")
 
@@ -418,7 +142,10 @@ class Ecu:
       `SignalRangeError` (strict is the default);
     - ``checks``: alive counter / checksum hooks (`dbc.checks`); None takes those declared in
       the DBC (``CanstackCheck`` attribute), ``[]`` none;
-    - ``start``: start the interaction layer now (else call `start`).
+    - ``start``: start the interaction layer now (else call `start`);
+    - ``default_cycle_ms``: the period of the messages the DBC gives neither a send type nor a
+      cycle time (else they are sent on `send` only). ``name`` may be ``"Vector__XXX"``
+      (`NO_NODE`): that ECU sends the messages no node sends.
 
     Transmitted: every message whose DBC senders include ``name`` (messages longer than 8 bytes
     — CAN FD — and container messages are listed in ``unsupported`` and skipped). Received:
@@ -438,12 +165,15 @@ class Ecu:
         checks: Iterable[Any] | None = None,
         start: bool = True,
         accept_failed: bool = False,
+        default_cycle_ms: int | None = None,
     ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
         self.db = db
         names = node_names(db)
-        if name not in names:
+        if default_cycle_ms is not None and default_cycle_ms <= 0:
+            raise DbcError(f"default cycle {default_cycle_ms} ms: a period must be > 0 ms")
+        if name not in names and not (name == NO_NODE and any(senderless(m) for m in db.messages)):
             raise UnknownNameError(
                 "node", name, names, "in the database" + (f" (nodes: {', '.join(names)})" if len(names) <= 12 else "")
             )
@@ -461,7 +191,7 @@ class Ecu:
             if h.message not in message_names:
                 raise UnknownNameError("message", h.message, [m.name for m in db.messages], f"in hook {h.name}")
             by_msg.setdefault(h.message, []).append(h)
-        self._tx: dict[str, _TxMessage] = {}
+        self._tx: dict[str, TxMessage] = {}
         self._rx: dict[str, _RxMessage] = {}
         self._rx_by_id: dict[tuple[int, bool], _RxMessage] = {}
         self._rx_by_pgn: dict[int, _RxMessage] = {}
@@ -471,8 +201,11 @@ class Ecu:
                 self.unsupported[m.name] = reason
                 continue
             specs = by_msg.get(m.name, [])
-            if name in m.senders:
-                self._tx[m.name] = _TxMessage(self, m, message_timing(db, m), [s.bind(m) for s in specs])
+            if name in m.senders or (name == NO_NODE and senderless(m)):
+                timing = message_timing(db, m)
+                if default_cycle_ms is not None and timing.on_request_only:
+                    timing = dataclasses.replace(timing, send_type=SendType.CYCLIC, cycle_time=default_cycle_ms)
+                self._tx[m.name] = TxMessage(self, m, timing, [s.bind(m) for s in specs])
             else:
                 rx = _RxMessage(m, [s.bind(m) for s in specs])
                 self._rx[m.name] = rx
@@ -514,7 +247,7 @@ class Ecu:
         except KeyError:
             raise UnknownNameError("message", name, [m.name for m in self.db.messages]) from None
 
-    def _tx_message(self, name: str) -> _TxMessage:
+    def _tx_message(self, name: str) -> TxMessage:
         tx = self._tx.get(name)
         if tx is not None:
             return tx
@@ -582,14 +315,14 @@ class Ecu:
             f"signal {message}.{signal}: {value}{unit} is outside its {src} [{_fmt(lim.lo)} .. {_fmt(lim.hi)}]{unit}"
         )
 
-    def _limits(self, message: str, sig: Any) -> _Limits:
+    def _limits(self, message: str, sig: Any) -> SignalLimits:
         tx = self._tx.get(message)
         if tx is not None:
             lim = tx.limits.get(sig.name)
             if lim is None:
-                lim = tx.limits[sig.name] = _Limits(sig)
+                lim = tx.limits[sig.name] = SignalLimits(sig)
             return lim
-        return _Limits(sig)
+        return SignalLimits(sig)
 
     def set(self, signal: str, value: Any, *, message: str | None = None, clamp: bool | None = None) -> None:
         """Write a signal of a transmitted message (physical value or choice name), checked
@@ -597,10 +330,11 @@ class Ecu:
         ``signal`` is 'Signal' or 'Message.Signal'.
 
         Multiplexed messages: every signal keeps its own value, whatever page the multiplexer
-        selects. A frame carries the page the multiplexer signal currently selects; a value
-        written for a signal of another page is kept (and read back by `get`) and goes out
-        in the first frame sent after the multiplexer is set to select its page (write the
-        multiplexer signal to switch pages; writing a page's signal does not switch it)."""
+        selects. The message sends every page in turn (one page per frame, in the order of the
+        multiplexer values, from the page the initial values select), so a value written for a
+        signal of any page goes out when its page comes round. Writing a multiplexer signal
+        stops the rotation: from then on every frame carries the page the application selected
+        (`rotate_pages` starts the rotation again)."""
         msg, sig = self._resolve(signal, message, self._tx)
         tx = self._tx_message(msg)
         v = self.check_value(msg, sig, value, clamp=clamp)
@@ -620,6 +354,8 @@ class Ecu:
         old = {k: tx.values.get(k) for k in checked}
         tx.values.update(checked)
         tx.frame = None
+        if tx.muxes.intersection(checked):
+            tx.rotating = False
         if not tx.running:
             return
         t = tx.timing
@@ -665,8 +401,17 @@ class Ecu:
         return rx.values.get(sig, default)
 
     def timing(self, message: str) -> MessageTiming:
-        """Interaction-layer timing of a message (`dbc.interaction.message_timing`)."""
+        """Interaction-layer timing of a message (`dbc.interaction.message_timing`; for a
+        transmitted message, as this ECU sends it, ``default_cycle_ms`` applied)."""
+        tx = self._tx.get(message)
+        if tx is not None:
+            return tx.timing
         return message_timing(self.db, self._message(message))
+
+    def would_be_active(self, message: str) -> bool:
+        """Whether a CyclicIfActive message's current values make it active (any active
+        signal away from its ``GenSigInactiveValue``)."""
+        return self._tx_message(message).is_active()
 
     # ------------------------------------------------------------------ transmit
     def send(self, message: str, values: Mapping[str, Any] | None = None) -> Any:
@@ -678,8 +423,20 @@ class Ecu:
             for k, v in values.items():
                 _, sig = self._resolve(k, message, self._tx)
                 tx.values[sig] = self.check_value(message, sig, v)
+                if sig in tx.muxes:
+                    tx.rotating = False
             tx.frame = None
         return tx.transmit()
+
+    def rotate_pages(self, message: str, rotate: bool = True) -> None:
+        """Send the pages of a multiplexed message in turn (``rotate``, the default from the
+        start), or keep the page its multiplexers select now (what writing a multiplexer
+        does); `DbcError` for a message without multiplexer."""
+        tx = self._tx_message(message)
+        if not tx.pages:
+            raise DbcError(f"message {message} is not multiplexed: it has no pages to rotate")
+        tx.rotating = rotate
+        tx.frame = None
 
     def encode_frame(self, message: str, values: Mapping[str, Any] | None = None) -> Frame:
         """The frame the ECU path makes for ``message`` with ``values`` (default: its current or

@@ -6,9 +6,11 @@ Unknown names carry the closest names (difflib), a malformed DBC carries its lin
 
 from __future__ import annotations
 
+import contextlib
 import difflib
+import logging
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import cantools
@@ -90,7 +92,8 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
     p = str(path)
     _refuse_binary(p)
     try:
-        db = cantools.database.load_file(p, strict=strict)
+        with _quiet_cantools():
+            db = cantools.database.load_file(p, strict=strict)
     except FileNotFoundError:
         raise DbcLoadError(p, None, "no such file") from None
     except IsADirectoryError:
@@ -117,6 +120,19 @@ def load_database(path: str | Path, *, strict: bool = True) -> cantools.database
     if not isinstance(db, cantools.database.can.Database):
         raise DbcLoadError(p, None, f"not a CAN database ({type(db).__name__})")
     return db
+
+
+@contextlib.contextmanager
+def _quiet_cantools() -> Iterator[None]:
+    """cantools logs what it overwrites (two messages with one frame identifier) as warnings,
+    which Python prints on stderr as a second line; `dbc.validate` reports them as errors."""
+    logger = logging.getLogger("cantools")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def _file_on_the_way(path: str) -> str:

@@ -22,8 +22,9 @@ import cantools
 
 from stack import Frame, Received
 
-from .ecu import SKIP_KINDS, Ecu, _pgn, node_names, unsupported_reason
+from .ecu import NO_NODE, SKIP_KINDS, Ecu, _pgn, node_names, senderless, unsupported_reason
 from .errors import UnknownNameError, load_database
+from .interaction import message_timing
 
 __all__ = ["RestBus", "BusRecord", "json_value", "MONITOR_NAME"]
 
@@ -72,7 +73,9 @@ class RestBus:
     ``nodes`` restricts the simulated nodes (default: all but the DUT); ``checks`` are passed
     to each `Ecu` (None: those the DBC declares); ``monitor`` adds the decoding monitor node;
     ``records`` keeps every `BusRecord` in ``self.records`` (callbacks from `on_record` run
-    either way).
+    either way); ``default_cycle_ms`` sends every message the DBC gives neither send type nor
+    cycle time with that period, and the messages no node sends (no sender, or ``Vector__XXX``
+    only) from a simulated node ``Vector__XXX``.
     """
 
     def __init__(
@@ -86,17 +89,24 @@ class RestBus:
         monitor: bool = True,
         records: bool = True,
         start: bool = True,
+        default_cycle_ms: int | None = None,
     ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
         self.db = db
         names = node_names(db)
         if dut is not None and dut not in names:
-            raise UnknownNameError("node", dut, names, "(--dut)")
+            raise UnknownNameError("node", dut, names, f"(--dut; the database's nodes: {_listing(names)})")
         chosen = list(dict.fromkeys(nodes)) if nodes is not None else [n for n in names if n != dut]
         for n in chosen:
             if n not in names:
-                raise UnknownNameError("node", n, names)
+                raise UnknownNameError("node", n, names, f"(the database's nodes: {_listing(names)})")
+        if (
+            default_cycle_ms is not None
+            and nodes is None
+            and any(senderless(m) and unsupported_reason(m) is None for m in db.messages)
+        ):
+            chosen.append(NO_NODE)
         self.dut = dut
         self.bus = bus
         #: messages of the database that no node can send or decode on a CAN 2.0 bus:
@@ -108,7 +118,7 @@ class RestBus:
                 self.skipped[m.name] = why[0]
         self.ecus: dict[str, Ecu] = {}
         for n in chosen:
-            self.ecus[n] = Ecu(db, n, bus.node(n), checks=checks, start=False)
+            self.ecus[n] = Ecu(db, n, bus.node(n), checks=checks, start=False, default_cycle_ms=default_cycle_ms)
         self.keep = records
         self.records: list[BusRecord] = []
         self._callbacks: list[Callable[[BusRecord], Any]] = []
@@ -121,7 +131,9 @@ class RestBus:
             if m.protocol == "j1939" and m.is_extended_frame:
                 self._by_pgn.setdefault(_pgn(m.frame_id), m)
             sim = [s for s in m.senders if s in self.ecus]
-            if sim:
+            if NO_NODE in self.ecus and senderless(m):
+                self._sender_of[m.name] = NO_NODE
+            elif sim:
                 self._sender_of[m.name] = sim[0]
             elif dut is not None and dut in m.senders:
                 self._sender_of[m.name] = dut
@@ -138,6 +150,35 @@ class RestBus:
     def sent_messages(self) -> int:
         """How many database messages the simulated ECUs send (each message once per sender)."""
         return sum(len(e.tx_messages) for e in self.ecus.values())
+
+    def silent(self) -> str | None:
+        """None when a simulated ECU sends a message by itself (cyclic, or cyclic if active and
+        active from the start); else one sentence saying why nothing would be sent: messages
+        without sender, without send type or cycle time, sent by the DUT, or skipped."""
+        for e in self.ecus.values():
+            for name in e.tx_messages:
+                t = e.timing(name)
+                if t.cyclic or (t.if_active and e.would_be_active(name)):
+                    return None
+        total = len(self.db.messages)
+        if not total:
+            return "the database has no messages"
+        counts = {"no sender": 0, "no cycle time or send type": 0, "spontaneous only": 0, "sent by the DUT": 0}
+        for m in self.db.messages:
+            if m.name in self.skipped:
+                continue
+            if senderless(m) and NO_NODE not in self.ecus:
+                counts["no sender"] += 1
+            elif not any(s in self.ecus for s in m.senders) and not (NO_NODE in self.ecus and senderless(m)):
+                counts["sent by the DUT"] += 1
+            elif message_timing(self.db, m).on_request_only:
+                counts["no cycle time or send type"] += 1
+            else:
+                counts["spontaneous only"] += 1
+        parts = [f"{n} {k}" for k, n in counts.items() if n]
+        if self.skipped:
+            parts.append(f"{len(self.skipped)} skipped")
+        return f"no message would be sent: {total} message{'s' if total != 1 else ''}: {', '.join(parts)}"
 
     def skipped_summary(self) -> str | None:
         """One sentence saying how many of the database's messages were skipped and why
@@ -201,3 +242,9 @@ class RestBus:
         """Records of frames the DUT sent (messages whose DBC sender is the DUT and that no
         simulated node sends)."""
         return [r for r in self.records if self.dut is not None and r.sender == self.dut]
+
+
+def _listing(names: list[str], most: int = 40) -> str:
+    """Names joined for one line: the first ``most``, then how many more."""
+    shown = ", ".join(names[:most]) or "none"
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")

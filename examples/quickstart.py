@@ -14,6 +14,7 @@ from pathlib import Path
 from stack.bus.faults import FaultInjector
 from stack.bus.sim import SimBus
 from stack.controller.events import ErrorStateChanged
+from stack.io.tracefile import save_trace
 from stack.wire.frame import Frame
 
 MS = 1_000_000
@@ -42,5 +43,5 @@ for ident, st in summary["ids"].items():
 print("dash:", dash.counters(), dash.state)
 print("frames waiting in dash's FIFO:", len(list(iter(dash.recv, None))))
 trace = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="canstack-")) / "quickstart.asc"
-n = bus.save_trace(str(trace))
+n = save_trace(bus, trace)
 print(f"trace: {n} records written to {trace}")

@@ -24,7 +24,9 @@ class MessageDecl:
     """A message a node sends: identifier and format, length, and its release pattern —
     periodic (``period_ns``), sporadic (``sporadic_ns`` minimum inter-arrival, ``mean_ns`` mean)
     or none (the profile decides when, e.g. a TDMA window) — with offset, release jitter and
-    deadline. ``options`` holds keys a profile adds to messages."""
+    deadline. ``options`` holds keys a profile adds to messages. ``fd`` marks a CAN FD frame
+    (``dlc`` 9..15 then means 12..64 data bytes), ``brs`` its data phase at the bus's
+    ``Scenario.data_bitrate``."""
 
     name: str
     node: str
@@ -40,6 +42,8 @@ class MessageDecl:
     jitter_ns: int
     deadline_ns: int | None
     options: dict[str, Any] = field(default_factory=dict)
+    fd: bool = False
+    brs: bool = False
 
     @property
     def interval_ns(self) -> int | None:
@@ -97,8 +101,9 @@ class FaultDecl:
 class Scenario:
     """A checked scenario. ``tables`` holds what profiles parsed from their own top-level tables
     (e.g. ``tdma``); ``analysis`` and ``plot`` the optional tables of the same names;
-    ``warnings`` what is allowed but likely a mistake (a period shorter than its frame), one line
-    each, naming the file, table and key."""
+    ``data_bitrate`` the bus's CAN FD data bit rate (None: no data phase); ``warnings`` what is
+    allowed but likely a mistake (a period shorter than its frame), one line each, naming the
+    file, table and key."""
 
     source: str
     bitrate: int
@@ -110,6 +115,7 @@ class Scenario:
     plot: dict[str, Any]
     tables: dict[str, Any] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
+    data_bitrate: int | None = None
     warnings: list[str] = field(default_factory=list)
 
     @property

@@ -1,25 +1,21 @@
-"""canstack's software CAN controller and bus, in layers (see the README's architecture section):
+"""canstack's software CAN controller and bus, in layers (see the architecture page of the docs):
 
 - `stack.wire` — identifiers, the `Frame` type, CRC-15 and bit stuffing, the bit decoder;
 - `stack.controller` — fault confinement, queues, filters, the node and its events, the node API;
 - `stack.bus` — the simulated bus, bit-level attempts, fault injection, traces;
 - `stack.phy` — bit timing, synchronisation, waveforms;
-- `stack.io` — the python-can driver and interface, the real-time runner, `canstack serve`;
+- `stack.io` — python-can: the driver and interface, messages and trace files, the real-time
+  runner, `canstack serve`;
 - `stack.cli` — the `canstack` command and the benchmark.
 
-The names most programs need are importable from here (``from stack import SimBus, Frame``); they
-load on first use, so ``import stack`` stays cheap. Modules that moved when the package was
-split into layers keep working under their old names (``stack.sim``, ``stack.node``, …) with a
-DeprecationWarning naming the new place.
+The names most programs need are importable from here (``from stack import SimBus, Frame``): they
+are the public API (`__all__`, listed in the API reference), and they load on first use, so
+``import stack`` stays cheap. Everything else is imported from the module that defines it.
 """
 
 from __future__ import annotations
 
 import importlib
-import importlib.abc
-import importlib.util
-import sys
-import warnings
 from typing import Any
 
 __all__ = [
@@ -46,6 +42,8 @@ __all__ = [
     "TraceRecord",
     "FaultInjector",
     "PyCanDriver",
+    "to_message",
+    "save_trace",
 ]
 
 # public name -> module that defines it
@@ -73,48 +71,8 @@ _EXPORTS = {
     "TraceRecord": "stack.bus.trace",
     "FaultInjector": "stack.bus.faults",
     "PyCanDriver": "stack.io.driver",
-}
-
-# modules of the flat layout (before the layers) -> where they live now
-MOVED = {
-    "stack.frame": "stack.wire.frame",
-    "stack.bits": "stack.wire.coding",
-    "stack.events": "stack.controller.events",
-    "stack.filters": "stack.controller.filters",
-    "stack.queues": "stack.controller.queues",
-    "stack.node": "stack.controller.node",
-    "stack.sim": "stack.bus.sim",
-    "stack.errors": "stack.bus.attempt",
-    "stack.faults": "stack.bus.faults",
-    "stack.trace": "stack.bus.trace",
-    "stack.bittiming": "stack.phy.bittiming",
-    "stack.sync": "stack.phy.sync",
-    "stack.waveform": "stack.phy.waveform",
-    "stack.driver": "stack.io.driver",
-    "stack.pycan": "stack.io.pycan",
-    "stack.serve": "stack.io.serve",
-    "stack.commands": "stack.cli.demo",
-}
-
-# what else a flat module held: the modules its other names live in now (command registration and
-# benchmarks moved to `stack.cli`) ...
-ALSO = {
-    "stack.bits": ("stack.wire.decoder",),
-    "stack.bittiming": ("stack.cli.bittiming",),
-    "stack.sync": ("stack.cli.sync",),
-    "stack.waveform": ("stack.cli.waveform",),
-    "stack.serve": ("stack.cli.serve",),
-}
-# ... and the names that changed on the way ("module:name")
-RENAMED = {
-    "stack.errors": {
-        "ACTIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
-        "PASSIVE_FLAG_DOMINANT_LIMIT": "stack.controller.confinement:DOMINANT_BITS_TOLERATED",
-    },
-    "stack.pycan": {"benchmark": "stack.cli.bench_io:benchmark", "wire_limit_fps": "stack.cli.bench_io:wire_limit_fps"},
-    "stack.serve": {"benchmark": "stack.cli.bench_io:serve_benchmark"},
-    "stack.waveform": {"benchmark": "stack.cli.bench_io:decode_benchmark"},
-    "stack.driver": {"run_demo_on_bus": "stack.cli.demo:run_demo_on_bus"},
+    "to_message": "stack.io.message",
+    "save_trace": "stack.io.tracefile",
 }
 
 
@@ -130,39 +88,3 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
-
-
-class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Import an old flat-layout module name as a stand-in that reads every attribute from the
-    module's new place, with a DeprecationWarning (``stack.bits`` reads the decoder as well)."""
-
-    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
-        if fullname in MOVED:
-            return importlib.util.spec_from_loader(fullname, self)
-        return None
-
-    def create_module(self, spec: Any) -> Any:
-        return None  # a plain module, filled in by exec_module
-
-    def exec_module(self, module: Any) -> None:
-        name = module.__name__
-        new = MOVED[name]
-        warnings.warn(f"{name} moved to {new}; import it from there", DeprecationWarning, stacklevel=2)
-        sources = [importlib.import_module(m) for m in (new, *ALSO.get(name, ()))]
-        renamed = RENAMED.get(name, {})
-
-        def __getattr__(attr: str) -> Any:
-            if attr in renamed:
-                where, real = renamed[attr].split(":")
-                return getattr(importlib.import_module(where), real)
-            for src in sources:
-                if hasattr(src, attr):
-                    return getattr(src, attr)
-            raise AttributeError(f"module {name!r} (now {new}) has no attribute {attr!r}")
-
-        module.__getattr__ = __getattr__
-        module.__all__ = [n for src in sources for n in getattr(src, "__all__", ())] + list(renamed)
-
-
-if not any(isinstance(f, _MovedModules) for f in sys.meta_path):
-    sys.meta_path.insert(0, _MovedModules())  # before path finders: an old checkout's files never shadow it

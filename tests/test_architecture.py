@@ -1,12 +1,23 @@
-"""The architecture, checked: the import-linter layer contracts of pyproject.toml, no import
-cycles between modules, and no module importing another module's private name."""
+"""The architecture, checked: the import-linter contracts of pyproject.toml (the layers, and the
+sans-IO core without python-can), no import cycles between modules, and no module importing
+another module's private name."""
 
 from __future__ import annotations
 
 import ast
+import shutil
+import subprocess
+import sys
+import textwrap
+from collections.abc import Collection, Iterable
 from pathlib import Path
 
 import pytest
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("stack", "profiles", "dbc")
@@ -24,8 +35,92 @@ def test_import_linter_contracts_are_kept():
         os.chdir(cwd)
 
 
-def _runtime_imports(path: Path, module: str) -> set[str]:
-    """Modules of the project this file imports when it runs (TYPE_CHECKING blocks left out)."""
+SANS_IO_CORE = ("stack.wire", "stack.controller", "stack.bus")
+
+
+def _contract(name_part: str) -> dict:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    found = [c for c in config["contracts"] if name_part in c["name"]]
+    assert len(found) == 1, f"one contract named '...{name_part}...' in pyproject.toml"
+    return {**found[0], "include_external_packages": config.get("include_external_packages", False)}
+
+
+@pytest.mark.subprocess
+def test_the_sans_io_core_is_forbidden_python_can_and_the_contract_bites(tmp_path):
+    """The contract names the three layers and python-can, external packages are in the graph
+    (else import-linter cannot see `can` at all), and it breaks when one module of the core
+    imports python-can: checked on a copy of the packages with such an import added."""
+    contract = _contract("does not import python-can")
+    assert contract["type"] == "forbidden" and contract["include_external_packages"] is True
+    assert set(contract["source_modules"]) == set(SANS_IO_CORE) and contract["forbidden_modules"] == ["can"]
+    for pkg in PACKAGES:
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    events = tmp_path / "stack" / "controller" / "events.py"
+    events.write_text(events.read_text() + "\nimport can  # the break under test\n")
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from importlinter.cli import lint_imports; sys.exit(lint_imports())"],
+        cwd=tmp_path,  # the copy is the first on sys.path, before the installed checkout
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 1, out.stdout[-2000:] + out.stderr[-2000:]
+    assert "stack.controller is not allowed to import can" in out.stdout
+    assert "stack.controller.events -> can" in out.stdout
+
+
+CORE_WITHOUT_PYTHON_CAN = """
+import importlib, pkgutil, sys
+from types import SimpleNamespace
+
+sys.modules["can"] = None  # `import can` raises ImportError from here on
+for name in {core!r}:
+    package = importlib.import_module(name)
+    for info in pkgutil.walk_packages(package.__path__, name + "."):
+        importlib.import_module(info.name)
+
+from stack.bus.faults import FaultInjector
+from stack.bus.sim import SimBus
+from stack.wire.frame import Frame
+
+bus = SimBus(500_000, seed=1, record=True)
+engine, body, dash = bus.node("engine"), bus.node("body"), bus.node("dash")  # dash acknowledges
+got = []
+body.subscribe(lambda ev: got.append(ev.frame))
+engine.send(Frame(0x123, b"\\x01\\x02"))
+# a can.Message, read by its attributes (what python-can's would carry)
+engine.send(SimpleNamespace(arbitration_id=0x1ABCDE, data=bytearray(b"\\xaa"), dlc=1, is_extended_id=True,
+    is_remote_frame=False, is_error_frame=False, is_fd=False, bitrate_switch=False, error_state_indicator=False))
+FaultInjector(bus).flip(can_id=0x123, occurrence=1, field="crc", bit=3, nodes=["body"])
+bus.run(until=2_000_000)
+print(sorted((f.can_id, f.extended, f.data.hex()) for f in got))
+print([r.kind for r in bus.trace], body.rec, engine.tec)
+print(sorted(m for m in sys.modules if m == "can" or m.startswith("can.")))
+"""
+
+
+@pytest.mark.subprocess
+def test_the_sans_io_core_runs_a_simulation_where_python_can_cannot_be_imported():
+    script = textwrap.dedent(CORE_WITHOUT_PYTHON_CAN.format(core=SANS_IO_CORE))
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    frames, trace, modules = out.stdout.splitlines()
+    # both frames arrive; the extended one (base ID 0x006) wins the first arbitration
+    assert frames == str(sorted([(0x123, False, "0102"), (0x1ABCDE, True, "aa")]))
+    # body alone sees the CRC error of 0x123: rules 1 + 2 give it REC 9, the retransmission it
+    # receives takes 1 off (rule 8); the transmitter's error flag adds 8 (rule 3), the
+    # retransmission takes 1 off (rule 7; the first frame went when TEC was 0 already)
+    assert trace == str(["frame", "error", "frame"]) + " 8 7"
+    assert modules == "['can']"  # only the blocked entry: nothing of python-can was loaded
+
+
+def _runtime_imports(path: Path, module: str, modules: Collection[str]) -> set[str]:
+    """Modules of ``modules`` this file imports when it runs, at module level or inside a function
+    (a cycle through a lazy import is still a knot); imports in ``if TYPE_CHECKING:`` blocks, which
+    only annotations use, are left out. ``from pkg import sub`` of a submodule ``sub`` is an import
+    of ``pkg.sub`` (its package's ``__init__`` runs first for any submodule, which is no edge);
+    ``from pkg import name`` of anything else is an import of ``pkg``."""
     tree = ast.parse(path.read_text())
     out: set[str] = set()
     skip: set[int] = set()
@@ -44,16 +139,17 @@ def _runtime_imports(path: Path, module: str) -> set[str]:
                 parts = pkg.split(".")
                 parent = ".".join(parts[: len(parts) - node.level + 1])
                 base = f"{parent}.{base}" if base else parent
-            out.add(base)
-            out.update(f"{base}.{a.name}" for a in node.names)
-    return {m for m in out if m.split(".")[0] in PACKAGES}
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                out.add(sub if sub in modules else base)
+    return {m for m in out if m in modules and m != module}
 
 
-def _modules() -> dict[str, Path]:
+def _modules(root: Path = ROOT, packages: Iterable[str] = PACKAGES) -> dict[str, Path]:
     mods = {}
-    for pkg in PACKAGES:
-        for p in (ROOT / pkg).rglob("*.py"):
-            rel = p.relative_to(ROOT).with_suffix("")
+    for pkg in packages:
+        for p in (root / pkg).rglob("*.py"):
+            rel = p.relative_to(root).with_suffix("")
             parts = list(rel.parts)
             if parts[-1] == "__init__":
                 parts.pop()
@@ -61,15 +157,11 @@ def _modules() -> dict[str, Path]:
     return mods
 
 
-def test_no_import_cycles_between_modules():
-    """Tarjan's strongly connected components over module-level imports (imports inside functions
-    count too: a cycle through a lazy import is still a knot). A package's __init__ re-exporting
-    its children is not a cycle of the children."""
-    mods = _modules()
-    graph = {
-        m: {i for i in _runtime_imports(p, m) if i in mods and i != m and not m.startswith(i + ".")}
-        for m, p in mods.items()
-    }
+def _import_cycles(mods: dict[str, Path]) -> list[list[str]]:
+    """The import cycles between ``mods``: Tarjan's strongly connected components of the graph of
+    `_runtime_imports` (a package importing its children and a child importing a name its
+    package's ``__init__`` defines are edges like any other)."""
+    graph = {m: _runtime_imports(p, m, mods) for m, p in mods.items()}
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
@@ -102,7 +194,31 @@ def test_no_import_cycles_between_modules():
     for m in sorted(graph):
         if m not in index:
             strong(m)
-    assert cycles == []
+    return cycles
+
+
+def test_no_import_cycles_between_modules():
+    """No two modules import each other, directly or around a longer loop (annotation-only
+    imports excepted)."""
+    assert _import_cycles(_modules()) == []
+
+
+def test_the_cycle_check_sees_two_way_imports_and_leaves_annotations_out(tmp_path):
+    files = {
+        "pkg/__init__.py": "from pkg.child import Child\nNAME = 1\n",
+        "pkg/child.py": "from pkg import NAME\nclass Child: ...\n",  # a name of the package: a cycle
+        "pkg/a.py": "from pkg.b import x\n",
+        "pkg/b.py": "def x():\n    from pkg import a\n",  # lazy, still a cycle
+        "pkg/c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg.d import y\n",
+        "pkg/d.py": "from pkg.c import *\ny = 1\n",  # c imports d only for annotations: no cycle
+        "pkg/sub/__init__.py": "from pkg.sub.leaf import z\n",
+        "pkg/sub/leaf.py": "from pkg.sub import other\nz = 1\n",  # a sibling submodule: no cycle
+        "pkg/sub/other.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert sorted(_import_cycles(_modules(tmp_path, ["pkg"]))) == [["pkg", "pkg.child"], ["pkg.a", "pkg.b"]]
 
 
 def test_no_module_imports_a_private_name_of_another():
@@ -117,55 +233,17 @@ def test_no_module_imports_a_private_name_of_another():
     assert bad == []
 
 
-def test_modules_of_the_flat_layout_import_from_their_new_place_with_a_warning():
-    """Users' `from stack.sim import SimBus` keeps working (README: what moved)."""
-    import importlib
-    import sys
-    import warnings
-
-    import stack
-
-    for old, new in stack.MOVED.items():
-        sys.modules.pop(old, None)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            mod = importlib.import_module(old)
-        assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught), old
-        real = importlib.import_module(new)
-        for name in getattr(real, "__all__", [])[:5]:
-            assert getattr(mod, name) is getattr(real, name)
-    from stack.bits import BitDecoder, crc15  # noqa: F401  (the flat module held the decoder too)
-
-
-def test_every_public_name_of_the_flat_layout_still_imports_from_its_old_module():
-    """Nothing a user imported before the split stopped working: each name in the ``__all__`` of
-    each module of the flat layout (recorded from that tree) is still there, under its old module."""
-    import importlib
-    import json
-    import warnings
-    from pathlib import Path
-
-    old_api = json.loads((Path(__file__).parent / "data" / "flat_layout_api.json").read_text())
-    old_api.pop("_comment")
-    missing = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for module, names in old_api.items():
-            mod = importlib.import_module(module)
-            missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
-    assert missing == []
-
-
 def test_the_engine_objects_keep_every_field_of_theirs_in_a_slot():
     """`Node` and `SimBus` declare their fields as slots (the engine reads them once a frame; an
     instance dict of over 30 keys is read more slowly): a field added in ``__init__`` without its
     slot lands in ``__dict__``, which this catches. Attributes of users' own still work."""
     from stack.bus.sim import SimBus
     from stack.controller.clock import LocalClock
+    from stack.controller.events import TxDone
 
     bus = SimBus(250_000)
     node = bus.node("a", clock=LocalClock(drift_ppm=10))
-    bus.node("b").listen(object, print)
+    bus.node("b").listen(TxDone, print)
     assert vars(bus) == {} and vars(node) == {}
     node.note = "mine"
     assert vars(node) == {"note": "mine"}

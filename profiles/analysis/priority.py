@@ -43,7 +43,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from profiles.analysis.model import ERROR_FRAME_BITS, NS_PER_S, ErrorModel, MessageSpec, Stream, prepare
+from profiles.analysis.model import ErrorModel, MessageSpec, Stream, Timebase, prepare, timebase
+from profiles.analysis.rta import error_term
 from profiles.analysis.window import Term, Window
 
 __all__ = ["ORDERS", "Assignment", "assign_priorities", "identifiers_for"]
@@ -66,19 +67,15 @@ class Assignment:
 
 
 def _fits(
-    m: Stream, higher: Sequence[Stream], lower: Sequence[Stream], bitrate: int, errors: ErrorModel | None
+    m: Stream, higher: Sequence[Stream], lower: Sequence[Stream], tb: Timebase, errors: ErrorModel | None
 ) -> bool:
     """D07's test for m with ``higher`` above it and ``lower`` below (orders irrelevant)."""
-    err = None
-    if errors is not None:
-        per = ERROR_FRAME_BITS * NS_PER_S + max(k.c for k in (*higher, m))
-        err = (errors.t_error_ns * bitrate, errors.burst, per)
     win = Window(
         Term(m.c, m.t, m.j),
         interfering=[Term(k.c, k.t, k.j) for k in higher],
         blocking=max((k.c for k in lower), default=0),
-        tau=NS_PER_S,
-        error=err,
+        tau=tb.bit,
+        error=error_term(errors, tb, (*higher, m)),
         horizon=m.horizon,
         deadline=m.d,  # a verdict: stop as soon as a response passes the deadline
     )
@@ -86,16 +83,16 @@ def _fits(
     return r is not None and r <= m.d
 
 
-def _tolerance(m: Stream, higher: list[Stream], lower: list[Stream], bitrate: int, burst: int) -> int | None:
+def _tolerance(m: Stream, higher: list[Stream], lower: list[Stream], tb: Timebase, burst: int) -> int | None:
     """The shortest T_error (ns) with which m stays schedulable (binary search: a longer T_error
     never hurts); None if not even at the longest tried, the message's horizon."""
-    hi = max(1, m.horizon // bitrate)
-    if not _fits(m, higher, lower, bitrate, ErrorModel(hi, burst)):
+    hi = max(1, m.horizon // tb.per_ns)
+    if not _fits(m, higher, lower, tb, ErrorModel(hi, burst)):
         return None
     lo = 1  # not schedulable with an error every ns (the bus utilisation would exceed 1)
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if _fits(m, higher, lower, bitrate, ErrorModel(mid, burst)):
+        if _fits(m, higher, lower, tb, ErrorModel(mid, burst)):
             hi = mid
         else:
             lo = mid
@@ -103,34 +100,38 @@ def _tolerance(m: Stream, higher: list[Stream], lower: list[Stream], bitrate: in
 
 
 def assign_priorities(
-    messages: Sequence[MessageSpec], bitrate: int, *, order: str = "opa", errors: ErrorModel | None = None
+    messages: Sequence[MessageSpec],
+    bitrate: int,
+    *,
+    order: str = "opa",
+    errors: ErrorModel | None = None,
+    data_bitrate: int | None = None,
 ) -> Assignment:
     """A priority order for ``messages`` (see the module docstring) by ``order``: ``dm``,
-    ``opa`` or ``rpa``; the verdicts are D07's priority-queue test, with ``errors`` when given.
-    Raises ValueError for an unknown order and for the inputs `profiles.analysis.rta.analyse`
-    refuses."""
+    ``opa`` or ``rpa``; the verdicts are D07's priority-queue test, with ``errors`` when given
+    (CAN FD frames with BRS at ``data_bitrate``). Raises ValueError for an unknown order and for
+    the inputs `profiles.analysis.rta.analyse` refuses."""
     if order not in ORDERS:
         raise ValueError(f"priority order {order!r}: one of {', '.join(ORDERS)}")
-    msgs = prepare(messages, bitrate, errors)
+    msgs = prepare(messages, bitrate, errors, data_bitrate)
+    tb = timebase(bitrate, data_bitrate)
     dm = sorted(msgs, key=lambda k: (k.d, k.key))
     if order == "dm":
         names = tuple(k.name for k in dm)
-        ok = all(_fits(k, dm[:i], dm[i + 1 :], bitrate, errors) for i, k in enumerate(dm))
+        ok = all(_fits(k, dm[:i], dm[i + 1 :], tb, errors) for i, k in enumerate(dm))
         return Assignment("dm", names, ok)
     unassigned = list(dm)
     lowest_first: list[Stream] = []
     tolerance: dict[str, int | None] = {}
     burst = errors.burst if errors is not None else 1
     while unassigned:
-        fits = [k for k in unassigned if _fits(k, [x for x in unassigned if x is not k], lowest_first, bitrate, errors)]
+        fits = [k for k in unassigned if _fits(k, [x for x in unassigned if x is not k], lowest_first, tb, errors)]
         if not fits:
             break
         if order == "opa":
             chosen = fits[-1]  # the least urgent that fits: DM among the candidates, from below
         else:
-            tol = {
-                k.name: _tolerance(k, [x for x in unassigned if x is not k], lowest_first, bitrate, burst) for k in fits
-            }
+            tol = {k.name: _tolerance(k, [x for x in unassigned if x is not k], lowest_first, tb, burst) for k in fits}
             # shortest tolerated T_error wins; None (tolerates no error rate tried) comes last
             chosen = min(fits, key=lambda k: (tol[k.name] is None, tol[k.name] or 0, -fits.index(k)))
             tolerance[chosen.name] = tol[chosen.name]

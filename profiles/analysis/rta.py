@@ -47,7 +47,10 @@ priority queue served non-preemptively.
 
 D07's equations (priority queues; tau = one bit time):
 - C_m = (g + 8 s_m + 13 + floor((g + 8 s_m - 1) / 4)) tau, g = 34 (11-bit) or 54 (29-bit)
-  identifiers, s_m data bytes (Section 3, eq. 1). ``frame_bits_worst``.
+  identifiers, s_m data bytes (Section 3, eq. 1). ``frame_bits_worst``. A CAN FD message's C_m
+  is its worst-case frame at the nominal and the data bit rate (`profiles.analysis.model`); the
+  equations below take C_m as given, so they hold for mixed classical and FD buses unchanged
+  (arbitration, the tau term and error frames stay at the nominal rate).
 - B_m = max over k in lp(m) of C_k (Section 3).
 - Original (Section 3): w_m = B_m + sum over hp(m) of ceil((w_m + J_k + tau) / T_k) C_k,
   R_m = J_m + w_m + C_m. ``analyse_1994``; optimistic.
@@ -115,10 +118,9 @@ frame (31 tau worst case) and the retransmission of the longest frame it destroy
 level: E(t) = n (ceil(t / T_error) + 1)(31 tau + max C over the level's messages), added to the
 busy-period and queuing recurrences. At most n ceil(w / T_error) errors fall in a window w; the
 extra n covers those striking m's own transmission. Nodes are assumed to stay error active, and
-a node to offer its best frame again after a failed attempt; the engine at this writing retries
-the failed frame first even when a better one was queued meanwhile (a strict xfail in
-tests/profiles/test_rta_sim.py shows it), so with errors the bounds are tested on nodes with one
-message each.
+a node to choose its queue's head again after a failed attempt, as the engine does
+(`stack.controller.node.Node.retry`): a priority queue does not retransmit a lower frame before
+a better one queued meanwhile, whose retransmission the term would not cover.
 
 Drift: see `profiles.analysis.model` (the shortest real period, a widened jitter).
 
@@ -136,14 +138,15 @@ from fractions import Fraction
 from profiles.analysis.model import (
     ERROR_FRAME_BITS,
     HORIZON_FACTOR,
-    NS_PER_S,
     ErrorModel,
     MessageSpec,
     NodeQueue,
     Stream,
+    Timebase,
     check_queues,
     frame_bits_worst,
     prepare,
+    timebase,
 )
 from profiles.analysis.window import Outcome, Term, Window
 
@@ -212,19 +215,22 @@ class RtaResult:
     arbitration_jitter_ns: float | None = None
 
 
-def utilisation(messages: Sequence[MessageSpec], bitrate: int) -> float:
-    """Bus utilisation with worst-case frames: sum over m of C_m / T_m (T as used: drift applied)."""
-    msgs = prepare(messages, bitrate)
+def utilisation(messages: Sequence[MessageSpec], bitrate: int, *, data_bitrate: int | None = None) -> float:
+    """Bus utilisation with worst-case frames: sum over m of C_m / T_m (T as used: drift applied;
+    CAN FD frames with BRS at ``data_bitrate``)."""
+    msgs = prepare(messages, bitrate, data_bitrate=data_bitrate)
     return float(sum((Fraction(m.c, m.t) for m in msgs), Fraction(0)))
 
 
-def _error_term(errors: ErrorModel | None, bitrate: int, level: list[Stream]) -> tuple[int, int, int] | None:
+def error_term(errors: ErrorModel | None, tb: Timebase, level: Sequence[Stream]) -> tuple[int, int, int] | None:
+    """The window's error term (T_error, n, per-error cost) in ticks: an error frame at the nominal
+    rate (31 tau) and the longest frame of ``level``; None without an error model."""
     if errors is None:
         return None
-    return (errors.t_error_ns * bitrate, errors.burst, ERROR_FRAME_BITS * NS_PER_S + max(k.c for k in level))
+    return (errors.t_error_ns * tb.per_ns, errors.burst, ERROR_FRAME_BITS * tb.bit + max(k.c for k in level))
 
 
-def _first_instance(msgs: list[Stream], i: int, bitrate: int, errors: ErrorModel | None) -> int | None:
+def _first_instance(msgs: list[Stream], i: int, tb: Timebase, errors: ErrorModel | None) -> int | None:
     """T95's R_m = J_m + w_m + C_m (D07 Section 3), None when unbounded; its guard is the
     utilisation of hp(m) (the recurrence ranges over hp(m) only)."""
     m = msgs[i]
@@ -233,8 +239,8 @@ def _first_instance(msgs: list[Stream], i: int, bitrate: int, errors: ErrorModel
         Term(m.c, m.t, m.j),
         interfering=[Term(k.c, k.t, k.j) for k in hp],
         blocking=max((k.c for k in msgs[i + 1 :]), default=0),
-        tau=NS_PER_S,
-        error=_error_term(errors, bitrate, msgs[: i + 1]),
+        tau=tb.bit,
+        error=error_term(errors, tb, msgs[: i + 1]),
         horizon=m.horizon,
     )
     if win.utilisation - Fraction(m.c, m.t) >= 1:
@@ -250,13 +256,13 @@ class _Bus:
         self,
         msgs: list[Stream],
         queues: dict[str, NodeQueue],
-        bitrate: int,
+        tb: Timebase,
         errors: ErrorModel | None,
         verdict_only: bool = False,
     ):
         self.msgs = msgs
         self.verdict_only = verdict_only
-        self.bitrate = bitrate
+        self.tb = tb
         self.errors = errors
         self.by_node: dict[str, list[Stream]] = {}
         for m in msgs:
@@ -287,7 +293,7 @@ class _Bus:
     def window(self, m: Stream, extra: Mapping[str, int | None]) -> Window | str:
         """m's window given the contention delays E (None: unbounded); or why there is none."""
         mode = self.mode[m.node]
-        tau = NS_PER_S
+        tau = self.tb.bit
 
         def seen(k: Stream) -> Term | str:
             e = extra[k.name]
@@ -323,7 +329,7 @@ class _Bus:
             interfering=[t for t in interfering if isinstance(t, Term)],
             blocking=blocking,
             tau=tau,
-            error=_error_term(self.errors, self.bitrate, level),
+            error=error_term(self.errors, self.tb, level),
             horizon=m.horizon,
             deadline=m.d if self.verdict_only else None,
         )
@@ -389,6 +395,7 @@ def analyse(
     errors: ErrorModel | None = None,
     queues: Mapping[str, NodeQueue] | None = None,
     verdict_only: bool = False,
+    data_bitrate: int | None = None,
 ) -> dict[str, RtaResult]:
     """Worst-case response times and bounds (see the module docstring), keyed by message name,
     in priority order (highest first; lower ``arbitration_key`` wins).
@@ -398,13 +405,17 @@ def analyse(
     its deadline: it is then reported unbounded, with every message it can delay from a FIFO or
     mailbox queue — much quicker on overloaded FIFO buses, and whether *every* message is
     schedulable comes out the same (the jitter iteration and the mailbox check only grow bounds,
-    so where all end within their deadlines no cut ever happens). Raises ValueError naming the message (or node) and the rule for a
-    non-positive period or deadline, negative jitter, a DLC outside 0..15, an identifier out of
-    range, a name or arbitration key used twice, a bitrate outside 1 000..1 000 000 bit/s, a bad
-    error model or a bad queue declaration.
+    so where all end within their deadlines no cut ever happens). ``data_bitrate`` is the bus's
+    CAN FD data bit rate, which messages with ``brs`` need (`profiles.analysis.model`: their
+    C_m is the wire layer's worst-case FD frame at both rates).
+
+    Raises ValueError naming the message (or node) and the rule for what
+    `profiles.analysis.model.prepare` refuses (periods, deadlines, jitter, DLC, identifiers,
+    names, drift, FD flags, bit rates, the error model) or a bad queue declaration.
     """
-    msgs = prepare(messages, bitrate, errors)
-    bus = _Bus(msgs, check_queues(queues), bitrate, errors, verdict_only)
+    msgs = prepare(messages, bitrate, errors, data_bitrate)
+    tb = timebase(bitrate, data_bitrate)
+    bus = _Bus(msgs, check_queues(queues), tb, errors, verdict_only)
     while True:
         outs, extra, windows = bus.solve()
         failed = [n for n in sorted(bus.tentative) if not bus.fits(n, outs)]
@@ -416,15 +427,15 @@ def analyse(
     out: dict[str, RtaResult] = {}
     for i, m in enumerate(msgs):
         mode = bus.mode[m.node]
-        r1994 = _first_instance(msgs, i, bitrate, errors) if mode == _PRIORITY else None
-        out[m.name] = _result(m, i, bitrate, outs[m.name], windows[m.name], mode, extra[m.name], r1994)
+        r1994 = _first_instance(msgs, i, tb, errors) if mode == _PRIORITY else None
+        out[m.name] = _result(m, i, tb, outs[m.name], windows[m.name], mode, extra[m.name], r1994)
     return out
 
 
 def _result(
     m: Stream,
     i: int,
-    bitrate: int,
+    tb: Timebase,
     o: Outcome | str,
     win: Window | str,
     mode: str,
@@ -432,7 +443,7 @@ def _result(
     r1994: int | None,
 ) -> RtaResult:
     def ns(x: int) -> float:
-        return x / bitrate
+        return x / tb.per_ns
 
     if isinstance(o, str):
         o = Outcome(None, (), (), None, None, None, o)
@@ -461,7 +472,11 @@ def _result(
 
 
 def analyse_1994(
-    messages: Sequence[MessageSpec], bitrate: int, *, errors: ErrorModel | None = None
+    messages: Sequence[MessageSpec],
+    bitrate: int,
+    *,
+    errors: ErrorModel | None = None,
+    data_bitrate: int | None = None,
 ) -> dict[str, RtaResult]:
     """The original, optimistic analysis (T95; D07 Section 3): the first instance only, every
     node a priority queue.
@@ -470,16 +485,17 @@ def analyse_1994(
     ``busy_period_ns`` is None (the analysis has none), ``instances`` 1 and ``worst_instance`` 0
     when bounded; ``bound_ns`` is R − J (what it wrongly took for the bound from queuing).
     """
-    msgs = prepare(messages, bitrate, errors)
+    msgs = prepare(messages, bitrate, errors, data_bitrate)
+    tb = timebase(bitrate, data_bitrate)
     out: dict[str, RtaResult] = {}
     for i, m in enumerate(msgs):
-        r = _first_instance(msgs, i, bitrate, errors)
+        r = _first_instance(msgs, i, tb, errors)
         win = Window(
             Term(m.c, m.t, m.j),
             interfering=[Term(k.c, k.t, k.j) for k in msgs[:i]],
             blocking=max((k.c for k in msgs[i + 1 :]), default=0),
-            tau=NS_PER_S,
-            error=_error_term(errors, bitrate, msgs[: i + 1]),
+            tau=tb.bit,
+            error=error_term(errors, tb, msgs[: i + 1]),
             horizon=m.horizon,
         )
         if r is None:
@@ -488,5 +504,5 @@ def analyse_1994(
             )
         else:
             o = Outcome(None, (r - m.j - m.c,), (r,), r, 0, r - m.j, None)
-        out[m.name] = _result(m, i, bitrate, o, win, _PRIORITY, 0, r)
+        out[m.name] = _result(m, i, tb, o, win, _PRIORITY, 0, r)
     return out

@@ -21,9 +21,9 @@ Recurrences (integer ticks; tau = one bit time; ceil/floor exact):
   predecessors in the busy period;
 - the response of that instance: w(z) + C_m − z (from its queuing), maximised over the points
   where a count steps (z = 0, z = p T_k − J_k for ahead k, and m's own steps): between two such
-  points w is constant and − z falls. Beyond `MAX_POINTS` points they are taken in groups, each
-  charged its largest counts against its smallest z (an upper bound; my simplification, to bound
-  the cost of long busy periods).
+  points w is constant and − z falls. Beyond `MAX_POINTS` points a branch and bound over them
+  gives an upper bound of their maximum, exact when its budget suffices (my method, to bound the
+  cost of long busy periods; see `Window._maximise`).
 
 E(w) = n (ceil(w / T_error) + 1)(31 tau + max C over the level's messages) with the error model
 (n errors per T_error; n = 1 is Tindell and Burns' simple form), else 0.
@@ -34,12 +34,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from fractions import Fraction
+from heapq import heappop, heappush
 
-__all__ = ["Term", "Window", "Outcome", "MAX_POINTS"]
+__all__ = ["Term", "Window", "Outcome", "MAX_POINTS", "REFINE_POINTS"]
 
 MAX_POINTS = 256
-"""Recurrences per maximisation of a window before its points are taken in groups (an upper
-bound, see `Window`); D07's examples and every test with hand-worked instances stay below it."""
+"""Points of a maximisation computed one by one; beyond, they are bounded by branch and bound
+(`Window._maximise`); D07's examples and every test with hand-worked instances stay below it."""
+
+REFINE_POINTS = 512
+"""Points the branch and bound computes after the first `MAX_POINTS`, at most."""
 
 
 def _ceil_div(a: int, b: int) -> int:
@@ -166,32 +170,81 @@ class Window:
                 z += t
         return sorted(pts)
 
-    def _maximise(self, span: int, own_offset: int, deadline: int | None = None) -> tuple[list[int], list[int]] | None:
-        """Delays and responses (w(z) + C_m − z) at every point of ``_points``; None if one is
-        unbounded or its response passes ``deadline``."""
+    def _base(self, z: int, own_offset: int) -> int:
+        """The right-hand side of w(z) without interference or errors: B, m's predecessors and
+        the instances ahead of it queued by z."""
         own = self.own
-        delays: list[int] = []
-        responses: list[int] = []
-        prev = 0
+        base = self.b + ((z + own_offset) // own.t) * own.c
+        return base + sum(((z + k.j) // k.t + 1) * k.c for k in self.ahead)
+
+    def _maximise(self, span: int, own_offset: int, deadline: int | None = None) -> tuple[list[int], list[int]] | None:
+        """Delays and responses (w(z) + C_m − z) at the points of ``_points``; None if one is
+        unbounded or a response passes ``deadline``.
+
+        Up to `MAX_POINTS` points each is computed. Beyond, the maximum is bounded by branch and
+        bound, soundly: w is nondecreasing in z (its base is, and so is the least fixed point of
+        a monotone recurrence), so between two computed points z_l < z_r every point z_k in
+        between has w(z_k) + C_m − z_k <= w(z_r) + C_m − z_(l+1), the *interval's bound*. First
+        the last point of each of `MAX_POINTS` groups of consecutive points is computed; then,
+        up to `REFINE_POINTS` times, the interval with the largest bound, while that bound
+        exceeds the largest computed response, is split at its middle point, which is computed.
+        Intervals whose bound still exceeds that response are reported with it (delay
+        w(z_r) at z_(l+1)), so the maximum of what is returned bounds every point's response.
+        Before any split each interval's bound is the bound the earlier grouping charged its
+        group, and a split only lowers bounds: never looser than that, exact when the worst
+        point is found before the budget runs out.
+        """
+        own = self.own
         pts = self._points(span, own_offset)
-        # Past MAX_POINTS points, consecutive ones are taken in groups: a group [z_a .. z_b] is
-        # charged the counts of its last point (the largest: counts only grow with z) against
-        # its first z (the smallest), an upper bound of every response in it — a long busy period
-        # of short-period messages costs at most MAX_POINTS recurrences per maximisation.
-        size = -(-len(pts) // MAX_POINTS)
-        for i in range(0, len(pts), size):
-            z, last = pts[i], pts[min(i + size, len(pts)) - 1]
-            base = self.b + ((last + own_offset) // own.t) * own.c
-            base += sum(((last + k.j) // k.t + 1) * k.c for k in self.ahead)
-            # w(z) is nondecreasing in z: the last fixed point is a valid start
+        n = len(pts)
+        w_at: dict[int, int] = {}
+
+        def compute(i: int, start: int) -> int | None:
+            # ``start`` is the delay at a point before i (or 0): never above w(pts[i])
+            z = pts[i]
+            base = self._base(z, own_offset)
             limit = None if deadline is None else deadline - own.c + z
-            w = self.delay(base, max(prev, base), limit)
+            w = self.delay(base, max(start, base), limit)
+            if w is not None:
+                w_at[i] = w
+            return w
+
+        size = -(-n // MAX_POINTS)
+        prev = 0
+        for i in range(size - 1, n + size - 1, size):
+            w = compute(min(i, n - 1), prev)
             if w is None:
                 return None
             prev = w
-            delays.append(w)
-            responses.append(w + own.c - z)
-        return delays, responses
+        if size == 1:
+            return [w_at[i] for i in range(n)], [w_at[i] + own.c - pts[i] for i in range(n)]
+        best = max(w + own.c - pts[i] for i, w in w_at.items())
+        # intervals (l, r) between computed points with points inside; l = −1 before the first
+        heap: list[tuple[int, int, int]] = []
+        left = -1
+        for r in sorted(w_at):
+            if r - left > 1:
+                heappush(heap, (-(w_at[r] + own.c - pts[left + 1]), left, r))
+            left = r
+        for _ in range(REFINE_POINTS):
+            if not heap or -heap[0][0] <= best:
+                break
+            _, left, r = heappop(heap)
+            mid = (left + 1 + r) // 2
+            w = compute(mid, 0 if left < 0 else w_at[left])
+            if w is None:
+                return None
+            best = max(best, w + own.c - pts[mid])
+            if mid - left > 1:
+                heappush(heap, (-(w + own.c - pts[left + 1]), left, mid))
+            if r - mid > 1:
+                heappush(heap, (-(w_at[r] + own.c - pts[mid + 1]), mid, r))
+        rows = [(pts[i], w, w + own.c - pts[i]) for i, w in w_at.items()]
+        rows += [(pts[left + 1], w_at[r], -ub) for ub, left, r in heap if -ub > best]
+        rows.sort()
+        if deadline is not None and max(row[2] for row in rows) > deadline:
+            return None
+        return [row[1] for row in rows], [row[2] for row in rows]
 
     def solve(self) -> Outcome:
         """Busy period, R from the nominal release (jitter included) and the bound from queuing."""

@@ -6,8 +6,10 @@ interrupted.
 The device boots (boot-up message, pre-operational) and answers NMT, SDO (all three transfer
 modes), SYNC, PDOs, heartbeat/node guarding like the CANopenNode devices it imitates, so a
 master — the ``canopen`` library, a PLC, `CanopenMaster` — can drive it. It prints one line per
-NMT state change; Ctrl-C (or ``--duration``) stops it and prints what it did (``--json``: the
-device's metrics as one JSON object). Registered through the ``canstack.commands`` entry point
+NMT state change; Ctrl-C, SIGTERM (or ``--duration``) stops it and prints what it did (``--json``:
+the device's metrics as one JSON object). When its bus goes away (a `canstack serve` stopped, an
+interface closed) it stops at once, prints its summary and one line naming the bus and the time
+on stderr, and exits with status 1. Registered through the ``canstack.commands`` entry point
 (stack never imports profiles).
 
 ``--app module:function`` runs application code with the device: ``function(device)`` is called
@@ -144,8 +146,12 @@ def canopen_command(args: argparse.Namespace) -> int:
             driver.submit(app, device)
         driver.submit(device.start)
         deadline = None if args.duration is None else time.monotonic() + args.duration
+        # short waits: the main thread must come back to Python for Ctrl-C and SIGTERM
         while deadline is None or time.monotonic() < deadline:
-            time.sleep(0.05 if deadline is None else max(0.0, min(0.05, deadline - time.monotonic())))
+            left = 0.2 if deadline is None else max(0.0, min(0.2, deadline - time.monotonic()))
+            if driver.gone.wait(left):
+                status = 1
+                break
     except KeyboardInterrupt:
         status = 130
     finally:
@@ -172,8 +178,11 @@ def canopen_command(args: argparse.Namespace) -> int:
             f"{plural(sum(r['received'] for r in m['rpdos']), 'RPDO')} received, "
             f"{plural(m['sdo']['requests'], 'SDO request')}, {plural(m['emcy_sent'], 'EMCY')}"
         )
-    for err in driver.errors:
-        print(f"canstack canopen: {err}", file=sys.stderr)
+    if driver.lost is not None:  # one line: what went before it was that bus failing
+        print(f"canstack canopen: {driver.lost.describe()}", file=sys.stderr)
+    else:
+        for err in driver.errors:
+            print(f"canstack canopen: {err}", file=sys.stderr)
     return status
 
 

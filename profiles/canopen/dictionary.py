@@ -25,6 +25,8 @@ from typing import Any
 from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
+from profiles.canopen.cob import is_restricted
+from profiles.canopen.edsvalues import EdsValueError, check_values, type_name
 from profiles.canopen.sdo import abort
 from profiles.canopen.sdo.abort import SdoAbort
 
@@ -42,11 +44,6 @@ Validator = Callable[[int, Any, bytes], None]
 Watcher = Callable[[int, int], None]
 """``watcher(index, sub)``: called after a write was stored."""
 
-_TYPE_NAMES = {
-    v: k
-    for k, v in vars(datatypes).items()
-    if k.isupper() and isinstance(v, int) and k not in ("SIGNED_TYPES", "UNSIGNED_TYPES")
-}
 
 # objects the services read, with the data type CiA 301 gives them (clause 7.5.2.x)
 _TYPES = {
@@ -78,13 +75,6 @@ class EdsError(ValueError):
     fit its type, ...)."""
 
 
-def type_name(data_type: int | None) -> str:
-    """The CiA 301 name of a data type code (0x0007 -> 'UNSIGNED32')."""
-    if data_type is None:
-        return "no type"
-    return _TYPE_NAMES.get(data_type, f"0x{data_type:04X}")
-
-
 class _Collect(logging.Handler):
     """The canopen library's log records while it reads a file: what it would print on its own
     (a second line under canstack's output) becomes one warning naming the file."""
@@ -101,10 +91,12 @@ def load_od(
     eds: str | os.PathLike[str] | None, node_id: int, warn: Callable[[str], object] | None = None
 ) -> ObjectDictionary:
     """Read an EDS or DCF with ``canopen.objectdictionary.import_od`` (``$NODEID`` resolved for
-    ``node_id``) and check that a device can run on it (`check_od`); None gives the default
-    device (`DEFAULT_EDS`). Raises `EdsError` naming the file and the problem. What the library
-    would log on its own (a missing DeviceInfo section, a data type it does not know) goes to
-    ``warn`` as one line naming the file (dropped without it)."""
+    ``node_id``), check the values the library reads leniently (`profiles.canopen.edsvalues`:
+    a value that is no number, a limit, SubNumber, AccessType, a ``$NODEID`` expression) and
+    that a device can run on it (`check_od`); None gives the default device (`DEFAULT_EDS`).
+    Raises `EdsError` naming the file and the problem. What the library would log on its own (a
+    missing DeviceInfo section, a data type it does not know) goes to ``warn`` as one line naming
+    the file (dropped without it)."""
     path = DEFAULT_EDS if eds is None else Path(eds)
     if path.suffix.lower() not in (".eds", ".dcf"):
         raise EdsError(
@@ -132,6 +124,10 @@ def load_od(
     if warn is not None:
         for message in dict.fromkeys(collect.messages):
             warn(f"{path}: {message}")
+    try:
+        check_values(od, path, node_id)
+    except EdsValueError as exc:
+        raise EdsError(f"{path}: {exc}") from None
     check_od(od, str(path))
     return od
 
@@ -195,6 +191,16 @@ def check_od(od: ObjectDictionary, source: str = "object dictionary") -> None:
                         f"0x{comm + n:04X} sub-index {sub} must be {type_name(dtype)}, not "
                         f"{type_name(c.subindices[sub].data_type)}"
                     )
+            try:
+                word = int.from_bytes(_initial(c.subindices[1]), "little")
+            except (ValueError, TypeError, OverflowError):
+                word = 0x8000_0000  # a default that does not fit: named by the value check below
+            if not word & 0x8000_0000 and is_restricted(word & 0x7FF):
+                fail(
+                    f"0x{comm + n:04X} sub-index 1 ({kind}{n + 1} COB-ID): CAN-ID 0x{word & 0x7FF:03X} is restricted "
+                    "(CiA 301 7.3.5: reserved for NMT, the default SDOs, error control and LSS); set bit 31 to "
+                    "leave the PDO unused"
+                )
             if not isinstance(m, (ODRecord, ODArray)) or 0 not in m.subindices:
                 fail(
                     f"0x{mapping + n:04X} ({kind}{n + 1} mapping parameter) must be a record with sub-index 0 "

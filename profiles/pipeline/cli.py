@@ -91,12 +91,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_samples_output(args.samples)
     if (args.interface is None) != (args.channel is None):
         raise CliError("--interface and --channel go together (a python-can bus), or neither (the simulated bus)")
-    if args.interface:
-        for option, value in (("--plot", args.plot), ("--trace", args.trace), ("--samples", args.samples)):
-            if value:
-                raise CliError(
-                    f"{option} needs the simulated bus here (on a python-can bus record with python -m can.logger)"
-                )
+    if args.interface and args.samples:
+        raise CliError("--samples needs the simulated bus (a python-can run writes --trace, not samples)")
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -108,7 +104,9 @@ def _experiment(args: argparse.Namespace) -> int:
     for w in scenario.warnings:
         warn(w)
     if args.interface:
-        result = run_on_pycan(scenario, args.interface, args.channel, duration_s=args.duration)
+        result = run_on_pycan(
+            scenario, args.interface, args.channel, duration_s=args.duration, trace=args.trace, plot=bool(args.plot)
+        )
     else:
         result = run_scenario(
             scenario, plot=bool(args.plot), progress=args.progress, trace=args.trace, samples=args.samples
@@ -124,9 +122,9 @@ def _experiment(args: argparse.Namespace) -> int:
         if args.plot:
             from profiles.pipeline.plots import write_plots
 
-            written = writing(
-                args.plot, "--plot", lambda: write_plots(result, args.plot, extra=_profile_plots(scenario))
-            )
+            # a python-can run has the frames the monitor received, not the simulation's layers
+            extra = None if args.interface else _profile_plots(scenario)
+            written = writing(args.plot, "--plot", lambda: write_plots(result, args.plot, extra=extra))
             files.append(f"plots: {', '.join(str(f) for f in written)}")
     except CliError as exc:
         failure = exc
@@ -143,6 +141,12 @@ def _experiment(args: argparse.Namespace) -> int:
         print(line, file=sys.stderr)
     if failure is not None:
         raise failure
+    if result.lost is not None:
+        print(
+            f"canstack experiment: {result.lost.describe()}; the results so far are marked interrupted",
+            file=sys.stderr,
+        )
+        return 1
     if result.interrupted:
         print(f"canstack: interrupted at {result.duration_s:.6g} s: the results so far", file=sys.stderr)
         return 130
@@ -216,13 +220,15 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--plot",
         metavar="DIR",
-        help="write timeline.png, response_times.png, response_cdf.png, bus_load.png here (created; the plot extra)",
+        help="write timeline.png, response_times.png, response_cdf.png, bus_load.png here (created; the plot "
+        "extra; on a python-can bus drawn from the frames a monitor received)",
     )
     p.add_argument(
         "--trace",
         metavar="FILE",
-        help="write the bus trace, streamed as the run goes (.asc, .blf, .log, .csv, .trc, .mf4; timestamps in bus "
-        "time; .mf4 needs the mf4 extra, .trc holds no remote or error frames)",
+        help="write the bus trace, streamed as the run goes (.asc, .blf, .log, .csv, .trc, .mf4; timestamps in "
+        "seconds of bus time from the start of the run; on a python-can bus what a monitor received; .mf4 needs "
+        "the mf4 extra, .trc holds no remote or error frames)",
     )
     p.add_argument(
         "--samples",

@@ -13,7 +13,7 @@ import importlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from profiles.base import Context, Profile, Recorder, frame_of
 from profiles.declarations import NodeDecl, Scenario
@@ -22,9 +22,12 @@ from profiles.pipeline.metrics import analyse_scenario, message_rows, summary_of
 from profiles.pipeline.recording import PlotRecords, ReceptionCounter, SampleWriter, plot_window
 from profiles.registry import profile_kind
 from profiles.schema import ScenarioError
-from stack import LocalClock, Received, SimBus
-from stack.bus.trace import DiscardedTrace, TraceWriter
-from stack.cli.runs import run_sliced
+from stack import LocalClock, SimBus
+from stack.bus.trace import DiscardedTrace
+from stack.io.progress import run_sliced
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stack.io.tracefile import TraceWriter
 
 __all__ = ["Result", "run_scenario", "run_on_pycan", "build", "Built"]
 
@@ -59,9 +62,10 @@ class Result:
     wall_s: float = 0.0
     trace: list[Any] = field(default_factory=list)
     tracks: dict[str, Any] = field(default_factory=dict)
-    load: Any = None
-    files: dict[str, Any] = field(default_factory=dict)
+    load: Any = None  # what the plots draw of a long run (`profiles.pipeline.recording.PlotRecords`)
+    files: dict[str, Any] = field(default_factory=dict)  # trace/samples: path, how much, the error that stopped it
     id_latency: dict[str, Any] = field(default_factory=dict)
+    lost: Any = None  # a python-can bus that went away mid-run (`stack.io.driver.BusGone`)
 
     def responses_ms(self, name: str) -> list[float]:
         """The response times of message ``name`` that were kept (ms, in release order): every
@@ -90,6 +94,13 @@ class Result:
         out["analysis"] = self.analysis
         if self.interrupted:
             out["interrupted"] = True
+        if self.lost is not None:
+            out["bus_lost"] = {
+                "bus": self.lost.bus,
+                "at_s": round(self.lost.t_ns / 1e9, 6),
+                "wall_time": self.lost.wall,
+                "reason": self.lost.reason,
+            }
         return out
 
 
@@ -206,7 +217,7 @@ def run_scenario(
     profiles are built and before they start (application code). Ctrl-C (or SIGTERM) ends the
     run early: the result covers the time simulated so far and says ``interrupted``, and the
     files hold what was recorded. ``time_limit`` (wall-clock seconds) raises
-    `stack.cli.runs.TimeLimitExceeded` past it.
+    `stack.io.progress.TimeLimitExceeded` past it.
     """
     records = bool(record) or plot or trace is not None or bool(scenario.faults)
     bus = SimBus(scenario.bitrate, seed=scenario.seed, name="bus0", record=records, keep=bool(record))
@@ -224,6 +235,8 @@ def run_scenario(
         bus.on_trace(rec.plots)
     try:
         if trace is not None:
+            from stack.io.tracefile import TraceWriter
+
             rec.trace = TraceWriter(trace, channel=bus.name)
             bus.on_trace(rec.trace.write)
         if samples is not None:
@@ -348,17 +361,30 @@ def run_on_pycan(
     *,
     duration_s: float | None = None,
     progress: bool = False,
+    trace: str | None = None,
+    plot: bool = False,
     **bus_kwargs: Any,
 ) -> Result:
     """Run ``scenario`` on a python-can bus (``interface``/``channel``, any python-can options in
     ``bus_kwargs``) on the wall clock, for its duration (or ``duration_s``).
 
     Every scenario node gets its own connection through `stack.PyCanDriver`; a monitor
-    connection receives every frame and its receive timestamps give the end of each frame, so
-    response times mean what they mean in simulation (release to end of EOF). Faults are a
+    connection receives every frame (`profiles.pipeline.monitor.BusMonitor`): it counts them,
+    and its receive timestamps give the end of each frame on the driver's clock, the one the
+    releases are stamped on, so response times mean what they mean in simulation (release to
+    end of EOF; on a served bus the server's bus time mapped onto this process's clock, so that a
+    loaded machine shows as lateness). ``trace`` streams what the monitor receives to that file
+    (python-can's writer for its suffix, timestamps in seconds of bus time from the start);
+    ``plot`` keeps the frames as timeline records for `profiles.pipeline.plots`. Faults are a
     simulation feature: a scenario with ``[[faults]]`` is refused here.
+
+    When the bus goes away mid-run (a served bus's server stops, an interface is closed) the run
+    stops at once: the result covers the time until then, says ``interrupted`` and, in ``lost``,
+    which bus and when (`stack.io.driver.BusGone`). Ctrl-C ends it early the same way.
     """
+    from profiles.pipeline.monitor import BusMonitor
     from stack import PyCanDriver
+    from stack.io.tracefile import TraceWriter
 
     if scenario.faults:
         raise ScenarioError(
@@ -371,51 +397,58 @@ def run_on_pycan(
     try:
         drv = PyCanDriver(interface=interface, channel=channel, **bus_kwargs)
         built = build(scenario, drv)
-        monitor = drv.node("__monitor__", listen_only=True)
+        monitor_node = drv.node("__monitor__", listen_only=True)
     except Exception as exc:
         raise ScenarioError(f"cannot open {interface} channel {channel!r}: {exc}") from None
     recorder = built.context.recorder
     for tr in recorder.tracks.values():
         tr.monitor = True  # ends come from the monitor's timestamps
     by_key = {frame_of(tr.decl).key: tr for tr in recorder.tracks.values()}
-    busy = [0]
-
-    def seen(ev: Received) -> None:
-        tr = by_key.get(ev.frame.key)
-        if tr is not None:
-            tr.observed(ev.time, ev.sof)
-        if ev.sof >= 0:
-            busy[0] += ev.time - ev.sof + round(3 * 1e9 / scenario.bitrate)
-
-    monitor.subscribe(seen)
+    senders = {frame_of(m).key: d.name for d in scenario.nodes for m in d.messages}
     total = scenario.duration_ns / 1e9 if duration_s is None else duration_s
     wall0 = time.perf_counter()
     interrupted = False
-    with drv.lock:
-        for p in built.profiles.values():
-            p.start()
-    t0 = drv.now()
-    drv.start()
+    sink = None
     try:
-        end = time.monotonic() + total
-        while time.monotonic() < end:
-            time.sleep(min(0.05, max(0.0, end - time.monotonic())))
-    except KeyboardInterrupt:
-        interrupted = True
+        # the channel as a trace names it: one word (a candump .log line splits at spaces)
+        sink = TraceWriter(trace, channel="_".join(str(channel).split()) or interface) if trace is not None else None
+        with drv.lock:
+            for p in built.profiles.values():
+                p.start()
+            t0 = drv.now()
+            monitor = BusMonitor(by_key, senders, scenario.bitrate, t0, trace=sink, plot=plot)
+            monitor_node.subscribe(monitor)
+        drv.start()
+        try:
+            end = time.monotonic() + total
+            # short waits: the main thread comes back to Python for Ctrl-C and SIGTERM
+            while time.monotonic() < end and not drv.gone.wait(min(0.2, max(0.0, end - time.monotonic()))):
+                pass
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            drv.stop()
+            t_end = drv.now() if drv.lost is None else drv.lost.t_ns
+            drv.close()
     finally:
-        drv.stop()
-        t_end = drv.now()
-        drv.close()
+        if sink is not None:
+            sink.close()
     elapsed = max(1, t_end - t0)
     with drv.lock:
         res = collect(
             built,
             time.perf_counter() - wall0,
-            interrupted=interrupted,
+            interrupted=interrupted or drv.lost is not None,
             driver=f"{interface} {channel}",
             t_end=t_end,
-            bus_load=min(1.0, busy[0] / elapsed),
+            bus_load=min(1.0, monitor.busy_ns / elapsed),
         )
+    res.duration_s = elapsed / 1e9
+    res.frames = monitor.frames
+    res.error_frames = drv.rx_error_frames.get(monitor_node.name, 0)
+    res.trace = monitor.records
+    res.lost = None if drv.lost is None else drv.lost._replace(t_ns=drv.lost.t_ns - t0)  # time into the run
+    res.files = _files(Recording(trace=sink))
     if drv.errors:
         res.analysis["driver_errors"] = drv.errors[:5]
     return res

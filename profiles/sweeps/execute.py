@@ -134,9 +134,9 @@ def error_text(exc: BaseException) -> str:
 
 
 def _within(fn: Callable[[Any], dict[str, Any]], limit: float, task: Task) -> dict[str, Any]:
-    """``fn(task)`` with a wall-clock limit on each simulation it runs (`stack.cli.runs.time_limit`:
+    """``fn(task)`` with a wall-clock limit on each simulation it runs (`stack.io.progress.time_limit`:
     past it the run raises, and its row records the error)."""
-    from stack.cli.runs import time_limit
+    from stack.io.progress import time_limit
 
     with time_limit(limit):
         return fn(task)
@@ -195,7 +195,7 @@ class _Rows:
     """Rows by index, and the progress bar they advance."""
 
     def __init__(self, total: int, progress: bool | None, desc: str) -> None:
-        from stack.cli.runs import show_progress
+        from stack.io.progress import show_progress
 
         self.rows: dict[int, dict[str, Any]] = {}
         self.failed = 0

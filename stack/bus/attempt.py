@@ -1,6 +1,6 @@
 """Error detection, error signalling and fault confinement, bit by bit.
 
-A clean transmission is handled at frame granularity by `stack.sim`. Any attempt that can go
+A clean transmission is handled at frame granularity by `stack.bus.sim`. Any attempt that can go
 wrong — a bit flipped by fault injection, a transmitter nobody acknowledges, two nodes sending
 different frames with the same arbitration field, a stuck or deaf node — is replayed here one
 bit at a time for every node on the bus. Each node drives a level (0 dominant, 1 recessive), the

@@ -4,7 +4,7 @@ Bit flips (targeted by frame, occurrence, field and bit, seen globally or by cho
 random bit errors at a bit-error rate (seeded, global or per node), and node faults: stuck
 dominant, stuck recessive (a disconnected transmitter), disconnect/reconnect, a node that never
 acknowledges, and a babbling idiot. Any attempt a fault touches is replayed bit by bit by
-`stack.errors`, so detection, error frames and fault confinement follow from each node's view.
+`stack.bus.attempt`, so detection, error frames and fault confinement follow from each node's view.
 
 Random bit errors hit the bits of frames (SOF..EOF), not idle time or error frames. A stuck
 fault or a disconnect that begins while a frame is on the wire takes effect at its bit of that

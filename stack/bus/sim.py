@@ -6,7 +6,7 @@ Model (CAN 2.0 / ISO 11898-1, at frame granularity with bit-exact lengths):
   remote, standard beats extended with the same base ID); losers retry at the next idle.
 - The winning frame occupies the bus for its exact stuffed length (SOF..EOF), then intermission.
 - Every other node on the bus that is not listen-only acknowledges; a transmitter without any
-  acknowledging node gets an ACK error and retransmits (fault confinement hooks in `stack.errors`).
+  acknowledging node gets an ACK error and retransmits (fault confinement hooks in `stack.bus.attempt`).
 - Two nodes sending the same arbitration field but different frames (for example two remote
   frames with the same ID and different DLC) collide after arbitration: the one sending
   recessive where the other sends dominant sees a bit error and the attempt ends in an error
@@ -106,6 +106,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         "_busoff",
         "_busoff_marks",
         "_idle_bits",
+        "_unacked",
         "__dict__",
         "__weakref__",
     )
@@ -155,11 +156,12 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         # receivers whose REC rule 8 must decrement; a dict as an ordered set (insertion order)
         # so that state changes and what their listeners do happen in a deterministic order
         self._rec_nonzero: dict[Node, None] = {}
-        self._faults: Any = None  # fault injection (stack.faults), consulted per attempt
+        self._faults: Any = None  # fault injection (stack.bus.faults), consulted per attempt
         self._recessive_events = 0  # occurrences of 11 recessive bits at frame ends (rule 12)
         self._busoff: set[Node] = set()  # rule 12 counting runs only while someone is bus off
         self._busoff_marks: dict[Node, int] = {}  # recessive-run count when each started recovering
         self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
+        self._unacked: dict[Any, Any] = {}  # replays of unacknowledged attempts (`BitLevelAttempts`)
 
     # ------------------------------------------------------------------ nodes
     def add(self, node: Node) -> Node:
@@ -168,6 +170,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             raise ValueError(f"node {node.name!r} is already attached to a bus")
         if any(n.name == node.name for n in self.nodes):
             raise ValueError(f"a node named {node.name!r} is already on bus {self.name!r}")
+        node.check_listeners(self.capabilities)
         node.bus = self
         self.nodes.append(node)
         node.rx_cursor = self.delivered
@@ -528,9 +531,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                             node.update_head()
                     elif by is not None and not called:
                         # PriorityQueue.head, inlined: the same key again unless a lower key waits
-                        # (one queued while req was on the wire of an attempt that failed: `retry`
-                        # offers req again without looking at the queue; kept although such a
-                        # node's TEC is above 0, which takes the branch below, as `confirm` has it)
+                        # (one queued while req was on the wire: `send` leaves the head alone then)
                         if dq and dq[0].state is QUEUED and q.keys[0] == req.key:
                             nxt = dq[0]
                         else:

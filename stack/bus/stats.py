@@ -1,14 +1,13 @@
 """Statistics the simulated bus keeps as it runs (streaming: constant memory per identifier) and
-the results it reports (bus load, summary, the trace through python-can's writers)."""
+the results it reports (bus load, summary). The trace goes to a file through python-can's writers
+with `stack.io.tracefile.save_trace`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-import can
-
-from stack.bus.trace import TraceRecord, save_messages
+from stack.bus.trace import TraceRecord
 from stack.wire.frame import arbitration_key, id_text
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -82,17 +81,6 @@ class BusStatistics:
     def on_trace(self, callback: Callable[[TraceRecord], Any]) -> None:
         """Call ``callback(record)`` for each trace record as it is made (needs record=True)."""
         self._bus_listeners.append(callback)
-
-    def messages(self, channel: Any = None) -> Iterator[can.Message]:
-        """The trace as python-can messages (error attempts as error frames)."""
-        ch = self.name if channel is None else channel
-        for rec in self.trace:
-            yield rec.to_message(ch)
-
-    def save_trace(self, path: str) -> int:
-        """Write the trace with python-can's writer for the file's suffix (.asc, .blf, .log,
-        .csv, .trc, .mf4 ...); returns the number of messages written."""
-        return save_messages(self.messages(), path)
 
     def summary(self) -> dict[str, Any]:
         """Bus load, frame and error counts, per-ID latency and per-node counters."""

@@ -1,31 +1,16 @@
-"""Trace records of the simulated bus and their export through python-can's writers (asc, blf, log, csv, trc, mf4, ...).
+"""Trace records of the simulated bus, and the SocketCAN error frame a failed attempt reads as.
 
-canstack does not write log formats itself: `can.Logger` picks the writer from the file suffix,
-so Vector tools, candump tools and SavvyCAN read what we write.
+Writing them to files (asc, blf, log, csv, trc, mf4, ... through python-can's writers) is
+`stack.io.tracefile`; as `can.Message` objects, `stack.io.message`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
-
-import can
 
 from stack.wire.frame import Frame
 
-__all__ = [
-    "TraceRecord",
-    "DiscardedTrace",
-    "TraceWriter",
-    "save_messages",
-    "load_messages",
-    "check_suffix",
-    "SUFFIXES",
-    "error_frame_content",
-]
-
-SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4", ".txt", ".db")
+__all__ = ["TraceRecord", "DiscardedTrace", "error_frame_content", "CAN_ERR_DLC"]
 
 # SocketCAN error frames (linux/can/error.h): the error class in the identifier, details in the
 # 8 data bytes. Names and values as in the kernel header.
@@ -194,22 +179,6 @@ class TraceRecord:
             tuple(sorted((self.detail or {}).items())),
         )
 
-    def to_message(self, channel: Any = None) -> can.Message:
-        """python-can message of this record (an error frame for 'error'/'collision', its
-        content as SocketCAN encodes one: `error_frame_content`)."""
-        if self.kind == "frame":
-            return self.frame.to_message(timestamp=self.end / 1e9, channel=channel)
-        can_id, data = error_frame_content(self)
-        return can.Message(
-            timestamp=self.end / 1e9,
-            is_error_frame=True,
-            channel=channel,
-            arbitration_id=can_id,
-            dlc=CAN_ERR_DLC,
-            data=data,
-            check=False,
-        )
-
     def __repr__(self) -> str:
         return (
             f"TraceRecord({self.kind} {self.start}..{self.end} {self.sender} {self.frame!r}"
@@ -225,95 +194,3 @@ class DiscardedTrace(list):  # type: ignore[type-arg]
 
     def append(self, rec: TraceRecord) -> None:
         """Keep nothing."""
-
-
-def check_suffix(path: str | Path) -> str:
-    """The trace file's suffix, lowercased; ValueError naming the file when python-can has no
-    writer for it."""
-    suffix = "".join(Path(path).suffixes[-1:]).lower()
-    if suffix not in SUFFIXES:
-        raise ValueError(
-            f"trace file {str(path)!r}: unknown suffix {suffix or '(none)'!r}; use one of {', '.join(SUFFIXES)}"
-        )
-    return suffix
-
-
-def save_messages(messages: Iterable[can.Message], path: str | Path) -> int:
-    """Write messages with python-can's writer for the suffix (`TraceWriter`: timestamps as
-    given, .asc and .blf counted from 0); returns how many were written.
-
-    A .trc file (PCAN-View) cannot hold remote or error frames: python-can's writer drops each
-    one with a warning of its own, so they are left out here, quietly, and not counted; the
-    caller says how many (``canstack`` prints one line)."""
-    with TraceWriter(path) as writer:
-        for msg in messages:
-            writer.message(msg)
-    if writer.error is not None:
-        raise writer.error
-    return writer.written
-
-
-class TraceWriter:
-    """A trace file written as the bus runs (python-can's writer for the suffix): `write` takes
-    each `TraceRecord` — give it to ``SimBus.on_trace`` on a bus made with ``keep=False`` and the
-    trace costs no memory however long the run — and `close` finishes the file.
-
-    Timestamps are bus time, in every format: python-can's .asc writer counts from its first
-    event and its .blf writer from its first message, so both are started at bus time 0 (an
-    .asc comment event at 0, the .blf start time at 0); the others write the timestamps as they
-    are. A .trc file holds no remote or error frames: they are counted in ``left_out``.
-
-    A write that fails (a full disk) does not stop the run that feeds the writer: the first
-    error is kept in ``error`` and nothing more is written; the caller reports it."""
-
-    def __init__(self, path: str | Path, channel: Any = None) -> None:
-        self.suffix = check_suffix(path)
-        self.path = str(path)
-        self.channel = channel
-        self.written = 0
-        self.left_out = 0
-        self.error: OSError | None = None
-        self._writer: Any = can.Logger(self.path)  # type: ignore[abstract]
-        if isinstance(self._writer, can.ASCWriter):
-            self._writer.log_event(f"canstack: timestamps are bus time of {channel or 'the bus'}", timestamp=0.0)
-        elif isinstance(self._writer, can.BLFWriter):
-            self._writer.start_timestamp = 0.0
-
-    def write(self, rec: TraceRecord) -> None:
-        """Write one record (an error frame for a failed attempt)."""
-        self.message(rec.to_message(self.channel))
-
-    def message(self, msg: can.Message) -> None:
-        """Write one python-can message (its timestamp in bus seconds)."""
-        if self.suffix == ".trc" and (msg.is_remote_frame or msg.is_error_frame):
-            self.left_out += 1
-            return
-        if self.error is not None:
-            return
-        try:
-            self._writer.on_message_received(msg)
-        except OSError as exc:
-            self.error = exc
-            return
-        self.written += 1
-
-    def close(self) -> None:
-        """Finish the file (idempotent; a failure is kept in ``error``)."""
-        if self._writer is not None:
-            writer, self._writer = self._writer, None
-            try:
-                writer.stop()
-            except OSError as exc:
-                self.error = self.error or exc
-
-    def __enter__(self) -> TraceWriter:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
-def load_messages(path: str | Path) -> list[can.Message]:
-    """Read a trace back with python-can's reader for the suffix."""
-    check_suffix(path)
-    return list(can.LogReader(str(path)))

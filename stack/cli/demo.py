@@ -9,17 +9,16 @@ from pathlib import Path
 from typing import Any
 
 from stack.bus.sim import SimBus
-from stack.bus.trace import TraceWriter
 from stack.cli import CliError, int_type, parse_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (
     MAX_SIM_SECONDS,
     check_output,
     check_plot_output,
     check_trace_output,
-    run_sliced,
     trace_note,
     writing,
 )
+from stack.io.progress import run_sliced
 from stack.wire.coding import INTERMISSION_BITS, Field
 from stack.wire.fd import worst_case_bits
 from stack.wire.frame import Frame
@@ -196,6 +195,8 @@ def _demo(args: argparse.Namespace) -> int:
     writer = None
     try:
         if args.trace:
+            from stack.io.tracefile import TraceWriter
+
             writer = writing(args.trace, "--trace", lambda: TraceWriter(args.trace, channel=bus.name))
             bus.on_trace(writer.write)
         complete = run_sliced(bus, until, progress=args.progress, desc="demo")

@@ -21,7 +21,8 @@ in several processes contend as on a real bus. Clients join with python-can:
   can.Bus(interface="canstack", channel="unix:///path/to/socket/bus0")     (--unix /path/to/socket)
 
 A plain channel such as "bus0" is NOT this bus: it is a bus private to the process that opens
-it. Clients joining and leaving are logged (node name and peer). Stop with Ctrl-C.
+it. Clients joining and leaving are logged (the program and pid they give, node name and
+peer). Stop with Ctrl-C or SIGTERM.
 """
 
 
@@ -42,6 +43,16 @@ def _duration(text: str) -> float:
     return v
 
 
+def _data_bitrate(text: str) -> int:
+    try:
+        v = int(text.replace("_", ""), 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--data-bitrate {text!r}: expected bit/s, e.g. 2000000") from None
+    if not 0 < v <= 20_000_000:
+        raise argparse.ArgumentTypeError(f"--data-bitrate {text!r}: a data phase runs at 1..20000000 bit/s")
+    return v
+
+
 def _serve(args: argparse.Namespace) -> int:
     from stack.cli import CliError
 
@@ -49,12 +60,22 @@ def _serve(args: argparse.Namespace) -> int:
         raise CliError("canstack serve: give --listen or --unix, not both")
     listen = args.listen if args.listen or args.unix else ("127.0.0.1", DEFAULT_PORT)
     try:
-        server = BusServer(args.bitrate, name=args.name, listen=listen, unix=args.unix, allow_remote=args.allow_remote)
+        server = BusServer(
+            args.bitrate,
+            name=args.name,
+            listen=listen,
+            unix=args.unix,
+            allow_remote=args.allow_remote,
+            data_bitrate=args.data_bitrate,
+        )
     except (ValueError, OSError) as exc:
         raise CliError(f"canstack serve: {exc}") from None
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
-    print(f"serving {args.name} at {args.bitrate} bit/s on {server.url}", flush=True)
+    # from here on every way out closes the server (its announcement file goes with it): a
+    # SIGTERM that comes as soon as the first line is printed too
     try:
+        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+        rates = f"{args.bitrate} bit/s" + (f" (CAN FD, data {args.data_bitrate} bit/s)" if args.data_bitrate else "")
+        print(f"serving {args.name} at {rates} on {server.url}", flush=True)
         if args.duration is not None:
             time.sleep(args.duration)
         else:
@@ -83,6 +104,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=500_000,
         help="the bus's bit rate in bit/s, 1000..1000000 (default 500000); a client that asks for "
         "another one is refused",
+    )
+    p.add_argument(
+        "--data-bitrate",
+        type=_data_bitrate,
+        default=None,
+        metavar="D",
+        help="serve a CAN FD bus whose data phase runs at D bit/s (clients join with fd=True; without it the "
+        "bus carries classical frames only)",
     )
     p.add_argument(
         "--listen",

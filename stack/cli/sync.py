@@ -9,9 +9,10 @@ import math
 from dataclasses import replace
 from typing import Any
 
-from stack.cli import CliError
+from stack.cli import CliError, parse_sample_point
 from stack.cli.bittiming import add_timing_arguments, limits_from_args
-from stack.phy.bittiming import BusDelays, Solution, solve
+from stack.phy.bittiming import BusDelays, Solution, format_hz, solve
+from stack.phy.bittiming_fd import solve_fd
 from stack.phy.sync import (
     BUS_LENGTH_FRAMES,
     DEFAULT_PHASES,
@@ -22,6 +23,7 @@ from stack.phy.sync import (
     one_way_delay_ns,
     worst_case_frames,
 )
+from stack.phy.tdc import TDC_FRAMES, max_loop_delay, transmit_fd
 
 __all__ = ["register"]
 
@@ -119,7 +121,82 @@ def _run_bus_length(args: argparse.Namespace, sol: Solution) -> int:
     return 0
 
 
+def _run_tdc(args: argparse.Namespace) -> int:
+    """CAN FD: the transmitter's own bit check with a loop delay, without and with TDC."""
+    lim = limits_from_args(args)
+    fd = solve_fd(
+        args.clock,
+        args.bitrate,
+        args.data_bitrate,
+        sample_point=args.sample_point,
+        data_sample_point=args.data_sample_point,
+        limits=lim,
+        sjw=args.sjw,
+        data_sjw=args.data_sjw,
+    )
+    timing, d = fd.timing, fd.data
+    tdco = fd.tdc.tdco if fd.tdc.enabled else None
+    tdcv_max = lim.tdc.tdcv_max if lim.tdc else None
+    loop = args.loop_delay or 0.0
+    without = next((r for r in (transmit_fd(f, timing, loop) for f in TDC_FRAMES) if not r.ok), None)
+    with_tdc = None
+    if tdco is not None:
+        runs = [transmit_fd(f, timing, loop, tdco, tdcv_max=tdcv_max) for f in TDC_FRAMES]
+        with_tdc = next((r for r in runs if not r.ok), runs[0])
+    nominal_ns = fd.nominal.nbt * fd.nominal.tq_ns
+    longest, beyond = max_loop_delay(timing, resolution_ns=0.25)
+    longest_tdc, beyond_tdc = (
+        max_loop_delay(timing, tdco, tdcv_max=tdcv_max, limit_ns=nominal_ns, resolution_ns=0.25)
+        if tdco is not None
+        else (None, None)
+    )
+    if args.json:
+        out: dict[str, Any] = {
+            "loop_delay_ns": loop,
+            "data_bit_ns": d.nbt * d.tq_ns,
+            "tdc": fd.as_dict()["tdc"],
+            "without_tdc": (without or transmit_fd(TDC_FRAMES[0], timing, loop)).as_dict(),
+            "with_tdc": None if with_tdc is None else with_tdc.as_dict(),
+            "max_loop_delay_ns": longest,
+            "max_loop_delay_tdc_ns": longest_tdc,
+        }
+        print(json.dumps(out, indent=2))
+        return 0
+    print(
+        f"{args.bitrate} bit/s, data {args.data_bitrate} bit/s, {format_hz(args.clock)} clock on {lim.name}: "
+        f"data brp {d.brp}, {d.nbt} tq of {d.tq_ns:g} ns (tseg1 {d.tseg1}, tseg2 {d.tseg2}), sjw {d.sjw}, "
+        f"sample point {d.sample_point:.1f} %"
+    )
+    print("frames: " + ", ".join(f"0x{f.can_id:03x} [{f.data.hex()}]" for f in TDC_FRAMES))
+    print(f"loop delay {loop:g} ns (a data bit is {d.nbt * d.tq_ns:g} ns):")
+    print("  without TDC: " + ("ok" if without is None else f"fails: {without.describe()}"))
+    if with_tdc is None:
+        print(f"  with TDC: off ({fd.tdc.reason})")
+    else:
+        status = "ok" if with_tdc.ok else f"fails: {with_tdc.describe()}"
+        print(
+            f"  with TDC (TDCO {tdco}): {status}, TDCV {with_tdc.tdcv}: secondary sample point {with_tdc.ssp} "
+            "clock periods after each data bit is sent"
+        )
+    sp_ns = (1 + d.tseg1) * d.tq_ns
+    print(
+        f"largest loop delay without TDC: {longest:.0f} ns (the data sample point is {sp_ns:g} ns into the bit)"
+        + (f"; beyond it: {beyond.describe()}" if beyond is not None else "")
+    )
+    if longest_tdc is not None:
+        print(
+            f"largest loop delay with TDC: {longest_tdc:.0f} ns"
+            + (f"; beyond it: {beyond_tdc.describe()}" if beyond_tdc is not None else "")
+        )
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.data_bitrate is not None:
+        return _run_tdc(args)
+    for option in ("loop_delay", "data_sample_point", "data_sjw"):
+        if getattr(args, option) is not None:
+            raise CliError(f"--{option.replace('_', '-')} needs --data-bitrate (it is about the CAN FD data phase)")
     lim = limits_from_args(args)
     if args.bus_length is not None:
         delays = BusDelays(0.0, args.cable_delay, args.transceiver_delay, args.comparator_delay)
@@ -206,5 +283,14 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--comparator-delay", type=_length, default=0.0, help="with --bus-length: comparator delay in ns (0)"
     )
+    p.add_argument(
+        "--data-bitrate",
+        type=_count,
+        help="instead: CAN FD frames with BRS at this data bit rate, the transmitter's own bit check with "
+        "--loop-delay, without and with transmitter delay compensation",
+    )
+    p.add_argument("--data-sample-point", type=parse_sample_point, help="CAN FD data-phase sample point (CiA default)")
+    p.add_argument("--data-sjw", type=_count, help="CAN FD data-phase SJW in tq (the kernel's default)")
+    p.add_argument("--loop-delay", type=_length, help="with --data-bitrate: the transmitter's TX-to-RX delay in ns (0)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_run)

@@ -40,18 +40,27 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _fmt(r: RxRecord) -> str:
+    """std/ext, R for a remote frame, F for CAN FD, B for a bit rate switch, E for ESI."""
+    flags = ("R" if r.remote else "") + ("F" if r.fd else "") + ("B" if r.brs else "") + ("E" if r.esi else "")
+    return ("ext" if r.extended else "std") + flags
+
+
 def _format_table(recs: Sequence[RxRecord]) -> str:
-    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':4} {'dlc':>3}  {'data':23}  {'crc':6}  crc stuff form ack"]
+    # CAN FD records widen the columns they need (classical tables keep their layout)
+    wf = max([4] + [len(_fmt(r)) for r in recs])
+    wd = max([23] + [3 * len(r.data) - 1 for r in recs if r.fd])
+    wc = max([6] + [8 for r in recs if r.fd and r.crc is not None])
+    lines = [f"{'time/s':>12}  {'id':>10}  {'fmt':{wf}} {'dlc':>3}  {'data':{wd}}  {'crc':{wc}}  crc stuff form ack"]
     for r in recs:
         ident = "-" if r.can_id is None else format_id(r.can_id, r.extended)
-        fmt = ("ext" if r.extended else "std") + ("R" if r.remote else "")
         dlc = "-" if r.dlc is None else str(r.dlc)
         data = "remote" if r.remote else r.data.hex(" ")
-        crc = "-" if r.crc is None else f"0x{r.crc:04X}"
+        crc = "-" if r.crc is None else f"0x{r.crc:06X}" if r.fd else f"0x{r.crc:04X}"
         ok = lambda b: "ok " if b else "ERR"  # noqa: E731
         crc_ok = ok(r.crc_ok) if r.crc is not None else " - "
         row = (
-            f"{r.t:12.6f}  {ident:>10}  {fmt:4} {dlc:>3}  {data:23}  {crc:6}  {crc_ok} {ok(r.stuff_ok)}   "
+            f"{r.t:12.6f}  {ident:>10}  {_fmt(r):{wf}} {dlc:>3}  {data:{wd}}  {crc:{wc}}  {crc_ok} {ok(r.stuff_ok)}   "
             f"{ok(r.form_ok)}  {'yes' if r.ack else 'no'}"
         )
         if r.error is not None:
@@ -65,7 +74,14 @@ def _format_table(recs: Sequence[RxRecord]) -> str:
 def _cmd_decode(args: argparse.Namespace) -> int:
     if args.samplerate:
         # the options' own rules (samples a bit, sample point, SJW) before a large file is read
-        BitReceiver(args.bitrate, args.samplerate, sample_point=args.sample_point, sjw=args.sjw)
+        BitReceiver(
+            args.bitrate,
+            args.samplerate,
+            sample_point=args.sample_point,
+            sjw=args.sjw,
+            data_bitrate=args.data_bitrate,
+            data_sample_point=args.data_sample_point,
+        )
     recs = decode_file(
         args.file,
         args.bitrate,
@@ -74,6 +90,8 @@ def _cmd_decode(args: argparse.Namespace) -> int:
         sample_point=args.sample_point,
         sjw=args.sjw,
         retry=not args.no_retry,
+        data_bitrate=args.data_bitrate,
+        data_sample_point=args.data_sample_point,
     )
     out = sys.stdout
     if args.json:
@@ -104,14 +122,23 @@ def _cmd_render(args: argparse.Namespace) -> int:
     times = [t for t, _ in pairs]
     # the waveform is written whole: bound it before building it (a far-off 't' would need
     # gigabytes); frames without 't' follow each other back to back
-    span = max((t for t in times if t is not None), default=0.0) + len(frames) * 200 / args.bitrate
+    span = max((t for t in times if t is not None), default=0.0) + sum(f.bits.length + 3 for f in frames) / args.bitrate
     if span * args.samplerate > MAX_RENDER_SAMPLES:
         raise ValueError(
             f"{src}: the frames span {span:g} s, {span * args.samplerate:.3g} samples at "
             f"{args.samplerate:g} samples/s: more than {MAX_RENDER_SAMPLES:,} (lower 't' or --samplerate)"
         )
     runs, total, _ = render_edges(
-        frames, args.bitrate, args.samplerate, times=times, drift=args.drift, jitter=args.jitter, seed=args.seed
+        frames,
+        args.bitrate,
+        args.samplerate,
+        times=times,
+        drift=args.drift,
+        jitter=args.jitter,
+        seed=args.seed,
+        data_bitrate=args.data_bitrate,
+        sample_point=args.sample_point,
+        data_sample_point=args.data_sample_point,
     )
     if args.vcd:
         writing(
@@ -122,7 +149,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
                 runs,
                 args.samplerate,
                 name=args.name,
-                comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s, {args.samplerate:g} samples/s",
+                comment=f"canstack render: {len(frames)} frames at {args.bitrate:g} bit/s"
+                + (f" (data {args.data_bitrate:g} bit/s)" if args.data_bitrate else "")
+                + f", {args.samplerate:g} samples/s",
             ),
         )
     else:
@@ -152,6 +181,12 @@ def register(subparsers: Any) -> None:
         "--sjw", type=float, default=None, help="synchronisation jump width in tq of 16 (default min(4, Phase_Seg2))"
     )
     p.add_argument("--samplerate", type=_positive_float, help="samples/s (required for raw files; resamples VCD)")
+    p.add_argument(
+        "--data-bitrate", type=_positive_float, help="CAN FD: data bit rate, bit/s (decodes FD frames, with BRS)"
+    )
+    p.add_argument(
+        "--data-sample-point", type=parse_sample_point, default=75.0, help="CAN FD data phase: " + SAMPLE_POINT_HELP
+    )
     p.add_argument("--no-retry", action="store_true", help="do not retry failed frames at other sample points")
     p.add_argument(
         "--json",
@@ -169,6 +204,19 @@ def register(subparsers: Any) -> None:
     r.add_argument("frames", help="JSON-lines file of frames ('-' for stdin)")
     r.add_argument("--bitrate", type=_positive_float, required=True, help="bit rate, bit/s")
     r.add_argument("--samplerate", type=_positive_float, required=True, help="samples/s")
+    r.add_argument("--data-bitrate", type=_positive_float, help="CAN FD: data bit rate of frames with BRS, bit/s")
+    r.add_argument(
+        "--sample-point",
+        type=parse_sample_point,
+        default=87.5,
+        help="the transmitter's nominal sample point, where BRS switches to the data bit rate (87.5)",
+    )
+    r.add_argument(
+        "--data-sample-point",
+        type=parse_sample_point,
+        default=75.0,
+        help="its data sample point, where the CRC delimiter switches back (75)",
+    )
     out = r.add_mutually_exclusive_group(required=True)
     out.add_argument("--vcd", help="write VCD (GTKWave, PulseView)")
     out.add_argument("--raw", help="write raw samples, one byte per sample")

@@ -18,14 +18,12 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:  # pragma: no cover
-    import can
-
     from stack.controller.confinement import ErrorState
     from stack.controller.contract import Timer
     from stack.controller.events import Received
     from stack.controller.node import PeriodicTask, Subscription
     from stack.controller.queues import TxRequest
-    from stack.wire.frame import Frame
+    from stack.wire.frame import Frame, MessageLike
 
 __all__ = ["NodeAPI"]
 
@@ -37,11 +35,11 @@ class NodeAPI(Protocol):
 
     # -- transmit
     def send(
-        self, frame: Frame | can.Message, *, one_shot: bool | None = None, not_after: int | None = None
+        self, frame: Frame | MessageLike, *, one_shot: bool | None = None, not_after: int | None = None
     ) -> TxRequest:
-        """Queue a frame; ``one_shot`` overrides the node's retransmission mode for this frame,
-        ``not_after`` (local ns) is its latest start time: not started by then, it is withdrawn
-        and reported as `TxFailed`."""
+        """Queue a frame (or a `can.Message`, read by its attributes); ``one_shot`` overrides the
+        node's retransmission mode for this frame, ``not_after`` (local ns) is its latest start
+        time: not started by then, it is withdrawn and reported as `TxFailed`."""
         ...
 
     def send_periodic(

@@ -24,7 +24,9 @@ are written only by the driver); and report through the methods `confirm` (a tra
 succeeded; it returns the next request for the driver to offer), `fail` (it will not be sent),
 `retry` (an attempt failed and will be repeated), `deliver` (a valid frame was received),
 `absorb` (a batch of lazily logged receptions), `count_overruns`, `remote_reply`,
-`settle_losses`, `set_counters` and `recovered`.
+`settle_losses`, `set_counters` and `recovered`. Before it attaches a node, a driver calls its
+`check_listeners` with its capabilities: a node never waits in silence for an event its driver
+does not report (`listen_refusal`).
 """
 
 from __future__ import annotations
@@ -32,12 +34,14 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any, Protocol
 
+from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
+
 if TYPE_CHECKING:  # pragma: no cover
     from stack.controller.confinement import ErrorState
     from stack.controller.node import Node
     from stack.controller.queues import TxRequest
 
-__all__ = ["Driver", "Timer", "CAPABILITIES"]
+__all__ = ["Driver", "Timer", "CAPABILITIES", "REPORTED_WITH", "listen_refusal"]
 
 CAPABILITIES = {
     "bus-time": "event times are the bus's own times (the simulated clock, or the bus's receive timestamps)",
@@ -50,6 +54,36 @@ CAPABILITIES = {
     "latest-start": "requests with a latest start time (not_after) are withdrawn when it passes",
 }
 """Names a driver may list in its ``capabilities``, and what each promises."""
+
+REPORTED_WITH: dict[type, tuple[str, ...]] = {
+    TxDone: (),
+    TxFailed: (),
+    ArbitrationLost: ("arbitration-lost",),
+    ErrorStateChanged: ("error-confinement", "error-frames"),
+}
+"""The events a node reports to `listen` callbacks, each with the capabilities of which its
+driver needs one to report it (none: every driver reports it)."""
+
+
+def listen_refusal(event_type: Any, capabilities: frozenset[str]) -> str | None:
+    """Why a node on a driver with ``capabilities`` may not listen for ``event_type``, or None
+    when it may: a type that is no event of the node's is never reported (received frames go to
+    `subscribe`), and neither is an event that needs a capability the driver lacks (an
+    `ArbitrationLost` where arbitration happens in the controller underneath). Listening for it
+    would wait in silence."""
+    needs = REPORTED_WITH.get(event_type)
+    if needs is None:
+        name = getattr(event_type, "__name__", repr(event_type))
+        known = ", ".join(t.__name__ for t in REPORTED_WITH)
+        hint = " (received frames: subscribe)" if name == "Received" else ""
+        return f"{name} is not an event a node reports: it reports {known}{hint}"
+    if needs and not capabilities.intersection(needs):
+        have = ", ".join(sorted(capabilities)) or "none"
+        return (
+            "its driver never reports it: that needs the capability "
+            f"{' or '.join(repr(c) for c in needs)} (the driver's capabilities: {have})"
+        )
+    return None
 
 
 class Timer:

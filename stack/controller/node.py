@@ -20,21 +20,20 @@ from heapq import heappush
 from operator import itemgetter
 from typing import Any
 
-import can
-
 from stack.controller.clock import LocalClock
 from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
-from stack.controller.contract import Driver, Timer
+from stack.controller.contract import CAPABILITIES, REPORTED_WITH, Driver, Timer, listen_refusal
 from stack.controller.events import ArbitrationLost, ErrorStateChanged, TxDone, TxFailed
 from stack.controller.exceptions import NodeError
 from stack.controller.filters import AcceptanceFilter
 from stack.controller.periodic import PeriodicTask
 from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, SpecialRequest, TxRequest, make_queue
 from stack.controller.receiver import Receiver, Subscription
-from stack.wire.frame import Frame
+from stack.wire.frame import Frame, MessageLike
 
 __all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
 
+_EVERY_CAPABILITY = frozenset(CAPABILITIES)
 _new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
 _sender = itemgetter(2)  # of a (time, frame, sender) reception
 
@@ -250,9 +249,10 @@ class Node(Receiver):
 
     # ------------------------------------------------------------------ transmit
     def send(
-        self, frame: Frame | can.Message, *, one_shot: bool | None = None, not_after: int | None = None
+        self, frame: Frame | MessageLike, *, one_shot: bool | None = None, not_after: int | None = None
     ) -> TxRequest:
-        """Queue a frame for transmission; returns its request (state, losses, retries).
+        """Queue a frame for transmission; returns its request (state, losses, retries). A
+        `can.Message` is taken too, read by its attributes (`Frame.from_message`).
 
         ``one_shot`` overrides the node's mode for this frame. ``not_after`` is the latest start
         time (ns on the node's clock): a frame that has not started by then is withdrawn and
@@ -339,7 +339,7 @@ class Node(Receiver):
     def _coerce(frame: Any) -> Frame:
         if isinstance(frame, Frame):
             return frame
-        if isinstance(frame, can.Message):
+        if hasattr(frame, "arbitration_id"):  # a can.Message, or anything with its attributes
             return Frame.from_message(frame)
         raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
 
@@ -495,17 +495,19 @@ class Node(Receiver):
 
     def retry(self, req: TxRequest) -> None:
         """The driver's report that an attempt of ``req`` failed and will be repeated
-        (automatic retransmission): counts it and offers the request again."""
+        (automatic retransmission): counts it and chooses the head again, as before any
+        arbitration — a priority queue offers a better frame queued during the attempt, and
+        mailboxes with abort may now abort ``req``'s mailbox for one (`TxQueue.reselect`); a
+        FIFO and mailboxes without abort keep their order, so ``req`` is offered again."""
         req.on_wire = False
         req.retries += 1
         self.retransmissions += 1
         if self.bus is not None:
             req.head_since = self.bus.rounds
+        self.queue.reselect()
         if self.offered is req:
-            if self.bus is not None:
-                self.bus.offer(self, req)
-        else:
-            self.update_head()
+            self.offered = None  # so that update_head offers the head even when it is req again
+        self.update_head()
 
     def lost_arbitration(self, t: int, req: TxRequest, winner: Frame) -> None:
         """The driver's report that the offered ``req`` lost the round at bus time ``t`` to
@@ -529,11 +531,32 @@ class Node(Receiver):
 
     def listen(self, event_type: type, callback: Callable[[Any], Any]) -> None:
         """Call ``callback(event)`` for events of ``event_type``: TxDone, TxFailed,
-        ArbitrationLost, ErrorStateChanged."""
+        ArbitrationLost, ErrorStateChanged.
+
+        An event the node's driver never reports is refused rather than waited for in silence
+        (`stack.controller.contract.listen_refusal`): a type that is no event of the node's is a
+        TypeError; an event its driver lacks the capability for (ArbitrationLost on a python-can
+        bus) a `NodeError`, here or when the node is attached to such a driver
+        (`check_listeners`)."""
+        # not attached yet: only the type is checked, the driver's capabilities when it attaches
+        why = listen_refusal(event_type, self.capabilities if self.bus is not None else _EVERY_CAPABILITY)
+        if why is not None:
+            raise (NodeError if event_type in REPORTED_WITH else TypeError)(
+                f"node {self.name!r} cannot listen for {getattr(event_type, '__name__', event_type)}: {why}"
+            )
         self.listeners.setdefault(event_type, []).append(callback)
         self.tx_done_listeners = self.listeners.get(TxDone)
         if self.bus is not None:
             self.bus.node_changed(self)
+
+    def check_listeners(self, capabilities: frozenset[str]) -> None:
+        """Raise `NodeError` when the node listens for an event a driver with ``capabilities``
+        never reports (`stack.controller.contract.listen_refusal`): a driver calls it before it
+        attaches the node, so that a listener added before is held to the same rule as `listen`."""
+        for event_type, callbacks in self.listeners.items():
+            why = listen_refusal(event_type, capabilities) if callbacks else None
+            if why is not None:
+                raise NodeError(f"node {self.name!r} listens for {event_type.__name__}, but {why}")
 
     def unlisten(self, event_type: type, callback: Callable[[Any], Any]) -> bool:
         """Stop calling ``callback`` for ``event_type`` (a layer that stops, e.g. a device taken off

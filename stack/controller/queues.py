@@ -185,6 +185,11 @@ class TxQueue:
         """Take a request out (sent, failed or aborted); True if it was queued."""
         raise NotImplementedError
 
+    def reselect(self) -> None:
+        """An attempt failed and its frame left the wire: let the policy reorder what it holds
+        before the head is chosen again (only mailboxes with abort do: the failed frame's
+        mailbox may now be aborted for a better one). Nothing by default."""
+
     def __len__(self) -> int:
         raise NotImplementedError
 
@@ -320,6 +325,12 @@ class MailboxQueue(TxQueue):
 
     def head(self) -> TxRequest | None:
         return min(self.boxes) if self.boxes else None
+
+    def reselect(self) -> None:
+        # the abort a better frame asked for while the failed one was on the wire takes effect
+        # now that it is not (a transmit abort request waits for the end of the attempt)
+        if self.abort:
+            self._rebalance()
 
     def _rebalance(self) -> None:
         """With abort, a mailbox freed and refilled from the backlog's front is checked again:

@@ -19,12 +19,18 @@ driver turns received frames into `Received`, and frames handed to the bus into 
   that has not been handed to the bus by then is withdrawn (`TxFailed`).
 - Timers run on one scheduler thread with the wall clock in ns since the driver started. Every
   node callback runs on that thread; from another thread use `submit` or hold `lock`.
+- A bus that goes away is noticed at once and not retried for ever: a `stack.io.errors.BusLost`
+  from ``send`` or ``recv`` (a canstack bus whose server stopped), a bus shut down under the
+  driver, or a receive that keeps failing (`RECV_FAILURES_LOST` times in a row). The driver then
+  stops handing frames to any bus, records what happened in ``lost`` (`BusGone`: which bus,
+  when, why), sets the event ``gone`` and calls the ``on_lost`` callbacks; its owner stops.
 
 What this driver can and cannot know (``capabilities``, see `stack.controller.contract`): received
 frames carry the bus's receive timestamp when it is a wall-clock time (SocketCAN's kernel stamp,
 canstack's end-of-frame time), and their start of frame is estimated from it minus the frame's
-length at the bitrate given (``bitrate`` or ``pace_bitrate``) — exact on the canstack interface,
-whose timestamps are the end of EOF. Arbitration happens in the controller underneath, so no
+length at the bitrate given (``bitrate`` or ``pace_bitrate``; an FD frame with BRS needs ``data_bitrate``
+too) — exact on the canstack interface, whose timestamps are the end of EOF. CAN FD frames go
+both ways on a bus that carries them (python-can's ``fd=True``). Arbitration happens in the controller underneath, so no
 `ArbitrationLost`. Error counters and states are the bus underneath's: when it reports them as
 SocketCAN error frames (controller state, TEC/REC in data[6]/[7], bus off, restarted), the
 node's TEC/REC follow and `ErrorStateChanged` fires with the same meaning as on the simulated
@@ -39,7 +45,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 
@@ -47,10 +53,13 @@ from stack.controller.confinement import BUS_OFF, BUS_OFF_LIMIT, RECOVERY_OCCURR
 from stack.controller.contract import Timer
 from stack.controller.node import Node
 from stack.controller.queues import QUEUED
+from stack.io.clock import clock_pair
+from stack.io.errors import BusLost
+from stack.io.message import to_message
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
-__all__ = ["PyCanDriver", "RETRY_NS", "decode_error_frame"]
+__all__ = ["PyCanDriver", "BusGone", "RETRY_NS", "RECV_FAILURES_LOST", "decode_error_frame"]
 
 # SocketCAN error frames (linux/can/error.h): class bits in the identifier, details in the data
 CAN_ERR_CRTL = 0x004
@@ -61,7 +70,25 @@ CAN_ERR_CRTL_ACTIVE = 0x40  # data[1]: back to error active
 
 SEND_FAILURES_REPORTED = 20  # a request whose send failed this often is reported in `errors`
 RETRY_NS = 1_000_000
+RECV_FAILURES_LOST = 3  # receive failures in a row (50 ms apart) that mean the bus is gone
 _BATCH = 256
+
+
+class BusGone(NamedTuple):
+    """A bus that went away under the driver: the node on it, the bus as python-can describes
+    it (``channel_info``), the driver time (ns) and wall-clock time (s since the epoch) it was
+    noticed, and why."""
+
+    node: str
+    bus: str
+    t_ns: int
+    wall: float
+    reason: str
+
+    def describe(self) -> str:
+        """One line naming the bus and the time."""
+        when = time.strftime("%H:%M:%S", time.localtime(self.wall))
+        return f"bus {self.bus} lost at {self.t_ns / 1e9:.3f} s ({when}): {self.reason}"
 
 
 class PyCanDriver:
@@ -93,6 +120,15 @@ class PyCanDriver:
         self._factory = bus_factory
         self.pace_bitrate = pace_bitrate
         self.bit_ns: float | None = 1e9 / rate if rate else None
+        self.bitrate: int | None = rate
+        dbr = bus_kwargs.get("data_bitrate")
+        dbr = dbr if isinstance(dbr, int) and not isinstance(dbr, bool) and dbr > 0 else None
+        fd = bus_kwargs.get("fd") is True or bus_kwargs.get("protocol") is can.CanProtocol.CAN_FD
+        # a bus that carries CAN FD (python-can's fd=True) has a data bit rate, the contract's sign
+        # of an FD bus to its nodes; without one given, FD frames without bit rate switch only
+        # have a known length in time
+        self._brs_rate = dbr
+        self.data_bitrate: int | None = dbr or (rate if fd else None)
         self.capabilities = frozenset(
             {"bus-time", "one-shot", "latest-start", "error-frames"} | ({"sof-estimate"} if rate else set())
         )
@@ -102,7 +138,7 @@ class PyCanDriver:
         self.rounds = 0  # arbitration happens in the controller underneath: no rounds seen here
         self.delivered = 0  # receptions go straight to the node: no lazy log
         self.lock = threading.RLock()
-        self._t0, self._epoch0 = _clock_pair()  # _epoch0: the wall-clock time of _t0, to read the buses' timestamps
+        self._t0, self._epoch0 = clock_pair()  # _epoch0: the wall-clock time of _t0, to read the buses' timestamps
         self._timers: list[tuple[int, int, Timer]] = []
         self.seqs = itertools.count(1)  # requests and timers (the contract's `seqs`)
         self._ready: deque[Node] = deque()
@@ -113,7 +149,11 @@ class PyCanDriver:
         self._busy_until = 0
         self._retry: dict[Any, int] = {}
         self.rx_ignored = 0  # FD and error frames seen on the bus (not CAN 2.0 data/remote)
+        self.rx_error_frames: dict[str, int] = {}  # error frames each node's bus reported, by node name
         self.errors: list[str] = []
+        self.lost: BusGone | None = None
+        self.gone = threading.Event()
+        self.on_lost: list[Callable[[BusGone], Any]] = []
 
     # ------------------------------------------------------------------ nodes
     def node(self, name: str, *, can_bus: can.BusABC | None = None, **config: Any) -> Node:
@@ -126,6 +166,7 @@ class PyCanDriver:
             raise ValueError(f"node {node.name!r} is already attached to a bus")
         if any(n.name == node.name for n in self.nodes):
             raise ValueError(f"a node named {node.name!r} is already on this driver")
+        node.check_listeners(self.capabilities)
         if can_bus is None:
             if self._factory is None:
                 raise ValueError("give can_bus, or create the driver with interface/channel or a bus_factory")
@@ -253,16 +294,45 @@ class PyCanDriver:
 
     def _read(self, node: Node, bus: can.BusABC) -> None:
         inbox = self._inbox
-        while not self._stop.is_set():
+        failures = 0
+        while not self._stop.is_set() and self.lost is None:
             try:
                 msg = bus.recv(0.05)
             except can.CanError as exc:
-                self.errors.append(f"{node.name}: receive failed: {exc}")
-                time.sleep(0.05)
+                failures += 1
+                if isinstance(exc, BusLost) or getattr(bus, "_is_shutdown", False):
+                    self._lose(node, bus, getattr(exc, "reason", str(exc)))
+                    return
+                if failures == 1:
+                    self.errors.append(f"{node.name}: receive failed: {exc}")
+                if failures >= RECV_FAILURES_LOST:
+                    self._lose(node, bus, f"receive keeps failing ({failures} tries): {exc}")
+                    return
+                self._stop.wait(0.05)
                 continue
+            failures = 0
             if msg is not None:
                 inbox.append((self._stamp(msg), node, msg))
                 self._wake.set()
+            elif getattr(bus, "_is_shutdown", False):  # shut down under the driver: recv says nothing more
+                self._lose(node, bus, "the bus was shut down")
+                return
+
+    def _lose(self, node: Node, bus: can.BusABC, reason: str) -> None:
+        """``node``'s bus is gone: stop handing frames to any bus, say so once, wake the owner."""
+        with self.lock:
+            if self.lost is not None:
+                return
+            desc = getattr(bus, "channel_info", None) or str(getattr(bus, "channel", "")) or type(bus).__name__
+            self.lost = BusGone(node.name, str(desc), self.now(), time.time(), " ".join(reason.split()))
+            for n in self.nodes:
+                n.on_bus = False
+            self._ready.clear()
+        self.errors.append(f"{node.name}: {self.lost.describe()}")  # for owners that read errors only
+        self.gone.set()
+        self._wake.set()
+        for cb in list(self.on_lost):
+            self._guard(cb, self.lost)
 
     def _stamp(self, msg: can.Message) -> int:
         """A received frame's time on this driver's clock: the bus's own timestamp (the kernel's
@@ -308,6 +378,7 @@ class PyCanDriver:
 
     def _receive(self, t: int, node: Node, msg: can.Message) -> None:
         if msg.is_error_frame:
+            self.rx_error_frames[node.name] = self.rx_error_frames.get(node.name, 0) + 1
             self._error_frame(t, node, msg)
             return
         try:
@@ -321,8 +392,15 @@ class PyCanDriver:
             node.send(reply)
 
     def _sof(self, t_end: int, frame: Frame) -> int:
-        """Start of frame estimated from its end: the frame's stuffed length at the bitrate."""
-        return -1 if self.bit_ns is None else t_end - round(frame.bits.length * self.bit_ns)
+        """Start of frame estimated from its end: the frame's stuffed length at the bit rate (an
+        FD frame with BRS: its data phase at the data bit rate, the rest at the nominal one)."""
+        if self.bit_ns is None or self.bitrate is None:
+            return -1
+        if frame.fd and frame.brs:
+            if self._brs_rate is None:
+                return -1  # its length in time is unknown without the data bit rate
+            return t_end - (frame.encoded or frame.bits).duration_ns(self.bitrate, self._brs_rate)
+        return t_end - round(frame.bits.length * self.bit_ns)
 
     def _error_frame(self, t: int, node: Node, msg: can.Message) -> None:
         """The bus underneath reports its controller's error state: the node's counters and
@@ -346,8 +424,9 @@ class PyCanDriver:
         """Hand the heads of ready nodes to their buses, lowest arbitration key first; returns
         the time to try again when pacing or a retry holds them back."""
         ready = self._ready
+        waiting: list[Node] = []  # nodes whose head waits for its retry time: offered again after it
         sent = 0
-        while ready and sent < _BATCH:
+        while ready and sent < _BATCH and self.lost is None:
             nodes = dict.fromkeys(ready)  # dedupe, keep order
             ready.clear()
             heads = sorted((n.head.key, n.head.seq, n) for n in nodes if n.head is not None)
@@ -360,22 +439,29 @@ class PyCanDriver:
                     continue  # its latest start passed: the node's expiry timer withdraws it
                 if self.pace_bitrate is not None and now < self._busy_until:
                     ready.extend(h[2] for h in heads[i:])
+                    ready.extend(waiting)
                     return self._busy_until
-                if self._retry.get(req, 0) > now:  # waiting for a retry
-                    ready.append(node)
+                if self._retry.get(req, 0) > now:
+                    waiting.append(node)
                     continue
                 self._send_one(node, req, now)
                 sent += 1
-        if ready:
+        ready.extend(waiting)
+        if ready and self.lost is None:
             pending = [self._retry.get(n.head, 0) for n in ready if n.head is not None]
             return max(self.now(), min(pending)) if pending else self.now()
+        ready.clear()
         return None
 
     def _send_one(self, node: Node, req: Any, now: int) -> None:
         frame: Frame = req.frame
+        bus = self.buses[node]
         try:
-            self.buses[node].send(frame.to_message(timestamp=time.time()), timeout=0.1)
+            bus.send(to_message(frame, timestamp=time.time()), timeout=0.1)
         except can.CanError as exc:
+            if isinstance(exc, BusLost) or getattr(bus, "_is_shutdown", False):
+                self._lose(node, bus, getattr(exc, "reason", str(exc)))
+                return
             if req.one_shot:
                 self._retry.pop(req, None)
                 node.fail(req, self.now(), f"send failed (one-shot): {exc}", "send")
@@ -395,21 +481,6 @@ class PyCanDriver:
         nxt = node.confirm(req, done, self._sof(done, frame))
         if nxt is not None:
             self.offer(node, nxt)
-
-
-def _clock_pair(tries: int = 8) -> tuple[int, float]:
-    """A monotonic time (ns) and the wall-clock time (s) of the same instant: the wall clock read
-    between two monotonic reads, the tightest pair of ``tries`` kept. A thread preempted between
-    the two reads (a loaded machine) would otherwise map every bus timestamp that far off, and a
-    frame could seem to arrive before the frame it answers was sent."""
-    best = (0, 0, 0.0)
-    for i in range(tries):
-        m0 = time.monotonic_ns()
-        wall = time.time()
-        m1 = time.monotonic_ns()
-        if i == 0 or m1 - m0 < best[0]:
-            best = (m1 - m0, (m0 + m1) // 2, wall)
-    return best[1], best[2]
 
 
 def decode_error_frame(msg: can.Message) -> dict[str, Any] | None:

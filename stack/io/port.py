@@ -90,6 +90,7 @@ class Port:
         self.owner = owner
         self.own = bool(receive_own_messages)
         self.bitrate: int = runner.bitrate
+        self.data_bitrate: int | None = getattr(runner, "data_bitrate", None)
         self.epoch0: float = runner.epoch0
         self.closed = False
         self._credit: set[Any] = set()
@@ -213,6 +214,10 @@ class Port:
             self.runner.call(switch)
         else:
             self.runner.post(switch)
+
+    def timestamp(self, t_ns: int) -> float:
+        """The wall-clock time (s since the epoch) of bus time ``t_ns``."""
+        return self.epoch0 + t_ns / 1e9
 
     def can_drain(self) -> bool:
         """True while the node's queued frames can still go out: it is on the bus and another

@@ -46,6 +46,8 @@ from can.broadcastmanager import (
 
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
 from stack.io.discovery import local_servers
+from stack.io.errors import BusLost
+from stack.io.message import to_message
 from stack.io.port import NODE_OPTIONS, Port, check_filters
 from stack.io.runner import BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
 from stack.io.serve.client import RemotePort
@@ -65,13 +67,14 @@ __all__ = [
 
 LOG = logging.getLogger("stack.io.pycan")
 
-_BOOL_OPTIONS = ("abort", "listen_only", "one_shot", "receive_own_messages", "ignore_rx_error_frames")
+_BOOL_OPTIONS = ("abort", "listen_only", "one_shot", "receive_own_messages", "ignore_rx_error_frames", "fd")
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
-_PASSED_TO_EVERY_INTERFACE = ("data_bitrate", "app_name", "serial", "poll_interval", "single_handle")
+_PASSED_TO_EVERY_INTERFACE = ("app_name", "serial", "poll_interval", "single_handle")
 
 
 class InvalidFrame(can.CanOperationError):
-    """A message python-can accepts but CAN 2.0 does not (FD, more than 8 bytes, error frame)."""
+    """A message python-can accepts but the bus does not carry (an FD message on a bus opened
+    without ``fd=True``, more than 8 bytes in a classical frame, an error frame)."""
 
 
 class PrivateBusWarning(UserWarning):
@@ -96,23 +99,33 @@ def register_interface() -> None:
 
 
 # ---------------------------------------------------------------------------------- frames
-_FRAME_CACHE: dict[tuple[int, bool, bool, int, bytes], Frame] = {}
+_FRAME_CACHE: dict[tuple[int, bool, bool, int, bytes, bool, bool, bool], Frame] = {}
 
 
-def frame_of(msg: can.Message) -> Frame:
-    """The CAN 2.0 frame of a message, or `InvalidFrame` naming why it is not one.
+def frame_of(msg: can.Message, fd: bool = False) -> Frame:
+    """The frame of a message, or `InvalidFrame` naming why it is none: an FD message needs a
+    bus opened with ``fd=True`` (``fd``), as python-can's other FD-capable interfaces refuse it.
 
     Frames are cached by content: computing a frame's stuffed bits costs ~37 us, and a node
     usually sends the same few frames again and again (a dictionary hit is ~0.3 us).
     """
-    if msg.is_fd:
-        raise InvalidFrame("CAN FD message refused: a canstack bus is CAN 2.0 (classic) only")
+    if msg.is_fd and not fd:
+        raise InvalidFrame("cannot send a CAN FD message on a canstack bus opened without fd=True")
     if msg.is_error_frame:
         raise InvalidFrame("an error frame cannot be sent: the controller signals errors itself")
     data = bytes(msg.data) if msg.data is not None else b""
-    if len(data) > 8 or msg.dlc > 8:
+    if not msg.is_fd and (len(data) > 8 or msg.dlc > 8):
         raise InvalidFrame(f"message with {max(len(data), msg.dlc)} bytes refused: a CAN 2.0 frame carries at most 8")
-    key = (msg.arbitration_id, bool(msg.is_extended_id), bool(msg.is_remote_frame), msg.dlc, data)
+    key = (
+        msg.arbitration_id,
+        bool(msg.is_extended_id),
+        bool(msg.is_remote_frame),
+        msg.dlc,
+        data,
+        bool(msg.is_fd),
+        bool(msg.bitrate_switch),
+        bool(msg.error_state_indicator),
+    )
     f = _FRAME_CACHE.get(key)
     if f is None:
         try:
@@ -263,8 +276,9 @@ class _Inbox:
     ``shutdown`` knows how many frames are still to go out.
     """
 
-    def __init__(self, rx_fifo_size: int, credits: int, error_frames: bool) -> None:
+    def __init__(self, rx_fifo_size: int, credits: int, error_frames: bool, fd: bool = False) -> None:
         self.rxq: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.fd = fd  # False: FD frames on the bus are not shown (a CAN 2.0 socket of an FD controller)
         self.rx_fifo_size = rx_fifo_size
         self.rx_overruns = 0
         self.error_frames = error_frames
@@ -280,6 +294,8 @@ class _Inbox:
     # PortOwner (runner or socket thread)
     def deliver(self, t_ns: int, frame: Frame, is_rx: bool) -> None:
         """Queue a received frame for ``recv`` (counted as an overrun when the FIFO is full)."""
+        if frame.fd and not self.fd:
+            return
         if self.rxq.qsize() >= self.rx_fifo_size:
             self.rx_overruns += 1
             return
@@ -372,7 +388,14 @@ class CanstackBus(can.BusABC):
     :param channel: ``"bus0"`` (a bus private to this process), ``"tcp://HOST:PORT/NAME"`` or
         ``"unix:///PATH/NAME"`` (a bus served by ``canstack serve``, shared between processes).
     :param bitrate: bit/s; the first node starts the bus at this rate (default 500000), later
-        nodes must give the same or none. ``timing`` (a `can.BitTiming`) may be given instead.
+        nodes must give the same or none. ``timing`` (a `can.BitTiming`, or a `can.BitTimingFd`
+        with ``fd``) may be given instead.
+    :param fd: a CAN FD node (``protocol`` is `can.CanProtocol.CAN_FD`): it sends and receives FD
+        messages (``is_fd``, ``bitrate_switch``, ``error_state_indicator``). The first FD node
+        makes the bus an FD bus; a node without ``fd`` may join it and sees no FD frames (as a
+        SocketCAN socket without CAN_RAW_FD_FRAMES), and an FD message sent without ``fd`` is
+        refused with `InvalidFrame`.
+    :param data_bitrate: the data phase's bit/s of an FD bus (default 2000000 for a new one).
     :param receive_own_messages: also receive the frames this node sent (``is_rx`` False).
     :param can_filters: python-can filters; applied by the node's acceptance filter.
     :param queue: transmit queue policy, 'priority' (default), 'fifo' or 'mailbox'.
@@ -396,6 +419,8 @@ class CanstackBus(can.BusABC):
         can_filters: Any = None,
         *,
         bitrate: int | None = None,
+        fd: bool = False,
+        data_bitrate: int | None = None,
         receive_own_messages: bool = False,
         rx_fifo_size: int = 65536,
         node_name: str | None = None,
@@ -412,9 +437,14 @@ class CanstackBus(can.BusABC):
                 rx_fifo_size=rx_fifo_size,
                 flush_timeout=flush_timeout,
                 ignore_rx_error_frames=ignore_rx_error_frames,
+                fd=fd,
             ).items()
         }
-        bitrate = self._check_bitrate(bitrate, timing)
+        fd = opts.pop("fd")
+        if not isinstance(fd, bool):
+            raise can.CanInitializationError(f"fd {fd!r} must be True or False")
+        bitrate, data_bitrate = self._check_bitrate(bitrate, timing, fd, data_bitrate)
+        self.fd = fd
         config = self._check_options(opts)
         try:
             filters = check_filters(can_filters)
@@ -428,40 +458,59 @@ class CanstackBus(can.BusABC):
         self.flush_timeout: float = opts["flush_timeout"]
         self._listen_only = bool(config.get("listen_only", False))
         self._inbox = _Inbox(
-            self.rx_fifo_size, config.get("tx_queue_size", 1024), error_frames=not opts["ignore_rx_error_frames"]
+            self.rx_fifo_size,
+            config.get("tx_queue_size", 1024),
+            error_frames=not opts["ignore_rx_error_frames"],
+            fd=fd,
         )
         self._runner: RealTimeRunner | None = None
-        self._port: Any = self._open_port(kind, name, addr, bitrate, node_name, config)
+        self._port: Any = self._open_port(kind, name, addr, bitrate, node_name, config, data_bitrate)
         self.bitrate = self._port.bitrate
+        self.data_bitrate: int | None = getattr(self._port, "data_bitrate", None) if fd else None
         self.node_name = self._port.node_name
         try:
             super().__init__(channel, can_filters=filters)
         except BaseException:
             self._leave()
             raise
+        self._can_protocol = can.CanProtocol.CAN_FD if fd else can.CanProtocol.CAN_20
 
     @staticmethod
-    def _check_bitrate(bitrate: Any, timing: Any) -> int | None:
+    def _check_bitrate(bitrate: Any, timing: Any, fd: bool, data_bitrate: Any) -> tuple[int | None, int | None]:
         if timing is not None:
-            if not isinstance(timing, can.BitTiming):
-                raise can.CanInitializationError(f"timing {timing!r}: only a classic can.BitTiming fits a CAN 2.0 bus")
-            if bitrate is not None and bitrate != timing.bitrate:
-                raise can.CanInitializationError(f"bitrate {bitrate} and timing ({timing.bitrate} bit/s) disagree")
-            bitrate = timing.bitrate
+            if isinstance(timing, can.BitTimingFd) and fd:
+                if data_bitrate is not None and data_bitrate != timing.data_bitrate:
+                    raise can.CanInitializationError(
+                        f"data_bitrate {data_bitrate} and timing ({timing.data_bitrate} bit/s) disagree"
+                    )
+                data_bitrate = timing.data_bitrate
+                timing_bitrate = timing.nom_bitrate
+            elif isinstance(timing, can.BitTiming):
+                timing_bitrate = timing.bitrate
+            else:
+                raise can.CanInitializationError(
+                    f"timing {timing!r}: a can.BitTiming, or a can.BitTimingFd on a bus opened with fd=True"
+                )
+            if bitrate is not None and bitrate != timing_bitrate:
+                raise can.CanInitializationError(f"bitrate {bitrate} and timing ({timing_bitrate} bit/s) disagree")
+            bitrate = timing_bitrate
         if bitrate is not None:
             if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
-                raise can.CanInitializationError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
-        return bitrate
+                raise can.CanInitializationError(f"bitrate {bitrate!r}: a CAN bus arbitrates at 1000..1000000 bit/s")
+        if data_bitrate is not None:
+            if not fd:
+                raise can.CanInitializationError(
+                    f"data_bitrate {data_bitrate!r}: a data phase is CAN FD's; open the bus with fd=True"
+                )
+            if isinstance(data_bitrate, str) and data_bitrate.strip().isdigit():
+                data_bitrate = int(data_bitrate)  # from a python-can config file
+            if isinstance(data_bitrate, bool) or not isinstance(data_bitrate, int) or data_bitrate <= 0:
+                raise can.CanInitializationError(f"data_bitrate {data_bitrate!r} must be a positive int (bit/s)")
+        return bitrate, data_bitrate
 
     @staticmethod
     def _check_options(opts: dict[str, Any]) -> dict[str, Any]:
         """The node options out of ``opts`` (python-can's generic ones dropped); the rest checked."""
-        if opts.pop("fd", False):
-            raise can.CanInitializationError("fd=True: a canstack bus is CAN 2.0 (classic) only")
-        if opts.get("data_bitrate") is not None:
-            raise can.CanInitializationError(
-                f"data_bitrate {opts['data_bitrate']!r}: a canstack bus is CAN 2.0 (classic), no FD data phase"
-            )
         for k in _PASSED_TO_EVERY_INTERFACE:  # options python-can's config files pass to every interface
             opts.pop(k, None)
         config = {k: opts.pop(k) for k in NODE_OPTIONS if k in opts}
@@ -469,7 +518,7 @@ class CanstackBus(can.BusABC):
         unknown = sorted(set(opts) - known)
         if unknown:
             raise can.CanInitializationError(
-                f"unknown canstack option(s) {unknown}: allowed are bitrate, timing, node_name, "
+                f"unknown canstack option(s) {unknown}: allowed are bitrate, fd, data_bitrate, timing, node_name, "
                 f"{', '.join(sorted(known))}, {', '.join(NODE_OPTIONS)}"
             )
         fifo = opts["rx_fifo_size"]
@@ -487,7 +536,14 @@ class CanstackBus(can.BusABC):
         return config
 
     def _open_port(
-        self, kind: str, name: str, addr: Any, bitrate: int | None, node_name: str | None, config: dict[str, Any]
+        self,
+        kind: str,
+        name: str,
+        addr: Any,
+        bitrate: int | None,
+        node_name: str | None,
+        config: dict[str, Any],
+        data_bitrate: int | None,
     ) -> Any:
         if kind != "local":
             return RemotePort(
@@ -500,9 +556,11 @@ class CanstackBus(can.BusABC):
                 config,
                 channel=self.channel,
                 receive_own_messages=self.receive_own_messages,
+                fd=self.fd,
+                data_bitrate=data_bitrate,
             )
         _warn_if_served(name)
-        runner = acquire_runner(name, bitrate)
+        runner = acquire_runner(name, bitrate, data_bitrate, fd=self.fd)
         try:
             port = Port(
                 runner,
@@ -558,14 +616,15 @@ class CanstackBus(can.BusABC):
     # -- python-can API ----------------------------------------------------------------
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Queue ``msg`` for transmission; wait up to ``timeout`` s (None: forever) for room in
-        the controller's transmit queue. Raises `InvalidFrame` for FD or > 8 bytes and
+        the controller's transmit queue. Raises `InvalidFrame` for an FD message without ``fd``
+        or > 8 bytes in a classical one and
         `can.CanOperationError` when shut down, listen-only, bus off or the queue stays full."""
         if self._is_shutdown:
             raise can.CanOperationError(f"canstack bus {self.channel!r} is shut down: cannot send")
         inbox = self._inbox
         if inbox.lost_reason is not None:
-            raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
-        frame = frame_of(msg)
+            raise BusLost(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}", inbox.lost_reason)
+        frame = frame_of(msg, self.fd)
         if self._listen_only:
             raise can.CanOperationError("the node is listen-only (BusState.PASSIVE): it cannot transmit")
         if inbox.state is BUS_OFF:
@@ -587,13 +646,14 @@ class CanstackBus(can.BusABC):
             return None, True
         if item is None:
             if inbox.lost_reason is not None:
-                raise can.CanOperationError(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}")
+                inbox.rxq.put(None)  # every later recv says so too
+                raise BusLost(f"canstack bus {self.channel!r} is gone: {inbox.lost_reason}", inbox.lost_reason)
             return None, True
         t_ns, frame, extra = item
-        timestamp = self._port.epoch0 + t_ns / 1e9
+        timestamp = self._port.timestamp(t_ns)
         if frame is None:  # a failed one-shot transmission
             return error_frame_of(*extra, timestamp=timestamp, channel=self.channel), True
-        msg = frame.to_message(timestamp=timestamp, channel=self.channel)
+        msg = to_message(frame, timestamp=timestamp, channel=self.channel)
         msg.is_rx = extra
         return msg, True
 
@@ -652,7 +712,7 @@ class CanstackBus(can.BusABC):
         left = inbox.size - inbox.free
         if left and inbox.lost_reason is None and self.flush_timeout > 0:
             left = inbox.drain(self._port.can_drain, self.flush_timeout)
-        if left:
+        if left and inbox.lost_reason is None:  # a lost bus was reported as such: not one more line
             LOG.warning(
                 "canstack bus %r: %d queued frame(s) dropped at shutdown (%s)",
                 self.channel,
@@ -688,7 +748,7 @@ class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, Limi
     ) -> None:
         super().__init__(msgs, period, duration)
         self.bus = bus
-        self._frames = tuple(frame_of(m) for m in self.messages)
+        self._frames = tuple(frame_of(m, bus.fd) for m in self.messages)
         self._modifier = modifier_callback
         self._i = 0
         self._task: Any = None
@@ -701,14 +761,14 @@ class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, Limi
         if self._modifier is not None:
             msg = self.messages[i]
             self._modifier(msg)
-            return frame_of(msg)
+            return frame_of(msg, self.bus.fd)
         return self._frames[i]
 
     def modify_data(self, messages: Sequence[can.Message] | can.Message) -> None:
         """Replace the messages sent (same identifier and count)."""
         messages = self._check_and_convert_messages(messages)
         self._check_modified_messages(messages)
-        self._frames = tuple(frame_of(m) for m in messages)
+        self._frames = tuple(frame_of(m, self.bus.fd) for m in messages)
         self.messages = messages
 
     def start(self) -> None:

@@ -1,8 +1,10 @@
 """The frame value type and its rules: CAN 2.0A/B data and remote frames and CAN FD data frames
 (ISO 11898-1:2015).
 
-`Frame` is immutable and validated on construction. At the library boundary it converts to and
-from `can.Message`, the type users already hold; inside the engine it is the unit of arbitration.
+`Frame` is immutable and validated on construction. It is read from a `can.Message`, the type users
+already hold, by that message's attributes (`Frame.from_message`; building one is
+`stack.io.message.to_message`, at the boundary: this layer does not import python-can); inside
+the engine it is the unit of arbitration.
 
 CAN FD (``fd=True``) frames carry 0..8, 12, 16, 20, 24, 32, 48 or 64 bytes (DLC 9..15 mean 12..64
 bytes); ``brs`` (bit rate switch) and ``esi`` (error state indicator, recessive = the transmitter is
@@ -13,16 +15,14 @@ after the arbitration field) and `arbitration_key` is the same function for both
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from .coding import FrameBits, encode
 from .fd import FD_LENGTHS, encode_fd
 
-if TYPE_CHECKING:  # pragma: no cover
-    import can  # imported where a Message is built: `canstack decode` starts without python-can
-
 __all__ = [
     "Frame",
+    "MessageLike",
     "STANDARD_ID_MAX",
     "EXTENDED_ID_MAX",
     "FD_LENGTHS",
@@ -88,6 +88,30 @@ def id_text(can_id: int, extended: bool, remote: bool = False) -> str:
     """An identifier as every text output writes it: 0x-hex, 3 digits standard, 8 extended,
     ' RTR' for a remote frame (JSON output carries the integer)."""
     return (f"0x{can_id:08X}" if extended else f"0x{can_id:03X}") + (" RTR" if remote else "")
+
+
+class MessageLike(Protocol):
+    """What `Frame.from_message` reads of a message: the attributes of python-can's `can.Message`
+    (any object that has them will do)."""
+
+    @property
+    def arbitration_id(self) -> int: ...
+    @property
+    def data(self) -> bytes | bytearray: ...
+    @property
+    def dlc(self) -> int: ...
+    @property
+    def is_extended_id(self) -> bool: ...
+    @property
+    def is_remote_frame(self) -> bool: ...
+    @property
+    def is_error_frame(self) -> bool: ...
+    @property
+    def is_fd(self) -> bool: ...
+    @property
+    def bitrate_switch(self) -> bool: ...
+    @property
+    def error_state_indicator(self) -> bool: ...
 
 
 def _hex(v: int) -> str:
@@ -267,41 +291,36 @@ class Frame:
         return self.nbits or self.bits.length
 
     # -- python-can boundary ------------------------------------------------------------------
-    def to_message(self, timestamp: float = 0.0, channel: Any = None) -> can.Message:
-        """This frame as a `can.Message` (classic CAN, dlc as on the wire)."""
-        import can
-
-        msg = can.Message(
-            timestamp=timestamp,
-            arbitration_id=self.can_id,
-            is_extended_id=self.extended,
-            is_remote_frame=self.remote,
-            dlc=self.dlc,
-            data=self.data,
-            channel=channel,
-            check=False,
-        )
-        return msg
-
     @classmethod
-    def from_message(cls, msg: can.Message) -> Frame:
-        """The frame a `can.Message` describes; CAN FD, error frames and dlc > 8 are refused.
+    def from_message(cls, msg: MessageLike) -> Frame:
+        """The frame a `can.Message` describes, CAN FD included (``is_fd``, ``bitrate_switch``,
+        ``error_state_indicator`` become ``fd``, ``brs``, ``esi``); error frames are refused.
 
-        python-can's `Message` cannot carry a classic DLC 9..15 (its dlc is the byte count), so
-        only dlc 0..8 convert; anything else is named in the error.
+        The message is read by its attributes (`MessageLike`), so python-can is not imported here;
+        the conversion the other way, which builds a `can.Message`, is `stack.io.message.to_message`.
+        python-can's ``dlc`` counts data bytes, so a classical message converts only with dlc 0..8
+        (equal to its number of bytes) and an FD message's dlc must equal its number of bytes;
+        anything else is named in the error, as are the rules `Frame` enforces.
         """
-        if msg.is_fd:
-            raise ValueError("a CAN FD message is not a CAN 2.0 frame")
         if msg.is_error_frame:
             raise ValueError("an error frame is not a data or remote frame")
+        extended = bool(msg.is_extended_id)
+        brs, esi = bool(msg.bitrate_switch), bool(msg.error_state_indicator)
+        if msg.is_fd:
+            data = bytes(msg.data)
+            if msg.dlc != len(data):
+                raise ValueError(f"CAN FD message dlc {msg.dlc} does not match {len(data)} data bytes")
+            return cls(
+                msg.arbitration_id, data, extended=extended, remote=bool(msg.is_remote_frame), fd=True, brs=brs, esi=esi
+            )
         if not 0 <= msg.dlc <= 8:
             raise ValueError(f"can.Message with dlc {msg.dlc}: only dlc 0..8 convert to a CAN 2.0 frame")
         if msg.is_remote_frame:
-            return cls(msg.arbitration_id, extended=msg.is_extended_id, remote=True, dlc=msg.dlc)
+            return cls(msg.arbitration_id, extended=extended, remote=True, dlc=msg.dlc, brs=brs, esi=esi)
         data = bytes(msg.data)
         if len(data) != msg.dlc:
             raise ValueError(f"can.Message dlc {msg.dlc} does not match {len(data)} data bytes")
-        return cls(msg.arbitration_id, data, extended=msg.is_extended_id)
+        return cls(msg.arbitration_id, data, extended=extended, brs=brs, esi=esi)
 
 
 _SETTERS = tuple(Frame.__dict__[name].__set__ for name in Frame.__slots__)

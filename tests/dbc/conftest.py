@@ -1,9 +1,11 @@
+import os
 from pathlib import Path
 
 import pytest
 
 SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
-SHARED = Path(__file__).resolve().parents[3] / "shared"
+# ../shared beside the clone; CANSTACK_SHARED points elsewhere (a worktree one level deeper)
+SHARED = Path(os.environ.get("CANSTACK_SHARED") or Path(__file__).resolve().parents[3] / "shared")
 CORPUS = SHARED / "corpus" / "dbc"
 
 

@@ -3,6 +3,7 @@ cantools does; rejected files are reported; cyclic messages go out at their cycl
 
 from __future__ import annotations
 
+import os
 import random
 from pathlib import Path
 
@@ -14,7 +15,8 @@ from dbc.interaction import attribute
 from dbc.restbus import RestBus
 from stack.bus.sim import SimBus
 
-CORPUS = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "dbc"
+SHARED = Path(os.environ.get("CANSTACK_SHARED") or Path(__file__).resolve().parents[3] / "shared")
+CORPUS = SHARED / "corpus" / "dbc"
 FILES = sorted(CORPUS.glob("*/*.dbc")) if CORPUS.is_dir() else []
 MS = 1_000_000
 

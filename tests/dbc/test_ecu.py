@@ -196,7 +196,8 @@ def test_multiplexed_reception_keeps_every_page(net):
     gw.update("GatewayInfo", {"InfoPage": "Environment", "AmbientTemp": 21.5, "VehicleTime": 99})
     bus.run(until=450 * MS)
     page0, page1 = _page_frames(bus, msg, 0), _page_frames(bus, msg, 1)
-    assert len(page0) == 2 and len(page1) == 1  # 0 and 200 ms on page 0, 400 ms on page 1
+    # pages in turn: 0 ms page 0, 200 ms page 1; the update selects page 1, which then stays (400 ms)
+    assert len(page0) == 1 and len(page1) == 2
     last0, last1 = msg.decode(page0[-1].data), msg.decode(page1[-1].data)
     assert "BatteryVoltage" not in last1  # the page-1 frame does not carry it ...
     # ... yet the receiver still knows the value the last page-0 frame carried
@@ -207,19 +208,24 @@ def test_multiplexed_reception_keeps_every_page(net):
     assert [(c.old, c.new) for c in changes] == [(None, last0["BatteryVoltage"])]
 
 
-def test_multiplexed_value_of_unselected_page_goes_out_with_its_page(net):
+def test_multiplexed_value_of_another_page_goes_out_when_its_page_comes_round(net):
     db, bus, ecus = net
     gw = ecus["GW"]
-    msg = db.get_message_by_name("GatewayInfo")
-    gw.set("AmbientTemp", 20)  # InfoPage selects page 0 (Battery): kept, not sent yet
+    msg = db.get_message_by_name("GatewayInfo")  # 200 ms cycle; pages InfoPage 0 and 1
+    gw.set("AmbientTemp", 20)  # a page-1 signal: kept, and sent with page 1 (the second frame)
     assert gw.get("AmbientTemp") == 20
     bus.run(until=250 * MS)
-    frames = [r.frame for r in bus.trace if r.frame.can_id == msg.frame_id]
-    assert frames and all("AmbientTemp" not in msg.decode(f.data) for f in frames)
-    gw.set("InfoPage", "Environment")
-    bus.run(until=450 * MS)
-    sent = msg.decode([r.frame for r in bus.trace if r.frame.can_id == msg.frame_id][-1].data)
-    assert sent["InfoPage"] == "Environment" and sent["AmbientTemp"] == 20
+    sent = [msg.decode(r.frame.data) for r in bus.trace if r.frame.can_id == msg.frame_id]
+    assert [s["InfoPage"] for s in sent] == ["Battery", "Environment"]
+    assert sent[1]["AmbientTemp"] == 20
+    gw.set("InfoPage", "Battery")  # the application selects a page: it stays
+    bus.run(until=850 * MS)
+    sent = [msg.decode(r.frame.data) for r in bus.trace if r.frame.can_id == msg.frame_id]
+    assert [s["InfoPage"] for s in sent[2:]] == ["Battery"] * 3
+    gw.rotate_pages("GatewayInfo")
+    bus.run(until=1250 * MS)
+    sent = [msg.decode(r.frame.data) for r in bus.trace if r.frame.can_id == msg.frame_id]
+    assert {str(s["InfoPage"]) for s in sent[5:]} == {"Battery", "Environment"}
 
 
 def test_encode_frame_changes_nothing(net):

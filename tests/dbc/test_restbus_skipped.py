@@ -16,11 +16,12 @@ import pytest
 import dbc.cli as restbus_cli
 import stack.cli as cli
 
+SHARED = Path(os.environ.get("CANSTACK_SHARED") or Path(__file__).resolve().parents[3] / "shared")
 DATA = Path(__file__).resolve().parent / "data"
 FD_ONLY = str(DATA / "fd_only.dbc")  # RadarObjects (12 bytes, FD), RadarStatus (8 bytes, FD)
 MIXED = str(DATA / "mixed.dbc")  # RadarObjects (FD), RadarStatus (classical, 100 ms), BodyLong (12 bytes, classical)
 SAMPLE = str(Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc")
-FORD = Path(__file__).resolve().parents[3] / "shared" / "corpus" / "dbc" / "opendbc" / "ford_lincoln_base_pt.dbc"
+FORD = SHARED / "corpus" / "dbc" / "opendbc" / "ford_lincoln_base_pt.dbc"
 
 
 def run(capsys, *argv):

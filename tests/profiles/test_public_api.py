@@ -1,5 +1,6 @@
-"""The public API of `profiles` and `dbc`: what ``__all__`` declares imports from the package,
-and each name says what it is (a docstring of its own, or an attribute docstring in its source)."""
+"""The public API of `stack`, `profiles` and `dbc`: what ``__all__`` declares imports from the
+package, and each name says what it is (a docstring of its own, or an attribute docstring in its
+source). (That each one is in the API reference, the site build checks: tests/test_docs.py.)"""
 
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def _own_doc(obj: object) -> str:
     return doc.strip()
 
 
-@pytest.mark.parametrize("package", ["profiles", "dbc"])
+@pytest.mark.parametrize("package", ["stack", "profiles", "dbc"])
 def test_every_public_name_imports_from_the_package_and_says_what_it_is(package):
     mod = importlib.import_module(package)
     assert len(mod.__all__) == len(set(mod.__all__))
@@ -57,21 +58,23 @@ def test_every_public_name_imports_from_the_package_and_says_what_it_is(package)
     assert undocumented == []
 
 
-def test_profiles_exports_each_name_from_a_module_that_declares_it_public():
-    import profiles
-
-    assert sorted(profiles._EXPORTS) == sorted(profiles.__all__)
-    for name, module in profiles._EXPORTS.items():
+@pytest.mark.parametrize("package", ["stack", "profiles"])
+def test_the_package_exports_each_name_from_a_module_that_declares_it_public(package):
+    pkg = importlib.import_module(package)
+    assert sorted(pkg._EXPORTS) == sorted(pkg.__all__)
+    for name, module in pkg._EXPORTS.items():
         mod = importlib.import_module(module)
         assert name in mod.__all__, f"{module} does not declare {name}"
-        assert getattr(profiles, name) is getattr(mod, name)
+        assert getattr(pkg, name) is getattr(mod, name)
     with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
-        profiles.nothing_here
+        pkg.nothing_here
 
 
 @pytest.mark.subprocess
-def test_importing_profiles_loads_no_profile_nor_the_pipeline():
-    """The names load on first use: ``import profiles`` alone imports none of its subpackages."""
-    code = "import sys, profiles; print(sorted(m for m in sys.modules if m.startswith('profiles.')))"
+@pytest.mark.parametrize("package", ["stack", "profiles"])
+def test_importing_the_package_loads_none_of_its_modules(package):
+    """The names load on first use: ``import stack`` or ``import profiles`` alone imports none of
+    its subpackages (no layer, no profile, not the pipeline)."""
+    code = f"import sys, {package}; print(sorted(m for m in sys.modules if m.startswith('{package}.')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60, check=True)
     assert out.stdout.strip() == "[]"

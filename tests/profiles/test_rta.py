@@ -45,21 +45,11 @@ def msg(
 # --- C: the worst-case frame length -------------------------------------------------------------
 
 
-def _stack_worst_case_length():
-    """`stack`'s worst-case stuffed length SOF..EOF, wherever the restructuring put it."""
-    for path in ("stack.wire.coding", "stack.wire.bits", "stack.bits"):
-        try:
-            module = __import__(path, fromlist=["worst_case_length"])
-            return module.worst_case_length
-        except (ImportError, AttributeError):
-            continue
-    pytest.skip("stack's worst_case_length not found under stack.wire.coding, stack.wire.bits or stack.bits")
-
-
 @pytest.mark.parametrize("extended", [False, True])
 @pytest.mark.parametrize("n", range(9))
 def test_frame_bits_worst_is_stack_worst_case_length_plus_intermission(n, extended):
-    worst_case_length = _stack_worst_case_length()
+    from stack.wire.coding import worst_case_length
+
     assert frame_bits_worst(n, extended) == worst_case_length(n, extended) + 3
 
 

@@ -376,23 +376,24 @@ def test_fifo_node_behind_its_low_priority_frame():
 
 @pytest.mark.parametrize("burst", [1, 3])
 def test_errors_simple_and_burst_forms(burst):
-    # One message per node: see the next test for why. Bursts at least 8 n T_max apart: every
-    # node then sends at least 8 n frames between two bursts and stays error active (TEC + 8 per
-    # error, − 1 per frame sent), as the model assumes; ten bursts per run.
+    # Nodes of every queue kind with several messages each (a node offers its queue's head again
+    # after an error: tests/stack/bus/test_retry_order.py). Bursts at least 8 n T_max apart:
+    # every node then sends at least 8 n frames between two bursts and stays error active (TEC
+    # + 8 per error, − 1 per frame sent), as the model assumes. In the critical pattern the
+    # first burst strikes the attempts that follow the critical instant.
     rng = random.Random(burst)
-    for i in range(8):
-        net = random_network(rng, max_util=0.5, drift=False, per_node=1, nodes=8)
+    methods = set()
+    for i in range(16):
+        net = random_network(rng, max_util=0.5, drift=False, per_node=3, nodes=5)
         t_error = 8 * burst * max(m.period_ns for m in net.messages)
         net.errors = ErrorModel(t_error_ns=t_error, burst=burst)
-        check(net, simulate(net, PATTERNS[i % 4], i, min(6 * t_error, 1_000 * MS)))
+        pattern = PATTERNS[i % 4]
+        first = 2 * MS if pattern == "critical" else None
+        rows = check(net, simulate(net, pattern, i, min(6 * t_error, 1_000 * MS), first_error_ns=first))
+        methods |= {method for _, method, _, _ in rows}
+    assert {"davis2007", "fifo", "mailbox"} <= methods, methods
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="engine: after a failed attempt Node.retry offers the same request again, even when a "
-    "higher-priority frame was queued on the node during the attempt (a priority queue should "
-    "offer its best frame); reported, stack/ is not this module's to change",
-)
 def test_an_error_does_not_make_a_priority_queue_retry_its_low_frame_first():
     # Node "a" (priority queue): L (0x700) on the wire when H (0x080) is queued; the error
     # strikes L; a priority queue sends H next. Node "b" sends M (0x100) back to back, so that

@@ -9,13 +9,15 @@ byte and the payload (at most `MAX_MESSAGE`).
 =====  =========  =====================================================================
 type   direction  payload
 =====  =========  =====================================================================
-0x01   c -> s     HELLO: JSON {"v": 1, "bus", "bitrate" | null, "node_name" | null,
+0x01   c -> s     HELLO: JSON {"v": 2, "bus", "bitrate" | null, "node_name" | null,
                   "receive_own_messages", "config": {queue, mailboxes, abort,
-                  tx_queue_size, listen_only, one_shot}}; must be the first message
-0x02   s -> c     WELCOME: JSON {"bitrate", "node", "t0_epoch"}
+                  tx_queue_size, listen_only, one_shot}, "client": "program[pid]",
+                  "fd": bool, "data_bitrate" | null}; must be the first message
+0x02   s -> c     WELCOME: JSON {"bitrate", "node", "t0_epoch", "behind_ms", "fd",
+                  "data_bitrate"}
 0x03   s -> c     ERROR: UTF-8 text (the server closes after an error in HELLO or framing)
-0x10   c -> s     SEND: uint32 can_id, uint8 flags (1 extended, 2 remote), uint8 dlc, data
-0x11   s -> c     RX: uint64 t_ns (since t0), uint32 can_id, uint8 flags (4: own frame), dlc, data
+0x10   c -> s     SEND: uint32 can_id, uint8 flags, uint8 dlc, data
+0x11   s -> c     RX: uint64 t_ns (since t0), uint32 can_id, uint8 flags, uint8 dlc, data
 0x12   s -> c     TXEND: uint8 ok, UTF-8 reason (one per SEND, in completion order)
 0x13   s -> c     STATE: uint8 state (0 active, 1 warning, 2 passive, 3 bus off), uint16 tec, rec
 0x14   c -> s     FILTERS: JSON list of python-can filters, or null
@@ -23,10 +25,18 @@ type   direction  payload
 0x16   s -> c     TXERROR: uint64 t_ns, uint16 tec, uint16 rec, UTF-8 reason: a transmission
                   failed (one-shot), sent before its TXEND; the client shows it as an error frame
 0x17   c -> s     MODE: uint8 flags (1: listen-only): switch the node's mode at run time
+0x18   c -> s     TIME: uint64 token: what time is it on the bus?
+0x19   s -> c     NOW: uint64 token, uint64 bus t_ns when the bus handled TIME, uint64 ns
+                  the bus is behind real time (`stack.io.clock.ClockOffset` reads it)
 =====  =========  =====================================================================
 
-TXERROR and MODE were added to version 1 without a version change: a client ignores message
-types it does not know, and an older server answers MODE with an ERROR (logged by the client).
+Frame flags (SEND, RX): 1 extended, 2 remote, 4 the client's own frame (RX only), 8 CAN FD,
+16 bit rate switch, 32 error state indicator. An FD frame's dlc is its DLC code (0..15).
+
+Version 2 added the client's name, CAN FD (flags, HELLO's ``fd`` and ``data_bitrate``), TIME/NOW
+and WELCOME's ``behind_ms``. A server refuses a HELLO of another version with an ERROR naming
+both versions, so an old client learns that it must be upgraded (and a new client meeting an
+old server shows that server's answer). A client ignores message types it does not know.
 """
 
 from __future__ import annotations
@@ -52,14 +62,20 @@ __all__ = [
     "BYE",
     "TXERROR",
     "MODE",
+    "TIME",
+    "NOW",
     "F_EXT",
     "F_RTR",
     "F_OWN",
+    "F_FD",
+    "F_BRS",
+    "F_ESI",
     "NODE_KEYS",
     "encode_message",
     "json_message",
     "Reader",
     "Hello",
+    "Welcome",
     "encode_hello",
     "parse_hello",
     "encode_welcome",
@@ -76,16 +92,23 @@ __all__ = [
     "decode_tx_error",
     "encode_mode",
     "decode_mode",
+    "encode_time",
+    "decode_time",
+    "encode_now",
+    "decode_now",
+    "client_name",
     "parse_filters",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 MAX_MESSAGE = 4096
 
 HELLO, WELCOME, ERROR = 0x01, 0x02, 0x03
 SEND, RX, TXEND, STATE, FILTERS, BYE, TXERROR, MODE = 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x16, 0x17
+TIME, NOW = 0x18, 0x19
 
-F_EXT, F_RTR, F_OWN = 1, 2, 4
+F_EXT, F_RTR, F_OWN, F_FD, F_BRS, F_ESI = 1, 2, 4, 8, 16, 32
+_F_FRAME = F_EXT | F_RTR | F_OWN | F_FD | F_BRS | F_ESI
 M_LISTEN_ONLY = 1
 
 _STATES = [ErrorState.ACTIVE, ErrorState.WARNING, ErrorState.PASSIVE, ErrorState.BUS_OFF]
@@ -95,6 +118,8 @@ _SEND = struct.Struct("!IBB")
 _RX = struct.Struct("!QIBB")
 _STATE = struct.Struct("!BHH")
 _TXERROR = struct.Struct("!QHH")
+_TIME = struct.Struct("!Q")
+_NOW = struct.Struct("!QQQ")
 
 NODE_KEYS: dict[str, Any] = {
     "queue": str,
@@ -161,12 +186,38 @@ class Hello(NamedTuple):
     node_name: str | None
     config: dict[str, Any]
     receive_own_messages: bool
+    client: str = ""
+    fd: bool = False
+    data_bitrate: int | None = None
+
+
+def client_name() -> str:
+    """This process as a server's log names it: its program and pid, e.g. ``candump[4242]``."""
+    import os
+    import sys
+
+    argv = list(getattr(sys, "orig_argv", None) or sys.argv or ["python"])
+    prog = os.path.basename(argv[0]) or "python"
+    if "-m" in argv[1:-1]:  # python -m module: the module says more than the interpreter
+        prog = argv[argv.index("-m", 1) + 1]
+    elif prog.startswith("python") and len(argv) > 1 and argv[1].endswith(".py"):
+        prog = os.path.basename(argv[1])
+    return f"{''.join(c for c in prog if c.isprintable())[:48]}[{os.getpid()}]"
 
 
 def encode_hello(
-    bus: str, bitrate: int | None, node_name: str | None, config: dict[str, Any], receive_own_messages: bool
+    bus: str,
+    bitrate: int | None,
+    node_name: str | None,
+    config: dict[str, Any],
+    receive_own_messages: bool,
+    *,
+    client: str | None = None,
+    fd: bool = False,
+    data_bitrate: int | None = None,
 ) -> bytes:
-    """The HELLO message a client starts with (``config`` keeps only `NODE_KEYS`)."""
+    """The HELLO message a client starts with (``config`` keeps only `NODE_KEYS`; ``client``
+    defaults to `client_name`)."""
     return json_message(
         HELLO,
         {
@@ -176,18 +227,28 @@ def encode_hello(
             "node_name": node_name,
             "config": {k: v for k, v in config.items() if k in NODE_KEYS},
             "receive_own_messages": bool(receive_own_messages),
+            "client": client_name() if client is None else client,
+            "fd": bool(fd),
+            "data_bitrate": data_bitrate,
         },
     )
 
 
 def parse_hello(payload: bytes, bus: str, bitrate: int) -> Hello:
     """A HELLO payload checked against the served ``bus`` and ``bitrate``: ValueError names the
-    field and the rule it breaks (version, bus name, bitrate, node name, option types/ranges)."""
+    field and the rule it breaks (version, bus name, bitrate, node name, client name, option
+    types/ranges). FD and the data bit rate are read here and checked by the server."""
     hello = _json(payload)
     if not isinstance(hello, dict):
         raise ValueError("HELLO must be a JSON object")
-    if hello.get("v") != PROTOCOL_VERSION:
-        raise ValueError(f"protocol version {hello.get('v')!r} not supported (server speaks {PROTOCOL_VERSION})")
+    v = hello.get("v")
+    if v != PROTOCOL_VERSION:
+        if isinstance(v, int) and not isinstance(v, bool) and v < PROTOCOL_VERSION:
+            raise ValueError(
+                f"the client speaks canstack serve protocol {v}, this server speaks {PROTOCOL_VERSION}: "
+                "upgrade canstack on the client (pip install -U canstack)"
+            )
+        raise ValueError(f"protocol version {v!r} not supported (server speaks {PROTOCOL_VERSION})")
     if hello.get("bus") != bus:
         raise ValueError(f"this server serves bus {bus!r}, not {hello.get('bus')!r}")
     br = hello.get("bitrate")
@@ -196,52 +257,124 @@ def parse_hello(payload: bytes, bus: str, bitrate: int) -> Hello:
     name = hello.get("node_name")
     if name is not None and (not isinstance(name, str) or not 0 < len(name) <= 64):
         raise ValueError("node_name must be a string of 1..64 characters")
+    client = hello.get("client", "")
+    if not isinstance(client, str) or len(client) > 64 or not client.isprintable():
+        raise ValueError("client must be a printable string of at most 64 characters (program[pid])")
+    fd = hello.get("fd", False)
+    if not isinstance(fd, bool):
+        raise ValueError(f"fd {fd!r} must be true or false")
+    dbr = hello.get("data_bitrate")
+    if dbr is not None and (isinstance(dbr, bool) or not isinstance(dbr, int) or dbr <= 0):
+        raise ValueError(f"data_bitrate {dbr!r} must be a positive integer (bit/s) or null")
     config = hello.get("config") or {}
     if not isinstance(config, dict):
         raise ValueError("config must be a JSON object")
-    for k, v in config.items():
+    for k, val in config.items():
         if k not in NODE_KEYS:
             raise ValueError(f"unknown node option {k!r}")
-        if not isinstance(v, NODE_KEYS[k]) or (isinstance(v, bool) and NODE_KEYS[k] is int):
-            raise ValueError(f"node option {k}={v!r} has the wrong type")
+        if not isinstance(val, NODE_KEYS[k]) or (isinstance(val, bool) and NODE_KEYS[k] is int):
+            raise ValueError(f"node option {k}={val!r} has the wrong type")
     if not 1 <= config.get("tx_queue_size", 1024) <= 65536:
         raise ValueError("tx_queue_size must be 1..65536")
     if not 1 <= (config.get("mailboxes") or 1) <= 64:
         raise ValueError("mailboxes must be 1..64")
-    return Hello(bus, br, name, config, bool(hello.get("receive_own_messages", False)))
+    return Hello(bus, br, name, config, bool(hello.get("receive_own_messages", False)), client, fd, dbr)
 
 
-def encode_welcome(bitrate: int, node: str, t0_epoch: float) -> bytes:
+class Welcome(NamedTuple):
+    """The server's answer to a good HELLO: the bus's bit rate(s), the node's name, the epoch
+    (wall-clock s) of the bus's time 0, how far the bus is behind real time, whether it is FD."""
+
+    bitrate: int
+    node: str
+    t0_epoch: float
+    behind_ms: float = 0.0
+    fd: bool = False
+    data_bitrate: int | None = None
+
+
+def encode_welcome(
+    bitrate: int,
+    node: str,
+    t0_epoch: float,
+    *,
+    behind_ms: float = 0.0,
+    fd: bool = False,
+    data_bitrate: int | None = None,
+) -> bytes:
     """The server's answer to a good HELLO."""
-    return json_message(WELCOME, {"bitrate": bitrate, "node": node, "t0_epoch": t0_epoch})
+    return json_message(
+        WELCOME,
+        {
+            "bitrate": bitrate,
+            "node": node,
+            "t0_epoch": t0_epoch,
+            "behind_ms": round(behind_ms, 3),
+            "fd": fd,
+            "data_bitrate": data_bitrate,
+        },
+    )
 
 
-def parse_welcome(payload: bytes) -> tuple[int, str, float]:
-    """(bitrate, node name, epoch of the bus's time 0) from a WELCOME payload."""
+def parse_welcome(payload: bytes) -> Welcome:
+    """The `Welcome` of a WELCOME payload."""
     w = _json(payload)
     try:
-        return int(w["bitrate"]), str(w["node"]), float(w["t0_epoch"])
-    except (KeyError, TypeError, ValueError) as exc:
+        dbr = w.get("data_bitrate")
+        return Welcome(
+            int(w["bitrate"]),
+            str(w["node"]),
+            float(w["t0_epoch"]),
+            float(w.get("behind_ms") or 0.0),
+            bool(w.get("fd", False)),
+            None if dbr is None else int(dbr),
+        )
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"WELCOME malformed: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------- frames
+def _flags(frame: Frame) -> int:
+    f = (F_EXT if frame.extended else 0) | (F_RTR if frame.remote else 0)
+    if frame.fd:
+        f |= F_FD | (F_BRS if frame.brs else 0) | (F_ESI if frame.esi else 0)
+    return f
+
+
+def _frame(can_id: int, flags: int, dlc: int, data: bytes) -> Frame:
+    if flags & ~_F_FRAME:
+        raise ValueError(f"unknown frame flags 0x{flags & ~_F_FRAME:02X}")
+    if flags & F_FD:
+        return Frame(
+            can_id,
+            data,
+            extended=bool(flags & F_EXT),
+            remote=bool(flags & F_RTR),
+            dlc=dlc,
+            fd=True,
+            brs=bool(flags & F_BRS),
+            esi=bool(flags & F_ESI),
+        )
+    if flags & (F_BRS | F_ESI):
+        raise ValueError("bit rate switch and error state indicator need the CAN FD flag")
+    return Frame(can_id, data, extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
+
+
 def encode_send(frame: Frame) -> bytes:
     """The SEND message of ``frame``."""
-    return encode_message(
-        SEND,
-        _SEND.pack(frame.can_id, (F_EXT if frame.extended else 0) | (F_RTR if frame.remote else 0), frame.dlc)
-        + frame.data,
-    )
+    return encode_message(SEND, _SEND.pack(frame.can_id, _flags(frame), frame.dlc) + frame.data)
 
 
 def decode_send(payload: bytes) -> Frame:
-    """The frame of a SEND payload; ValueError naming what is wrong (length, ID range, DLC)."""
+    """The frame of a SEND payload; ValueError naming what is wrong (length, ID range, DLC,
+    flags)."""
     if len(payload) < _SEND.size:
         raise ValueError(f"SEND payload of {len(payload)} bytes is too short")
     can_id, flags, dlc = _SEND.unpack_from(payload)
+    if flags & F_OWN:
+        raise ValueError("the own-frame flag (4) belongs to RX, not SEND")
     try:
-        return Frame(can_id, payload[_SEND.size :], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
+        return _frame(can_id, flags, dlc, payload[_SEND.size :])
     except TypeError as exc:
         raise ValueError(str(exc)) from None
 
@@ -249,14 +382,7 @@ def decode_send(payload: bytes) -> Frame:
 def encode_rx(t_ns: int, frame: Frame, own: bool) -> bytes:
     """The RX message of a frame received at ``t_ns`` (``own``: the client's own frame)."""
     return encode_message(
-        RX,
-        _RX.pack(
-            t_ns,
-            frame.can_id,
-            (F_EXT if frame.extended else 0) | (F_RTR if frame.remote else 0) | (F_OWN if own else 0),
-            frame.dlc,
-        )
-        + frame.data,
+        RX, _RX.pack(t_ns, frame.can_id, _flags(frame) | (F_OWN if own else 0), frame.dlc) + frame.data
     )
 
 
@@ -273,7 +399,7 @@ class RxDecoder:
         f = self._cache.get(key)
         if f is None:
             can_id, flags, dlc = _SEND.unpack_from(key)
-            f = Frame(can_id, key[_SEND.size :], extended=bool(flags & F_EXT), remote=bool(flags & F_RTR), dlc=dlc)
+            f = _frame(can_id, flags & ~F_OWN, dlc, key[_SEND.size :])
             if len(self._cache) > 4096:
                 self._cache.clear()
             self._cache[key] = f
@@ -326,6 +452,30 @@ def decode_mode(payload: bytes) -> bool:
     if len(payload) != 1 or payload[0] & ~M_LISTEN_ONLY:
         raise ValueError(f"MODE payload {payload!r}: expected one byte, 0 (normal) or 1 (listen-only)")
     return bool(payload[0] & M_LISTEN_ONLY)
+
+
+def encode_time(token: int) -> bytes:
+    """TIME: ask the bus for its time (``token`` comes back in NOW; the client's clock)."""
+    return encode_message(TIME, _TIME.pack(token))
+
+
+def decode_time(payload: bytes) -> int:
+    """The token of a TIME payload; ValueError for a payload that is not 8 bytes."""
+    if len(payload) != _TIME.size:
+        raise ValueError(f"TIME payload of {len(payload)} bytes: expected 8 (a token)")
+    return int(_TIME.unpack(payload)[0])
+
+
+def encode_now(token: int, t_ns: int, behind_ns: int) -> bytes:
+    """NOW: the answer to TIME with the bus time when it was handled and how far behind real
+    time the bus is."""
+    return encode_message(NOW, _NOW.pack(token, max(0, t_ns), max(0, behind_ns)))
+
+
+def decode_now(payload: bytes) -> tuple[int, int, int]:
+    """(token, bus t_ns, behind ns) of a NOW payload."""
+    token, t_ns, behind = _NOW.unpack(payload)
+    return int(token), int(t_ns), int(behind)
 
 
 def parse_filters(payload: bytes) -> Any:

@@ -9,7 +9,15 @@ Robustness: a malformed message is answered with ERROR (or TXEND not ok for a ba
 logged; framing errors and a missing HELLO close that connection only. A client that dies leaves
 the bus (its node is removed and its name is free again); the others keep every frame, exactly
 once, in order. A client that stops reading is disconnected once `MAX_BACKLOG` messages wait
-for it. Clients joining and leaving are logged at INFO with their node name and peer.
+for it. Clients joining and leaving are logged at INFO with the name they give (program and
+pid), their node name and peer.
+
+The server keeps accepting whatever ``accept()`` or a new thread does: out of file descriptors
+(EMFILE) or threads, it logs once, backs off and tries again, and a connection it cannot serve is
+closed at once. At most `MAX_UNJOINED` connections may wait for their HELLO (each for at most
+`HELLO_TIMEOUT_S`); more are refused with an ERROR. A bus that cannot keep up with real time
+still answers joins (`stack.io.runner.SLICE_NS`), says in WELCOME how far behind it is, and logs
+it once per episode.
 """
 
 from __future__ import annotations
@@ -34,12 +42,15 @@ from stack.io.runner import BUS_NAME_RE, RealTimeRunner
 from stack.io.serve import protocol as P
 from stack.wire.frame import Frame
 
-__all__ = ["BusServer", "MAX_BACKLOG", "HELLO_TIMEOUT_S"]
+__all__ = ["BusServer", "MAX_BACKLOG", "HELLO_TIMEOUT_S", "MAX_UNJOINED", "BEHIND_WARN_NS"]
 
 LOG = logging.getLogger("stack.io.serve")
 
 MAX_BACKLOG = 200_000
 HELLO_TIMEOUT_S = 5.0
+MAX_UNJOINED = 64
+BEHIND_WARN_NS = 500_000_000  # a bus this far behind real time is logged (once per episode)
+_ACCEPT_BACKOFF_S = (0.05, 1.0)  # first and longest wait after accept() failed
 _unix_peers = count(1)
 
 
@@ -56,12 +67,20 @@ class _Session:
         self._closing = False
         self._close_lock = threading.Lock()
         self.rejected = 0
+        self.client = ""  # the name the client gives (program[pid])
+        self.fd = False  # the client joined as a CAN FD node
+
+    @property
+    def who(self) -> str:
+        """The client as the log names it: its own name and its peer."""
+        return f"{self.client} from {self.peer}" if self.client else self.peer
 
     def start(self) -> None:
         """Start reading and writing (after the server registered the session, so that a client
-        that leaves at once is also removed from it)."""
-        threading.Thread(target=self._read_loop, name=f"serve-rd-{self.peer}", daemon=True).start()
+        that leaves at once is also removed from it). RuntimeError when a thread cannot start
+        (the caller closes the session)."""
         threading.Thread(target=self._write_loop, name=f"serve-wr-{self.peer}", daemon=True).start()
+        threading.Thread(target=self._read_loop, name=f"serve-rd-{self.peer}", daemon=True).start()
 
     @property
     def node_name(self) -> str | None:
@@ -75,7 +94,7 @@ class _Session:
         if self.closed.is_set():
             return
         if self.out.qsize() > MAX_BACKLOG:
-            LOG.warning("client %s does not read (%d messages waiting): disconnected", self.peer, MAX_BACKLOG)
+            LOG.warning("client %s does not read (%d messages waiting): disconnected", self.who, MAX_BACKLOG)
             self.close(f"did not read ({MAX_BACKLOG} messages waiting)")
             return
         self.out.put(data)
@@ -104,6 +123,13 @@ class _Session:
             self.close(f"connection error: {exc}")
         finally:
             self.close("connection closed")
+            try:
+                # shut down before closing: a reader thread blocked in recv on this socket is
+                # woken (closing the descriptor alone leaves it blocked, and the connection
+                # open: the client would never hear that the server is gone)
+                self.sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
             try:
                 self.sock.close()
             except OSError:
@@ -135,7 +161,7 @@ class _Session:
     def _reject(self, reason: str, fatal: bool = False) -> None:
         self.rejected += 1
         self.server.rejected += 1
-        LOG.warning("client %s: %s%s", self.peer, reason, " (disconnected)" if fatal else "")
+        LOG.warning("client %s: %s%s", self.who, reason, " (disconnected)" if fatal else "")
         self.push(P.encode_message(P.ERROR, reason.encode()[: P.MAX_MESSAGE - 1]))
         if fatal:
             self.out.put(None)
@@ -175,7 +201,7 @@ class _Session:
         except OSError as exc:
             reason = f"connection error: {exc}"
         except Exception:  # never let a client take the server down
-            LOG.exception("client %s: unexpected failure; disconnected", self.peer)
+            LOG.exception("client %s: unexpected failure; disconnected", self.who)
             reason = "server-side failure (see log)"
         finally:
             self.close(reason)
@@ -184,6 +210,9 @@ class _Session:
         srv = self.server
         try:
             hello = P.parse_hello(payload, srv.name, srv.bitrate)
+            self.client = hello.client
+            srv.check_fd(hello)
+            self.fd = hello.fd
             self.port = Port(
                 srv.runner,
                 self,
@@ -198,8 +227,24 @@ class _Session:
         if self._closing:  # the server closed while the node was attached: leave again
             self.port.close(wait=False)
             return False
-        LOG.info("client %s joined bus %r as node %r", self.peer, srv.name, self.port.node_name)
-        self.push(P.encode_welcome(srv.bitrate, self.port.node_name, srv.runner.epoch0))
+        behind = srv.runner.behind_ns
+        LOG.info(
+            "client %s joined bus %r as node %r%s",
+            self.who,
+            srv.name,
+            self.port.node_name,
+            f" (the bus is {behind / 1e9:.3f} s behind real time)" if behind >= BEHIND_WARN_NS else "",
+        )
+        self.push(
+            P.encode_welcome(
+                srv.bitrate,
+                self.port.node_name,
+                srv.runner.epoch0,
+                behind_ms=behind / 1e6,
+                fd=srv.fd,
+                data_bitrate=srv.data_bitrate,
+            )
+        )
         return True
 
     def _handle(self, mtype: int, payload: bytes) -> None:
@@ -212,10 +257,25 @@ class _Session:
             except ValueError as exc:
                 self.rejected += 1
                 self.server.rejected += 1
-                LOG.warning("client %s: SEND rejected: %s", self.peer, exc)
+                LOG.warning("client %s: SEND rejected: %s", self.who, exc)
                 self.push(P.encode_txend(f"rejected: {exc}"[:512]))
                 return
+            if frame.fd and not self.fd:
+                self.rejected += 1
+                self.server.rejected += 1
+                self.push(P.encode_txend("rejected: a CAN FD frame from a client that joined without fd=True"))
+                return
             port.send(frame)
+        elif mtype == P.TIME:
+            try:
+                token = P.decode_time(payload)
+            except ValueError as exc:
+                self._reject(f"TIME rejected: {exc}")
+                return
+            runner = self.server.runner
+            # answered on the runner thread, with the bus time at which it handles it: the
+            # client's lower bound of the offset (`stack.io.clock`) holds for frames queued there
+            runner.post(lambda: self.push(P.encode_now(token, runner.sim.now(), runner.behind_ns)))
         elif mtype == P.FILTERS:
             try:
                 filters = check_filters(P.parse_filters(payload))
@@ -244,7 +304,7 @@ class _Session:
         self.closed.set()
         self.out.put(None)
         if self.port is not None:
-            LOG.info("client %s (node %r) left bus %r: %s", self.peer, self.port.node_name, self.server.name, reason)
+            LOG.info("client %s (node %r) left bus %r: %s", self.who, self.port.node_name, self.server.name, reason)
         self.server._detach(self)
 
 
@@ -318,7 +378,8 @@ class BusServer:
     """A simulated bus in real time served to python-can clients over TCP or a unix socket.
 
     ``listen`` is ``(host, port)`` (port 0 picks a free one); non-loopback hosts are refused
-    unless ``allow_remote``. ``unix`` is a socket path. `url` is the channel clients use. A
+    unless ``allow_remote``. ``data_bitrate`` makes it a CAN FD bus (clients join with
+    ``fd=True``; others see no FD frames). ``unix`` is a socket path. `url` is the channel clients use. A
     server announces itself on this machine (`stack.io.discovery`) while it runs. ValueError
     names the address or path when it cannot listen there (in use, missing directory, ...).
     """
@@ -331,6 +392,7 @@ class BusServer:
         listen: tuple[str, int] | None = None,
         unix: str | None = None,
         allow_remote: bool = False,
+        data_bitrate: int | None = None,
     ) -> None:
         if not BUS_NAME_RE.match(name):
             raise ValueError(f"bus name {name!r}: use 1..64 of A-Z a-z 0-9 _ . -")
@@ -344,8 +406,18 @@ class BusServer:
         self.sock.listen(64)
         self.sock.settimeout(0.2)
         self.name = name
-        self.runner = RealTimeRunner(name, bitrate)
+        try:
+            self.runner = RealTimeRunner(name, bitrate, data_bitrate)
+        except ValueError:  # no CAN FD in this engine: nothing is left listening
+            self.sock.close()
+            if unix is not None:
+                os.unlink(unix)
+            raise
         self.bitrate = bitrate
+        self.fd = data_bitrate is not None  # a CAN FD bus: its clients may join with fd=True
+        self.data_bitrate = data_bitrate
+        self._refusing: str | None = None
+        self._behind_logged = False
         self.sessions: set[_Session] = set()
         self.rejected = 0
         self._lock = threading.Lock()
@@ -398,21 +470,104 @@ class BusServer:
         """The served `SimBus` (read it only from the runner thread, e.g. via ``runner.call``)."""
         return self.runner.sim
 
+    def check_fd(self, hello: P.Hello) -> None:
+        """ValueError when a client asks for CAN FD that this bus does not carry, or for another
+        data bit rate than the bus's."""
+        if hello.fd and not self.fd:
+            raise ValueError(
+                f"bus {self.name!r} is served without a data bit rate: it carries no CAN FD frames (serve it with "
+                "--data-bitrate, or open the bus without fd=True)"
+            )
+        if hello.fd and hello.data_bitrate is not None and hello.data_bitrate != self.data_bitrate:
+            raise ValueError(
+                f"bus {self.name!r} runs its data phase at {self.data_bitrate} bit/s; a node cannot join it at "
+                f"{hello.data_bitrate} bit/s"
+            )
+
     def _accept_loop(self) -> None:
+        backoff = 0.0
+        failing: str | None = None  # the failure logged last: each kind once per episode
         while not self._stop.is_set():
+            self._watch_behind()
             try:
                 conn, addr = self.sock.accept()
             except TimeoutError:
                 continue
-            except OSError:
-                break
+            except OSError as exc:
+                if self._stop.is_set() or exc.errno in (errno.EBADF, errno.EINVAL):
+                    break  # the listening socket was closed
+                # out of file descriptors (EMFILE, ENFILE), memory, or a connection reset before
+                # it was accepted: the server stays up and tries again
+                what = f"accept() failed: {exc.strerror or exc}"
+                if what != failing:
+                    LOG.warning("bus %r: %s; retrying (clients are refused meanwhile)", self.name, what)
+                    failing = what
+                backoff = min(max(backoff * 2, _ACCEPT_BACKOFF_S[0]), _ACCEPT_BACKOFF_S[1])
+                self._stop.wait(backoff)
+                continue
+            if failing is not None:
+                LOG.info("bus %r: accepting clients again", self.name)
+                failing, backoff = None, 0.0
+            self._serve(conn, addr)
+
+    def _serve(self, conn: socket.socket, addr: Any) -> None:
+        """Start a session for an accepted connection, or refuse it cleanly (an ERROR, then
+        close) when too many wait for their HELLO or no thread can be started for it."""
+        try:
             if conn.family != getattr(socket, "AF_UNIX", None):
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            session = _Session(self, conn, _peer_name(conn, addr))
-            with self._changed:
-                self.sessions.add(session)
-                self._changed.notify_all()
+            peer = _peer_name(conn, addr)
+        except OSError:
+            conn.close()
+            return
+        with self._lock:
+            unjoined = sum(1 for s in self.sessions if s.port is None)
+        if unjoined >= MAX_UNJOINED:
+            self._refuse(conn, peer, f"too many connections waiting to join ({MAX_UNJOINED}): try again later")
+            return
+        session = _Session(self, conn, peer)
+        with self._changed:
+            self.sessions.add(session)
+            self._changed.notify_all()
+        try:
             session.start()
+        except RuntimeError as exc:  # can't start new thread
+            with self._changed:
+                self.sessions.discard(session)
+                self._changed.notify_all()
+            session.closed.set()
+            session.out.put(None)
+            self._refuse(conn, peer, f"the server cannot start a thread for this client ({exc}): try again later")
+            return
+        self._refusing = None
+
+    def _refuse(self, conn: socket.socket, peer: str, reason: str) -> None:
+        """Tell a connection why it is refused and close it (logged once per reason and episode)."""
+        if reason != self._refusing:
+            LOG.warning("bus %r: client %s refused: %s", self.name, peer, reason)
+            self._refusing = reason
+        self.rejected += 1
+        try:
+            conn.settimeout(0.2)
+            conn.sendall(P.encode_message(P.ERROR, reason.encode()))
+        except OSError:
+            pass
+        finally:
+            conn.close()
+
+    def _watch_behind(self) -> None:
+        """Log once when the bus falls behind real time and once when it caught up."""
+        behind = self.runner.behind_ns
+        if behind >= BEHIND_WARN_NS and not self._behind_logged:
+            self._behind_logged = True
+            LOG.warning(
+                "bus %r is %.3f s behind real time: this machine cannot simulate its traffic as fast as it happens",
+                self.name,
+                behind / 1e9,
+            )
+        elif behind == 0 and self._behind_logged:
+            self._behind_logged = False
+            LOG.info("bus %r caught up with real time", self.name)
 
     def _detach(self, session: _Session) -> None:
         if session.port is not None:
@@ -442,8 +597,8 @@ class BusServer:
             sessions = list(self.sessions)
         for s in sessions:
             s.close("server closing")
-            try:
-                s.sock.close()
+            try:  # the client hears it at once, even when its writer is stuck (the writer closes)
+                s.sock.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
         self.sock.close()

@@ -11,6 +11,10 @@ timing, see `BitReceiver`).
   `stack.wire.decoder.BitDecoder` (stuff, form, CRC), error flags (6+ dominant bits where the
   frame should continue) reported as error records, a frame cut by the end of the capture as a
   'truncated' error record.
+- CAN FD (with a data bit rate): an ISO CAN FD receiver (`BitDecoder` mode 'fd'); at the sample
+  point of a recessive BRS the bit timing switches to the data bit rate (the rest of BRS is the
+  data phase's Phase_Seg2) and back at the sample point of the CRC delimiter (ISO 11898-1:2015),
+  resynchronising with the data phase's SJW in between.
 
 Speed: a Python loop over every sample is far too slow for a 12 M sample capture, so the channel
 is first reduced to a bytes object of 0/1 (one `bytes.translate`, see `stack.phy.waveform.capture`),
@@ -24,13 +28,17 @@ import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from stack.phy.waveform.capture import read_capture
 from stack.phy.waveform.levels import DOMINANT, IDLE_BITS, MAX_SAMPLES_PER_BIT, RECESSIVE
+from stack.wire.coding import Field
 from stack.wire.decoder import BitDecoder, BitError, DecodedFrame
 from stack.wire.frame import Frame
 
 __all__ = ["RxRecord", "BitReceiver", "decode_samples", "decode_file"]
+
+_BRS, _CRC_DELIM = Field.BRS, Field.CRC_DELIM
 
 
 @dataclass(frozen=True)
@@ -42,7 +50,8 @@ class RxRecord:
     ``error`` is None for a valid frame; otherwise its kind is 'stuff', 'form', 'crc' (from
     `BitDecoder`) or 'truncated' (the capture ended inside the frame). ``error_flag`` is True when
     the error shows as an error flag on the bus: 6 or more dominant bits where the frame should
-    have continued.
+    have continued. ``fd``, ``brs`` and ``esi`` are a CAN FD frame's flags as received (decoding
+    with a data bit rate).
     """
 
     t: float
@@ -59,6 +68,9 @@ class RxRecord:
     error_flag: bool = False
     overload: bool = False
     via: str = "receiver"
+    fd: bool = False
+    brs: bool = False
+    esi: bool = False
 
     @property
     def ok(self) -> bool:
@@ -79,7 +91,16 @@ class RxRecord:
         """The received `Frame`, or None for an error record."""
         if self.error is not None or self.can_id is None or self.dlc is None:
             return None
-        return Frame(self.can_id, self.data, extended=self.extended, remote=self.remote, dlc=self.dlc)
+        return Frame(
+            self.can_id,
+            self.data,
+            extended=self.extended,
+            remote=self.remote,
+            dlc=self.dlc,
+            fd=self.fd,
+            brs=self.brs,
+            esi=self.esi,
+        )
 
 
 class BitReceiver:
@@ -91,6 +112,9 @@ class BitReceiver:
     Phase_Seg2 is the rest. ``sjw`` (time quanta, 1..4, at most Phase_Seg2; default
     min(4, Phase_Seg2)) bounds each resynchronisation. A sample at index i is the bus level during
     [i, i+1); an edge at index i (sample i differs from sample i-1) happens at time i.
+
+    With ``data_bitrate`` the receiver is a CAN FD one: ``data`` is the data phase's receiver
+    (``data_sample_point``, default 75 %, and ``data_sjw``, in tq of ``tq_per_bit``).
     """
 
     def __init__(
@@ -101,6 +125,9 @@ class BitReceiver:
         sample_point: float = 87.5,
         sjw: float | None = None,
         tq_per_bit: int = 16,
+        data_bitrate: float | None = None,
+        data_sample_point: float = 75.0,
+        data_sjw: float | None = None,
     ) -> None:
         if not bitrate or bitrate <= 0:
             raise ValueError(f"bitrate {bitrate!r}: must be a positive number of bit/s")
@@ -138,6 +165,15 @@ class BitReceiver:
         self.bit_time = spb  # samples
         self.sp_offset = spb * sample_point / 100  # samples from bit start to the sample point
         self.sjw_samples = spb * sjw / tq_per_bit
+        self.data: BitReceiver | None = None
+        if data_bitrate is not None:
+            if not data_bitrate > 0 or data_bitrate < bitrate:
+                raise ValueError(
+                    f"data bit rate {data_bitrate:.10g} bit/s: must be at least the nominal {bitrate:.10g} bit/s"
+                )
+            self.data = BitReceiver(
+                data_bitrate, samplerate, sample_point=data_sample_point, sjw=data_sjw, tq_per_bit=tq_per_bit
+            )
 
     def phase_correction(self, bit_start: float, edge: float) -> tuple[float, float]:
         """Resynchronisation for an edge at ``edge`` in the bit starting at ``bit_start``.
@@ -175,6 +211,8 @@ def _receive(line: bytes, sof: int, rx: BitReceiver, dec: BitDecoder) -> tuple[D
     spo = rx.sp_offset
     sjw = rx.sjw_samples
     feed = dec.feed
+    data = rx.data
+    fast = False  # in the data phase of a frame with BRS
     dec.reset()
     b = float(sof)  # hard synchronisation: the bit time restarts with the edge
     fe = _next_fall(line, sof)  # SOF's own edge may not resynchronise it
@@ -203,7 +241,20 @@ def _receive(line: bytes, sof: int, rx: BitReceiver, dec: BitDecoder) -> tuple[D
         if si >= n:
             return None, b, si
         v = line[si]
-        res = feed(v)
+        if data is None:
+            res = feed(v)
+        else:
+            was = dec.field
+            res = feed(v)
+            # a field's last bit (a stuff bit leaves the field as it was): BRS recessive switches
+            # to the data bit timing at its sample point, the CRC delimiter back to the nominal
+            if res is None and was is not dec.field:
+                if was is _BRS and dec.brs:
+                    T, spo, sjw, fast = data.bit_time, data.sp_offset, data.sjw_samples, True
+                    end = s + T - spo
+                elif was is _CRC_DELIM and fast:
+                    T, spo, sjw, fast = rx.bit_time, rx.sp_offset, rx.sjw_samples, False
+                    end = s + T - spo
         if res is not None:
             return res, end, si
         prev = v
@@ -324,6 +375,9 @@ def decode_samples(
     tq_per_bit: int = 16,
     retry: bool = True,
     native_rate: float | None = None,
+    data_bitrate: float | None = None,
+    data_sample_point: float = 75.0,
+    data_sjw: float | None = None,
 ) -> list[RxRecord]:
     """Decode a CAN_RX signal (one byte per sample, 0 dominant / 1 recessive) into records.
     (``native_rate``: the rate the signal was recorded at when ``samples`` were subdivided from
@@ -341,8 +395,14 @@ def decode_samples(
     delays defeat any fixed sample point. Only a frame with a valid CRC, stuffing and form replaces
     the error record (``RxRecord.via`` says how it was received); CRC-15 lets a wrong frame through
     with probability 2^-15 per attempt.
+
+    With ``data_bitrate`` it is a CAN FD receiver (`BitReceiver`'s data phase; ``data_sample_point``
+    and ``data_sjw`` time it): classical frames decode as before, FD frames with their CRC-17/21
+    and stuff count; the retries move the nominal sample point only (no run-length rescue: an FD
+    frame's bits are not all one length).
     """
-    rx = BitReceiver(bitrate, samplerate, sample_point=sample_point, sjw=sjw, tq_per_bit=tq_per_bit)
+    fd_kw: dict[str, Any] = dict(data_bitrate=data_bitrate, data_sample_point=data_sample_point, data_sjw=data_sjw)
+    rx = BitReceiver(bitrate, samplerate, sample_point=sample_point, sjw=sjw, tq_per_bit=tq_per_bit, **fd_kw)
     alternates: list[BitReceiver] = []
     T = rx.bit_time
     if retry:
@@ -356,7 +416,9 @@ def decode_samples(
             ):
                 ps2 = tq_per_bit * (100 - spv) / 100
                 alternates.append(
-                    BitReceiver(bitrate, samplerate, sample_point=spv, sjw=min(4.0, ps2), tq_per_bit=tq_per_bit)
+                    BitReceiver(
+                        bitrate, samplerate, sample_point=spv, sjw=min(4.0, ps2), tq_per_bit=tq_per_bit, **fd_kw
+                    )
                 )
     line = bytes(samples)
     n = len(line)
@@ -365,7 +427,7 @@ def decode_samples(
     # bus idle: 11 recessive bits, but a node may start in the third intermission bit after an
     # error or overload delimiter (8 + 2 bits); half a bit of tolerance for the edge positions
     idle_need = (IDLE_BITS - 1.5) * T
-    dec = BitDecoder()
+    dec = BitDecoder("classic" if data_bitrate is None else "fd")
     out: list[RxRecord] = []
     pos = 0
     need = idle_need
@@ -398,7 +460,7 @@ def decode_samples(
                     res, end, last_si, via = r2, e2, s2, f"sample point {alt.sample_point:g} %"
                     break
             else:
-                if T < 8 or (native_rate is not None and native_rate / bitrate < 8):
+                if rx.data is None and (T < 8 or (native_rate is not None and native_rate / bitrate < 8)):
                     found = _run_length_retry(line, sof, T)
                     if found is not None:
                         res, end = found
@@ -447,6 +509,9 @@ def _record(
             False,
             error,
             False,
+            fd=dec.fd,
+            brs=dec.brs,
+            esi=dec.esi,
         )
     return RxRecord(
         t=t,
@@ -463,6 +528,9 @@ def _record(
         error_flag=flag,
         overload=res.overload,
         via=via,
+        fd=res.fd,
+        brs=res.brs,
+        esi=res.esi,
     )
 
 
@@ -475,9 +543,12 @@ def decode_file(
     sample_point: float = 87.5,
     sjw: float | None = None,
     retry: bool = True,
+    data_bitrate: float | None = None,
+    data_sample_point: float = 75.0,
 ) -> list[RxRecord]:
-    """Read a capture (`read_capture`) and decode it (`decode_samples`)."""
-    cap = read_capture(path, channel, samplerate, bitrate)
+    """Read a capture (`read_capture`, a VCD resampled finely enough for the faster bit rate) and
+    decode it (`decode_samples`; CAN FD with ``data_bitrate``)."""
+    cap = read_capture(path, channel, samplerate, max(bitrate, data_bitrate or 0))
     return decode_samples(
         cap.samples,
         cap.samplerate,
@@ -486,4 +557,6 @@ def decode_file(
         sjw=sjw,
         retry=retry,
         native_rate=cap.native_rate,
+        data_bitrate=data_bitrate,
+        data_sample_point=data_sample_point,
     )

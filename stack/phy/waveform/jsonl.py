@@ -2,7 +2,8 @@
 writes and `canstack render` reads.
 
 Keys: t (seconds, optional when reading), id (integer), extended, remote, dlc, data (hex), crc
-(CRC-15, checked against the frame when reading), crc_ok, ack; an error record adds ``error``.
+(CRC-15, or CRC-17/21 of a CAN FD frame; checked against the frame when reading), crc_ok, ack;
+a CAN FD frame adds fd (true), brs and esi; an error record adds ``error``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ __all__ = ["record_to_json", "frames_from_jsonl"]
 
 def record_to_json(rec: RxRecord) -> dict[str, Any]:
     """The JSON-lines form of a record: t, id, extended, remote, dlc, data (hex), crc, crc_ok,
-    ack; error records add ``error`` {kind, field, bit (index in the field), position (bit from
+    ack; CAN FD records add fd, brs and esi (classical records keep exactly the keys above);
+    error records add ``error`` {kind, field, bit (index in the field), position (bit from
     SOF), flag (error flag seen)}."""
     out: dict[str, Any] = {
         "t": rec.t,
@@ -33,6 +35,8 @@ def record_to_json(rec: RxRecord) -> dict[str, Any]:
         "crc_ok": rec.crc_ok,
         "ack": rec.ack,
     }
+    if rec.fd:
+        out.update(fd=True, brs=rec.brs, esi=rec.esi)
     if rec.error is not None:
         out["error"] = {
             "kind": rec.error.kind,
@@ -45,8 +49,8 @@ def record_to_json(rec: RxRecord) -> dict[str, Any]:
 
 
 def frames_from_jsonl(lines: Iterable[str], source: str = "input") -> list[tuple[float | None, Frame]]:
-    """Parse JSON lines with decode's keys (id, extended, remote, dlc, data hex; t optional, crc
-    optional and checked against the frame's CRC-15 when given) into (t, Frame) pairs.
+    """Parse JSON lines with decode's keys (id, extended, remote, dlc, data hex, fd, brs, esi; t
+    optional, crc optional and checked against the frame's CRC when given) into (t, Frame) pairs.
 
     Error records (with an ``error`` key) are skipped: they are not frames a node sends.
     """
@@ -79,13 +83,17 @@ def frames_from_jsonl(lines: Iterable[str], source: str = "input") -> list[tuple
                 extended=bool(obj.get("extended", False)),
                 remote=remote,
                 dlc=obj.get("dlc"),
+                fd=bool(obj.get("fd", False)),
+                brs=bool(obj.get("brs", False)),
+                esi=bool(obj.get("esi", False)),
             )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{where}: {exc}") from None
         crc = obj.get("crc")
         if crc is not None and crc != frame.bits.crc:
+            fb = frame.bits
             raise ValueError(
-                f"{where}: crc {crc} (0x{crc:04X}) does not match the frame's CRC-15 0x{frame.bits.crc:04X}"
+                f"{where}: crc {crc} (0x{crc:04X}) does not match the frame's CRC-{fb.crc_width} 0x{fb.crc:04X}"
             )
         t = obj.get("t")
         if t is not None and (not isinstance(t, (int, float)) or isinstance(t, bool) or not 0 <= t < math.inf):

@@ -5,6 +5,11 @@ the bit rate, frames separated by the 3-bit intermission (back to back) or place
 times, with bus idle before the first frame and after the last. Optional clock drift (the
 transmitter's oscillator error) and edge jitter exercise a receiver's resynchronisation.
 
+A CAN FD frame with BRS goes at two bit rates: its transmitter switches to the data bit rate at
+the sample point of BRS and back at the sample point of the CRC delimiter (ISO 11898-1:2015), so
+those two bits last part of a nominal and part of a data bit (`FrameBits.bit_edges_ns`, with the
+transmitter's ``sample_point`` and ``data_sample_point``).
+
 A waveform is a list of runs ``(level, samples)`` (`render_edges`) or one byte per sample
 (`render_samples`, `runs_to_raw`), 0 dominant and 1 recessive.
 """
@@ -34,6 +39,9 @@ def render_edges(
     drift: float = 0.0,
     jitter: float = 0.0,
     seed: int = 0,
+    data_bitrate: float | None = None,
+    sample_point: float = 87.5,
+    data_sample_point: float = 75.0,
 ) -> tuple[list[tuple[int, int]], int, list[int]]:
     """The waveform as runs: ([(level, n_samples), ...], total samples, SOF sample of each frame).
 
@@ -44,7 +52,9 @@ def render_edges(
     ``drift`` scales the transmitter's bit time (0.01 = bits 1 % longer); ``jitter`` moves every
     edge by a uniform random amount of up to +-jitter bit times (seeded: the same seed gives the
     same waveform). Sample i holds the level during [i, i+1), so an edge at time x first shows in
-    sample ceil(x).
+    sample ceil(x). Frames with BRS need ``data_bitrate``; ``sample_point`` and
+    ``data_sample_point`` (percent) place the transmitter's switches between the rates, and
+    jitter there is a fraction of the data bit.
     """
     if not bitrate or bitrate <= 0 or not samplerate or samplerate <= 0:
         raise ValueError(f"bitrate {bitrate!r} and samplerate {samplerate!r} must be positive")
@@ -64,6 +74,11 @@ def render_edges(
         raise ValueError(f"jitter {jitter}: must be 0 <= jitter < 0.5 bit times")
     if times is not None and len(times) != len(frames):
         raise ValueError(f"{len(times)} times for {len(frames)} frames: give one per frame (or None)")
+    if data_bitrate is not None:
+        _check_data_rate(data_bitrate, bitrate, samplerate, sample_point, data_sample_point)
+    elif any(f.brs for f in frames):
+        i = next(i for i, f in enumerate(frames) if f.brs)
+        raise ValueError(f"frame {i} ({frames[i]!r}) switches bit rate (BRS): it needs a data bit rate")
     tbit = samplerate / bitrate
     tb = tbit * (1 + drift)
     rng = random.Random(seed)
@@ -97,21 +112,61 @@ def render_edges(
         sofs.append(start)
         bits = frame.bits.bits
         nb = len(bits)
+        # where each bit starts, in samples from SOF at the nominal clock: one bit time apart,
+        # or for BRS the two rates (a classical frame keeps j * tb: the same floats as always)
+        offsets = _bit_offsets(frame, bitrate, data_bitrate, samplerate, sample_point, data_sample_point)
         k = 0
         while k < nb:
             lvl = bits[k]
             j = k
             while j < nb and bits[j] == lvl:
                 j += 1
-            edge = start + j * tb
+            if offsets is None:
+                edge = start + j * tb
+                bit_len = tbit
+            else:
+                edge = start + offsets[j] * (1 + drift)
+                bit_len = offsets[j] - offsets[j - 1]
             if jitter and j < nb:
-                edge += rng.uniform(-jitter, jitter) * tbit
+                edge += rng.uniform(-jitter, jitter) * bit_len
             emit(1 if lvl == "1" else 0, max(pos + 1, math.ceil(edge - 1e-9)))
             k = j
-        eof_end = start + nb * tb
+        eof_end = start + (nb * tb if offsets is None else offsets[nb] * (1 + drift))
         earliest = eof_end + INTERMISSION_BITS * tb
     emit(1, max(pos + 1, math.ceil(earliest - INTERMISSION_BITS * tb + idle_bits * tbit)))
     return runs, pos, sofs
+
+
+def _check_data_rate(
+    data_bitrate: float, bitrate: float, samplerate: float, sample_point: float, data_sample_point: float
+) -> None:
+    if not data_bitrate >= bitrate:
+        raise ValueError(f"data bit rate {data_bitrate!r}: must be at least the nominal {bitrate:.10g} bit/s")
+    if samplerate / data_bitrate < 2:
+        raise ValueError(
+            f"samplerate {samplerate:.10g} Hz gives {samplerate / data_bitrate:.9g} samples per bit at the data "
+            f"bit rate {data_bitrate:.10g} bit/s: at least 2 are needed"
+        )
+    for name, sp in (("sample point", sample_point), ("data sample point", data_sample_point)):
+        if not 0 < sp < 100:
+            raise ValueError(f"{name} {sp:g} %: must be 0 < sample point < 100")
+
+
+def _bit_offsets(
+    frame: Frame,
+    bitrate: float,
+    data_bitrate: float | None,
+    samplerate: float,
+    sample_point: float,
+    data_sample_point: float,
+) -> list[float] | None:
+    """Start of each bit (and the end of EOF) in samples from SOF for a frame with BRS; None for
+    one at a single bit rate."""
+    if not frame.brs or data_bitrate is None:
+        return None
+    edges = frame.bits.bit_edges_ns(bitrate, data_bitrate, sample_point / 100, data_sample_point / 100)  # type: ignore[arg-type]
+    scale = samplerate / 1e9
+    return [e * scale for e in edges]
 
 
 def render_samples(
@@ -125,6 +180,9 @@ def render_samples(
     jitter: float = 0.0,
     seed: int = 0,
     bit: int | None = None,
+    data_bitrate: float | None = None,
+    sample_point: float = 87.5,
+    data_sample_point: float = 75.0,
 ) -> bytes:
     """The CAN_RX waveform of ``frames`` as one byte per sample (see `render_edges` for timing).
 
@@ -132,7 +190,17 @@ def render_samples(
     (so the file looks like one channel of a multi-channel logic analyzer).
     """
     runs, _, _ = render_edges(
-        frames, bitrate, samplerate, times=times, idle_bits=idle_bits, drift=drift, jitter=jitter, seed=seed
+        frames,
+        bitrate,
+        samplerate,
+        times=times,
+        idle_bits=idle_bits,
+        drift=drift,
+        jitter=jitter,
+        seed=seed,
+        data_bitrate=data_bitrate,
+        sample_point=sample_point,
+        data_sample_point=data_sample_point,
     )
     return runs_to_raw(runs, bit)
 

@@ -5,8 +5,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stack.bus.sim import SimBus
-from stack.bus.trace import load_messages
 from stack.cli.demo import build_demo
+from stack.io.tracefile import load_messages, save_trace
 from stack.wire.coding import Field
 from stack.wire.frame import Frame
 
@@ -174,7 +174,7 @@ def test_trace_export_read_back_with_python_can(tmp_path, suffix):
     build_demo(bus)
     bus.run(until=50_000_000)
     path = tmp_path / f"t{suffix}"
-    n = bus.save_trace(str(path))
+    n = save_trace(bus, path)
     msgs = [m for m in load_messages(path) if not m.is_error_frame]
     assert n == len(bus.trace) == len(msgs)
     for rec, m in zip(bus.trace, msgs):
@@ -191,7 +191,7 @@ def test_error_attempts_exported_as_error_frames(tmp_path):
     bus.node("a").send(Frame(1))
     bus.run(duration=300_000)
     path = tmp_path / "e.asc"
-    bus.save_trace(str(path))
+    save_trace(bus, path)
     msgs = load_messages(path)
     assert msgs and all(m.is_error_frame for m in msgs)
 

@@ -12,6 +12,8 @@ import pytest
 from stack.bus.faults import FaultInjector
 from stack.bus.sim import SimBus
 from stack.cli.demo import build_fault_demo
+from stack.io.message import record_to_message
+from stack.io.tracefile import save_trace
 from stack.wire.frame import Frame
 
 # include/uapi/linux/can/error.h
@@ -123,7 +125,7 @@ def _check(rec, can_id: int, data: bytes) -> None:
 def test_error_frames_round_trip_through_python_can(faulted, tmp_path, suffix):
     bus, errors = faulted
     path = tmp_path / f"faults{suffix}"
-    assert bus.save_trace(str(path)) == len(bus.trace)
+    assert save_trace(bus, path) == len(bus.trace)
     back = [m for m in can.LogReader(str(path)) if m.is_error_frame]
     assert len(back) == len(errors)
     for rec, msg in zip(errors, back):
@@ -144,7 +146,7 @@ def test_error_frame_hand_worked_ack_error(tmp_path):
     a.send(Frame(0x123, b"\x01"))
     bus.run(until=1_000_000)
     rec = next(r for r in bus.trace if r.kind == "error")
-    msg = rec.to_message()
+    msg = record_to_message(rec)
     assert msg.is_error_frame and msg.arbitration_id == 0x2A8
     assert bytes(msg.data) == bytes([0, 0, 0x80, 0x19, 0, 0, 8, 0])
 
@@ -160,7 +162,7 @@ def test_error_frame_hand_worked_local_crc_error():
     bus.run(frames=1)
     rec = next(r for r in bus.trace if r.kind == "error")
     assert rec.detail["error"] == "crc" and rec.detail["seen_by"] == "b"
-    msg = rec.to_message()
+    msg = record_to_message(rec)
     assert msg.arbitration_id == 0x288 and bytes(msg.data) == bytes([0, 0, 0x00, 0x08, 0, 0, 0, 9])
 
 
@@ -169,11 +171,11 @@ def test_candump_log_carries_the_data_bytes(faulted, tmp_path):
     # (20000080) and its reader keeps only "an error frame"; the 8 bytes are in the file
     bus, errors = faulted
     path = tmp_path / "faults.log"
-    bus.save_trace(str(path))
+    save_trace(bus, path)
     lines = [ln for ln in path.read_text().splitlines() if re.search(r" 20000080#", ln)]
     assert len(lines) == len(errors)
     for rec, line in zip(errors, lines):
-        _check(rec, rec.to_message().arbitration_id, bytes.fromhex(line.split("#")[1]))
+        _check(rec, record_to_message(rec).arbitration_id, bytes.fromhex(line.split("#")[1]))
     assert sum(m.is_error_frame for m in can.LogReader(str(path))) == len(errors)
 
 
@@ -181,6 +183,6 @@ def test_asc_keeps_one_error_frame_per_record(faulted, tmp_path):
     # python-can's .asc writer has no fields for an error frame's content: 'ErrorFrame' lines
     bus, errors = faulted
     path = tmp_path / "faults.asc"
-    bus.save_trace(str(path))
+    save_trace(bus, path)
     assert path.read_text().count("ErrorFrame") == len(errors)
     assert sum(m.is_error_frame for m in can.LogReader(str(path))) == len(errors)

@@ -21,9 +21,9 @@ except ModuleNotFoundError:  # Python 3.10
 import pytest
 
 import stack.cli.demo as demo
-import stack.cli.runs as runs
 from stack.bus.sim import SimBus
 from stack.cli import build_parser, main
+from stack.io.progress import TimeLimitExceeded, run_sliced, time_limit
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -129,7 +129,7 @@ def test_a_sliced_run_is_the_same_run():
     demo.build_demo(whole)
     demo.build_demo(sliced)
     whole.run(until=300_000_000)
-    assert runs.run_sliced(sliced, 300_000_000, progress=False)
+    assert run_sliced(sliced, 300_000_000, progress=False)
     assert sliced.now() == whole.now() and _digest(sliced) == _digest(whole)
     assert sliced.summary() == whole.summary()
 
@@ -306,7 +306,7 @@ def test_ctrl_c_stops_a_slice_that_never_ends(monkeypatch):
     timer = threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
     try:
-        assert runs.run_sliced(bus, 10**9, progress=False) is False
+        assert run_sliced(bus, 10**9, progress=False) is False
     finally:
         timer.cancel()
     assert bus.now() == 5_000_000
@@ -314,7 +314,7 @@ def test_ctrl_c_stops_a_slice_that_never_ends(monkeypatch):
 
 @pytest.mark.wallclock
 def test_a_run_past_its_time_limit_raises():
-    with pytest.raises(runs.TimeLimitExceeded, match=r"time limit of 0.3 s \(wall clock\) at 0.005 s simulated"):
-        runs.run_sliced(_spinning_bus(), 10**9, progress=False, time_limit=0.3)
-    with runs.time_limit(0.3), pytest.raises(runs.TimeLimitExceeded):  # the sweeps' per-run limit
-        runs.run_sliced(_spinning_bus(), 10**9, progress=False)
+    with pytest.raises(TimeLimitExceeded, match=r"time limit of 0.3 s \(wall clock\) at 0.005 s simulated"):
+        run_sliced(_spinning_bus(), 10**9, progress=False, time_limit=0.3)
+    with time_limit(0.3), pytest.raises(TimeLimitExceeded):  # the sweeps' per-run limit
+        run_sliced(_spinning_bus(), 10**9, progress=False)

@@ -315,3 +315,50 @@ def test_arbitration_lost_is_reported_where_the_driver_sees_arbitration(net):
     net.start()
     assert net.wait(lambda: b.tx_frames == 1)
     assert len(lost) == 1 and lost[0].winner.can_id == 0x100 and lost[0].frame.can_id == 0x200
+
+
+def test_listening_for_an_event_the_driver_never_reports_is_an_error_not_silence(net):
+    # the simulated bus sees every arbitration round; python-can's virtual bus shows none (the
+    # controller underneath arbitrates), and PyCanDriver's documentation says so
+    from stack.controller.events import ArbitrationLost
+
+    a = net.node("a")
+    sees_arbitration = net.kind == "sim"
+    assert ("arbitration-lost" in a.capabilities) is sees_arbitration
+    if sees_arbitration:
+        a.listen(ArbitrationLost, print)
+        assert a.unlisten(ArbitrationLost, print)
+    else:
+        with pytest.raises(
+            NodeError,
+            match=r"cannot listen for ArbitrationLost: its driver never reports it: that needs the capability 'arbitration-lost'",
+        ):
+            a.listen(ArbitrationLost, print)
+        assert ArbitrationLost not in a.listeners
+    # error states: the simulated bus runs fault confinement, PyCanDriver follows the bus's error frames
+    a.listen(ErrorStateChanged, print)
+    a.listen(TxDone, print)
+    a.listen(TxFailed, print)
+    with pytest.raises(TypeError, match=r"Received is not an event a node reports.*subscribe"):
+        a.listen(Received, print)
+    with pytest.raises(TypeError, match="str is not an event a node reports"):
+        a.listen(str, print)
+
+
+def test_a_node_listening_for_what_a_driver_never_reports_is_not_attached_to_it(net):
+    from stack.controller.events import ArbitrationLost
+    from stack.controller.node import Node
+
+    node = Node("late")
+    node.listen(ArbitrationLost, print)  # not attached yet: the driver is checked when it attaches
+    if net.kind == "sim":
+        net.bus.add(node)
+        assert node.bus is net.bus
+    else:
+        wire = can.Bus(interface="virtual", channel=net.channel)
+        try:
+            with pytest.raises(NodeError, match=r"listens for ArbitrationLost, but its driver never reports it"):
+                net.driver.add(node, wire)
+        finally:
+            wire.shutdown()
+        assert node.bus is None and node not in net.driver.nodes

@@ -10,6 +10,7 @@ from stack.bus.sim import SimBus
 from stack.controller.events import ArbitrationLost, Received, TxDone, TxFailed
 from stack.controller.filters import AcceptanceFilter
 from stack.controller.node import NodeError, QueueFull
+from stack.io.message import to_message
 from stack.wire.frame import Frame
 
 
@@ -102,7 +103,7 @@ def _pycan_match(filters, frame):
     bus = can.Bus(interface="virtual", channel="filtertest", receive_own_messages=False)
     try:
         bus.set_filters(filters)
-        return bus._matches_filters(frame.to_message())
+        return bus._matches_filters(to_message(frame))
     finally:
         bus.shutdown()
 

@@ -13,6 +13,7 @@ from stack.cli.demo import run_demo_on_bus
 from stack.controller.events import Received, TxDone, TxFailed
 from stack.controller.node import Node
 from stack.io.driver import RETRY_NS, PyCanDriver
+from stack.io.message import to_message
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
@@ -54,7 +55,7 @@ def test_the_same_ecu_code_runs_on_the_simulated_bus_and_on_python_can():
         echo_ecu(drv.node("ecu"), log_pc)
         with can.Bus(interface="virtual", channel=ch) as t:
             for f in stim:
-                t.send(f.to_message())
+                t.send(to_message(f))
             replies = [t.recv(10.0) for _ in stim]
     assert log_pc == log_sim
     assert [(m.arbitration_id, bytes(m.data)) for m in replies] == [(0x180, bytes([2 * i])) for i in (1, 2, 3)]
@@ -225,8 +226,8 @@ def test_received_times_are_the_buses_timestamps():
     ):
         node = drv.node("n")
         node.subscribe(got.append)
-        tx.send(frame.to_message())
-        tx.send(frame.to_message())
+        tx.send(to_message(frame))
+        tx.send(to_message(frame))
         end = time.monotonic() + 30.0
         while len(got) < 2 and time.monotonic() < end:
             time.sleep(0.01)

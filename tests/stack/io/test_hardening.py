@@ -98,7 +98,7 @@ def _raw_join(server):
     s = socket.create_connection(server.address, timeout=10.0)
     s.sendall(
         encode_message(
-            HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}}).encode()
+            HELLO, json.dumps({"v": 2, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}}).encode()
         )
     )
     return s

@@ -95,7 +95,7 @@ def test_status_messages_round_trip():
 
 
 def _hello(**kw):
-    return json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}, **kw}).encode()
+    return json.dumps({"v": 2, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}, **kw}).encode()
 
 
 def test_hello_is_parsed_and_checked():
@@ -114,7 +114,12 @@ def test_hello_is_parsed_and_checked():
         (b"{not json", "not JSON"),
         (b"[" * 5000, "nested too deeply"),
         (b"[]", "JSON object"),
-        (_hello(v=2), "protocol version 2 not supported"),
+        (_hello(v=1), "the client speaks canstack serve protocol 1, this server speaks 2: upgrade canstack"),
+        (_hello(v=3), "protocol version 3 not supported"),
+        (_hello(client="x" * 65), "client must be a printable string of at most 64"),
+        (_hello(client="a\nb"), "client must be a printable string"),
+        (_hello(fd="yes"), "fd 'yes' must be true or false"),
+        (_hello(data_bitrate=-1), "data_bitrate -1 must be a positive integer"),
         (_hello(bus="other"), "serves bus 'bus0', not 'other'"),
         (_hello(bitrate=250_000), "runs at 500000 bit/s"),
         (_hello(node_name=""), "node_name must be a string of 1..64"),
@@ -140,3 +145,76 @@ def test_bad_hello_names_the_rule(payload, needle):
 def test_bad_send_names_what_is_wrong(payload, needle):
     with pytest.raises(ValueError, match=needle):
         P.decode_send(payload)
+
+
+# ------------------------------------------------------------------------- version 2: CAN FD, TIME
+FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)  # ISO 11898-1:2015 table 5
+
+fd_frames = st.builds(
+    lambda ext, cid, n, fill, brs, esi: Frame(
+        cid & (0x1FFFFFFF if ext else 0x7FF), bytes([fill]) * n, extended=ext, fd=True, brs=brs, esi=esi
+    ),
+    st.booleans(),
+    st.integers(0, 0x1FFFFFFF),
+    st.sampled_from(FD_LENGTHS),
+    st.integers(0, 255),
+    st.booleans(),
+    st.booleans(),
+)
+
+
+def test_fd_flags_have_the_documented_layout():
+    f = Frame(0x123, bytes(range(64)), fd=True, brs=True, esi=False)
+    # SEND: flags 8 CAN FD + 16 bit rate switch; the dlc byte is the DLC code (15 for 64 bytes)
+    assert P.encode_send(f) == struct.pack("!IB", 1 + 6 + 64, 0x10) + struct.pack("!IBB", 0x123, 8 | 16, 15) + bytes(
+        range(64)
+    )
+    g = Frame(0x1ABCDEF0, bytes(12), extended=True, fd=True, esi=True)
+    assert P.encode_rx(7, g, own=True) == struct.pack("!IB", 1 + 14 + 12, 0x11) + struct.pack(
+        "!QIBB", 7, 0x1ABCDEF0, 1 | 4 | 8 | 32, 9
+    ) + bytes(12)
+    assert P.encode_time(42) == struct.pack("!IBQ", 9, 0x18, 42)
+    assert P.encode_now(42, 5, 6) == struct.pack("!IBQQQ", 25, 0x19, 42, 5, 6)
+
+
+@given(fd_frames, st.integers(0, 2**64 - 1), st.booleans())
+def test_fd_frames_round_trip(frame, t, own):
+    [(_, payload)] = P.Reader().feed(P.encode_send(frame))
+    f2 = P.decode_send(payload)
+    assert (f2, f2.fd, f2.brs, f2.esi) == (frame, True, frame.brs, frame.esi)
+    [(_, payload)] = P.Reader().feed(P.encode_rx(t, frame, own))
+    t2, f2, is_rx = P.RxDecoder().decode(payload)
+    assert (t2, f2, f2.brs, f2.esi, is_rx) == (t, frame, frame.brs, frame.esi, not own)
+
+
+@pytest.mark.parametrize(
+    "payload,needle",
+    [
+        (struct.pack("!IBB", 0x10, 16, 0), "need the CAN FD flag"),  # BRS without FD
+        (struct.pack("!IBB", 0x10, 64, 0), "unknown frame flags 0x40"),
+        (struct.pack("!IBB", 0x10, 4, 0), "own-frame flag"),
+        (struct.pack("!IBB", 0x10, 8 | 2, 0), "CAN FD has no remote frames"),
+        (struct.pack("!IBB", 0x10, 8, 9) + bytes(10), "not a CAN FD length"),
+    ],
+)
+def test_bad_fd_send_names_what_is_wrong(payload, needle):
+    with pytest.raises(ValueError, match=needle):
+        P.decode_send(payload)
+
+
+def test_time_and_now_round_trip():
+    assert P.decode_time(P.encode_time(2**63)[5:]) == 2**63
+    assert P.decode_now(P.encode_now(1, 2, 3)[5:]) == (1, 2, 3)
+    with pytest.raises(ValueError, match="TIME payload of 3 bytes"):
+        P.decode_time(b"abc")
+
+
+def test_hello_and_welcome_carry_the_client_and_fd():
+    h = P.parse_hello(
+        P.encode_hello("bus0", None, None, {}, False, client="candump[42]", fd=True, data_bitrate=2_000_000)[5:],
+        "bus0",
+        500_000,
+    )
+    assert (h.client, h.fd, h.data_bitrate) == ("candump[42]", True, 2_000_000)
+    w = P.parse_welcome(P.encode_welcome(500_000, "n", 1.5, behind_ms=12.5, fd=True, data_bitrate=2_000_000)[5:])
+    assert w == P.Welcome(500_000, "n", 1.5, 12.5, True, 2_000_000)

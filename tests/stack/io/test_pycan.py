@@ -463,7 +463,7 @@ def test_cantools_tester_drives_a_dut_on_another_canstack_bus(wait_until):
         ({"listen_only": "maybe"}, "listen_only 'maybe' must be True or False"),
         ({"node_name": "a b"}, "node name 'a b'"),
         ({"node_name": "\x01\x02"}, "node name"),
-        ({"data_bitrate": 2_000_000}, "no FD data phase"),
+        ({"data_bitrate": 2_000_000}, "a data phase is CAN FD's; open the bus with fd=True"),
     ],
 )
 def test_bad_node_options_are_refused(kw, needle):

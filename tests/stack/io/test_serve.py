@@ -5,6 +5,7 @@ import argparse
 import json
 import logging
 import os
+import re
 import signal
 import socket
 import struct
@@ -176,7 +177,7 @@ def _read_msgs(sock, until=None, timeout=30.0):
 
 def _hello(**kw):
     return encode_message(
-        HELLO, json.dumps({"v": 1, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}, **kw}).encode()
+        HELLO, json.dumps({"v": 2, "bus": "bus0", "bitrate": None, "node_name": None, "config": {}, **kw}).encode()
     )
 
 
@@ -352,7 +353,7 @@ def test_serve_help_describes_every_option_and_the_client_channels():
     register(sub)
     serve = sub.choices["serve"]
     helps = {a.dest: a.help for a in serve._actions if a.dest != "help"}
-    assert set(helps) == {"bitrate", "listen", "unix", "name", "allow_remote", "duration"}
+    assert set(helps) == {"bitrate", "data_bitrate", "listen", "unix", "name", "allow_remote", "duration"}
     assert all(h and h != argparse.SUPPRESS for h in helps.values()), helps
     text = serve.format_help()
     assert "tcp://127.0.0.1:29536/bus0" in text and "unix:///path/to/socket/bus0" in text
@@ -396,5 +397,31 @@ def test_clients_joining_and_leaving_are_logged_with_node_and_peer(server, caplo
         bus.shutdown()
         assert server.wait_sessions(0, timeout=10.0)  # gone, its leaving logged
     lines = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
-    assert f"client {peer} joined bus 'bus0' as node 'dash'" in lines
-    assert f"client {peer} (node 'dash') left bus 'bus0': said BYE" in lines
+    me = rf"\S+\[{os.getpid()}\] from {re.escape(peer)}"  # the client names its program and pid
+    assert any(re.fullmatch(rf"client {me} joined bus 'bus0' as node 'dash'", ln) for ln in lines), lines
+    assert any(re.fullmatch(rf"client {me} \(node 'dash'\) left bus 'bus0': said BYE", ln) for ln in lines), lines
+
+
+@pytest.mark.socket
+@pytest.mark.subprocess
+def test_a_client_in_another_process_is_logged_by_its_program_and_pid(server, caplog, tmp_path):
+    script = tmp_path / "dashboard.py"
+    script.write_text(
+        "import sys, can\n"
+        "import stack.io.pycan\n"
+        "bus = can.Bus(interface='canstack', channel=sys.argv[1])\n"
+        "bus.shutdown()\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    with caplog.at_level(logging.INFO, logger="stack.io.serve"):
+        proc = subprocess.Popen([sys.executable, str(script), server.url], env=env, stderr=subprocess.PIPE, text=True)
+        try:
+            _, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert proc.returncode == 0, err
+        assert server.wait_sessions(0, timeout=10.0)
+    joined = [r.getMessage() for r in caplog.records if "joined" in r.getMessage()]
+    assert len(joined) == 1 and joined[0].startswith(f"client dashboard.py[{proc.pid}] from 127.0.0.1:"), joined

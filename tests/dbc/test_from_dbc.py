@@ -1,0 +1,158 @@
+"""`canstack scenario from-dbc`: a real network description becomes a scenario that the pipeline
+reads and `canstack experiment` runs; checked against cantools' reading of the same DBC."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cantools
+import pytest
+
+import stack.cli as cli
+from profiles.pipeline.scenario import load_scenario
+
+SAMPLE = Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc"
+SHARED = Path(os.environ.get("CANSTACK_SHARED") or Path(__file__).resolve().parents[3] / "shared")
+CORPUS = sorted((SHARED / "corpus" / "dbc").glob("*/*.dbc")) if (SHARED / "corpus" / "dbc").is_dir() else []
+
+
+def run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# Vector's interaction-layer send types that carry no period of their own (with or without the
+# WithDelay / WithRepetition suffixes), and those that send at the fast cycle while active
+SPONTANEOUS = ("spontaneous", "onwrite", "event", "onchange")
+IF_ACTIVE = ("cyclicifactive", "ifactive", "enabledperiodic")
+
+
+def _expected(db, default_cycle=None):
+    """name -> (id, extended, dlc, period ms) from cantools' own reading: ``cycle_time``
+    (GenMsgCycleTime), ``send_type`` (GenMsgSendType) and GenMsgCycleTimeFast."""
+    out = {}
+    for m in db.messages:
+        if m.is_fd or m.length > 8 or m.is_container:
+            continue
+        st = (m.send_type or "").lower().replace("withdelay", "").replace("withrepetition", "")
+        period = m.cycle_time or None
+        if st in IF_ACTIVE or st == "cyclicifactiveandspontaneous":
+            fast = m.dbc.attributes.get("GenMsgCycleTimeFast") if m.dbc else None
+            period = (fast.value if fast is not None and fast.value else None) or period
+        elif st in SPONTANEOUS:
+            period = None
+        elif period is None and default_cycle is not None and not st.startswith(("cyclic", "eventperiodic")):
+            period = default_cycle  # neither a known send type nor a cycle time
+        if period:
+            out[m.name] = (m.frame_id, bool(m.is_extended_frame), m.length, float(period))
+    return out
+
+
+def _read(path: Path):
+    sc = load_scenario(path)
+    return {
+        msg.name: (msg.can_id, msg.extended, msg.dlc, msg.period_ns / 1e6, node.name, msg.deadline_ns / 1e6)
+        for node in sc.nodes
+        for msg in node.messages
+    }
+
+
+def test_sample_network_becomes_a_scenario_the_experiment_runs(capsys, tmp_path):
+    out_file = tmp_path / "pb.toml"
+    code, out, err = run(capsys, "scenario", "from-dbc", SAMPLE, "--out", out_file)
+    assert code == 0, err
+    assert "6 nodes, 8 messages" in out
+    db = cantools.database.load_file(str(SAMPLE))
+    got = _read(out_file)
+    want = _expected(db)
+    assert {k: v[:4] for k, v in got.items()} == want
+    for name, (_, _, _, period, node, deadline) in got.items():
+        assert node == db.get_message_by_name(name).senders[0]
+        assert deadline == period  # no CanstackDeadline in the sample
+    # left out, each with its reason, on stderr and in the file
+    assert "DoorStatus: left out" in err and "ClusterDiagResponse: left out: sent on request only" in err
+    assert "# ClusterDiagResponse: left out" in out_file.read_text()
+    # GenMsgStartDelayTime 5 ms becomes the offset
+    assert load_scenario(out_file).nodes[1].messages[0].offset_ns == 5_000_000
+    code, out, err = run(capsys, "experiment", out_file)
+    assert code == 0, err
+    assert "EngineData" in out and "RTA" in out
+
+
+def test_deadline_attribute_bitrate_and_senders(capsys, tmp_path):
+    dbc = tmp_path / "net.dbc"
+    dbc.write_text(
+        'VERSION ""\nBS_:\nBU_: A B C\n'
+        'BO_ 100 M1: 8 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" B\n'
+        'BO_ 2147484160 M2: 3 B\n SG_ Y : 0|8@1+ (1,0) [0|255] "" A\n'
+        'BO_ 300 M3: 2 Vector__XXX\n SG_ Z : 0|8@1+ (1,0) [0|255] "" A\n'
+        "BO_TX_BU_ 100 : C,A;\n"
+        'BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;\nBA_DEF_ BO_ "CanstackDeadline" INT 0 65535;\n'
+        'BA_DEF_ "Baudrate" INT 1000 1000000;\n'
+        'BA_DEF_DEF_ "GenMsgCycleTime" 0;\nBA_DEF_DEF_ "CanstackDeadline" 0;\nBA_DEF_DEF_ "Baudrate" 500000;\n'
+        'BA_ "Baudrate" 250000;\n'
+        'BA_ "GenMsgCycleTime" BO_ 100 10;\nBA_ "CanstackDeadline" BO_ 100 4;\n'
+        'BA_ "GenMsgCycleTime" BO_ 2147484160 20;\n'
+    )
+    out_file = tmp_path / "net.toml"
+    code, out, err = run(capsys, "scenario", "from-dbc", dbc, "--out", out_file)
+    assert code == 0, err
+    sc = load_scenario(out_file)
+    assert sc.bitrate == 250_000  # the DBC's Baudrate
+    got = _read(out_file)
+    assert got["M1"] == (100, False, 8, 10.0, "A", 4.0)  # the first of its senders; CanstackDeadline
+    assert got["M2"] == (0x200, True, 3, 20.0, "B", 20.0)
+    assert "M3" not in got and "M1: sent by A, C: given to A" in err
+    code, out, err = run(
+        capsys, "scenario", "from-dbc", dbc, "--out", out_file, "--bitrate", "125000", "--default-cycle", "50"
+    )
+    assert code == 0, err
+    assert load_scenario(out_file).bitrate == 125_000
+    assert _read(out_file)["M3"][3:5] == (50.0, "Vector__XXX")
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["--bitrate", "7"], "1000..1000000"),
+        (["--duration", "0"], "--duration"),
+        (["--default-cycle", "-5"], "--default-cycle"),
+    ],
+)
+def test_bad_options_one_line_exit_2(capsys, tmp_path, argv, fragment):
+    code, out, err = run(capsys, "scenario", "from-dbc", SAMPLE, "--out", tmp_path / "x.toml", *argv)
+    assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_nothing_periodic_offers_default_cycle(capsys, tmp_path):
+    dbc = tmp_path / "quiet.dbc"
+    dbc.write_text('VERSION ""\nBS_:\nBU_: A B\nBO_ 100 M: 1 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" B\n')
+    code, out, err = run(capsys, "scenario", "from-dbc", dbc)
+    assert code == 2 and "quiet.dbc" in err and "--default-cycle" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(not CORPUS, reason="../shared/corpus/dbc is absent")
+def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_path):
+    """Each corpus DBC either becomes a scenario whose messages are cantools' (identifier, length,
+    period) or is refused in one line; the two largest run as experiments."""
+    written = []
+    for path in CORPUS:
+        out_file = tmp_path / f"{path.parent.name}-{path.stem}.toml"
+        code, out, err = run(capsys, "scenario", "from-dbc", path, "--out", out_file, "--default-cycle", "100")
+        if code == 2:
+            assert len(err.strip().splitlines()) == 1 and str(path) in err, err
+            continue
+        assert code == 0, err
+        db = cantools.database.load_file(str(path), strict=False)
+        got = _read(out_file)
+        assert {k: v[:4] for k, v in got.items()} == _expected(db, 100), path
+        written.append((len(got), out_file))
+    assert len(written) >= 40
+    for _, out_file in sorted(written, key=lambda w: -w[0])[:2]:  # the two largest networks
+        text = out_file.read_text().replace("duration = 1\n", "duration = 0.1\n")
+        out_file.write_text(text)
+        code, out, err = run(capsys, "experiment", out_file)
+        assert code in (0, 1), err  # 1: the analysis finds a message unschedulable
+        assert "RTA" in out
