@@ -16,8 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from stack.cli import CliError, parse_bitrate, seconds_type
-from stack.cli.demo import parse_data_bitrate
+from stack.cli import CliError, parse_bitrate, parse_data_bitrate, seconds_type
 from stack.cli.runs import check_output, check_plot_dir, check_trace_output, trace_note, writing
 
 __all__ = ["register", "check_samples_output", "scenario_with_overrides", "add_override_options", "warn"]

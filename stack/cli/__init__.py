@@ -24,6 +24,7 @@ __all__ = [
     "main",
     "parse_int",
     "parse_bitrate",
+    "parse_data_bitrate",
     "int_type",
     "seconds_type",
     "count_type",
@@ -109,6 +110,12 @@ def int_type(low: int, high: int, noun: str, rule: str) -> Callable[[str], int]:
 #: A CAN 2.0 bit rate: a whole number of bit/s in 1000..1000000 (ISO 11898-1 specifies classical
 #: CAN up to 1 Mbit/s; the simulated bus refuses less than 1 kbit/s).
 parse_bitrate = int_type(1_000, 1_000_000, "a whole number of bit/s", "a CAN 2.0 bus runs at 1000..1000000 bit/s")
+
+#: A CAN FD data-phase bit rate (ISO 11898-1:2015 sets no upper limit; transceivers of ISO
+#: 11898-2:2016 are specified for 2 and 5 Mbit/s, SIC ones up to 8).
+parse_data_bitrate = int_type(
+    1_000, 16_000_000, "a whole number of bit/s", "a CAN FD data phase runs at 1000..16000000 bit/s"
+)
 
 
 def seconds_type(most: float) -> Callable[[str], float]:

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.bus.sim import SimBus
-from stack.cli import CliError, int_type, parse_bitrate, parse_int, plural, seconds_type
+from stack.cli import CliError, parse_bitrate, parse_data_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (
     MAX_SIM_SECONDS,
     check_output,
@@ -268,13 +268,6 @@ def write_frames_vcd(
     )
     write_vcd(path, runs, bitrate * samples_per_bit, comment=f"canstack demo, bus {name}")
     return len(frames)
-
-
-#: A CAN FD data-phase bit rate (ISO 11898-1:2015 sets no upper limit; transceivers of ISO
-#: 11898-2:2016 are specified for 2 and 5 Mbit/s, SIC ones up to 8).
-parse_data_bitrate = int_type(
-    1_000, 16_000_000, "a whole number of bit/s", "a CAN FD data phase runs at 1000..16000000 bit/s"
-)
 
 
 def _frame_from_args(args: argparse.Namespace) -> Frame:
