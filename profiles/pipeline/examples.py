@@ -20,7 +20,7 @@ __all__ = ["register", "examples", "example_path", "scenario_path", "describe", 
 PACKAGE = "canstack_examples"
 """The package the examples are installed as (setup.py maps ``examples/`` to it)."""
 
-SUFFIXES = (".toml", ".py", ".md", ".jsonl", ".vcd")
+SUFFIXES = (".toml", ".py", ".md", ".jsonl", ".vcd", ".csv")
 """What ``canstack examples`` lists and copies: scenarios, scripts, notes and the data they read."""
 
 
@@ -41,6 +41,7 @@ def examples() -> dict[str, Any]:
 _DATA = {
     ".vcd": "a CAN_RX waveform (VCD) of four frames: canstack decode reads it",
     ".jsonl": "frames as JSON lines: canstack render draws their waveform",
+    ".csv": "signal changes over time: canstack restbus --stimulus plays them",
 }
 
 

@@ -247,6 +247,8 @@ def test_the_examples_are_listed_copied_and_run_from_anywhere(tmp_path, capsys, 
     rc, out, _ = _main(capsys, "examples")
     listed = {line.split()[0] for line in out.splitlines() if line.strip() and not line.startswith("canstack")}
     assert {p.name for p in EXAMPLES.glob("*.toml")} <= listed
+    # every file the examples folder holds ships and is listed (a script's data too)
+    assert {p.name for p in EXAMPLES.iterdir() if p.is_file() and p.name != "__init__.py"} <= listed
     rc, out, err = _main(capsys, "examples", "--to", str(tmp_path / "mine"), "tdma", "powertrain_90.toml")
     assert rc == 0, err
     assert (tmp_path / "mine" / "tdma.toml").read_bytes() == (EXAMPLES / "tdma.toml").read_bytes()
