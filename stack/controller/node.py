@@ -31,7 +31,33 @@ from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, Sp
 from stack.controller.receiver import Receiver, Subscription
 from stack.wire.frame import Frame, MessageLike
 
-__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
+__all__ = [
+    "Node",
+    "NodeError",
+    "Subscription",
+    "Timer",
+    "QueueFull",
+    "ErrorState",
+    "PeriodicTask",
+    "Driver",
+    "FD",
+    "TOLERANT",
+    "CLASSIC",
+    "FD_KINDS",
+]
+
+#: What a controller is towards CAN FD (ISO 11898-1:2015), the value of `Node.fd`:
+FD = "fd"
+"""FD enabled: sends and receives classical and CAN FD frames."""
+TOLERANT = "tolerant"
+"""A classical controller with ISO 11898-1:2015's protocol exception: at a recessive FDF bit it
+goes bus integrating (no error frame) until it reads 11 recessive bits; it sends no FD frames."""
+CLASSIC = "classic"
+"""A CAN 2.0 controller (FD-intolerant): an FD frame is an error to it, answered with an error
+frame that destroys the frame; it sends no FD frames."""
+FD_KINDS = (FD, TOLERANT, CLASSIC)
+"""The three, named as the receiver modes of `stack.wire.decoder.BitDecoder` (a node receives with
+the decoder of its kind)."""
 
 _EVERY_CAPABILITY = frozenset(CAPABILITIES)
 _new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
@@ -46,7 +72,8 @@ class Node(Receiver):
     acceptance ``filters`` (python-can format), ``receive_own_messages`` (self-reception),
     ``listen_only`` (no ACK, no transmission, no error flags), ``one_shot`` (no retransmission
     after a lost arbitration or an error; `send` can override it per frame), ``auto_recovery``
-    (rule 12 without asking), ``clock`` (a `LocalClock`: the node's own oscillator).
+    (rule 12 without asking), ``clock`` (a `LocalClock`: the node's own oscillator), ``fd`` (what
+    the controller is towards CAN FD: `FD`, `TOLERANT` or `CLASSIC`; see `fd`).
 
     Driver-side state (`stack.controller.contract`): ``offered`` is the request the controller
     offers to arbitration now; ``listeners`` the callbacks by event type (drivers read it to know
@@ -91,6 +118,7 @@ class Node(Receiver):
         "suspended",
         "on_bus",
         "connected",
+        "_fd",
         "__dict__",
         "__weakref__",
     )
@@ -110,7 +138,13 @@ class Node(Receiver):
         one_shot: bool = False,
         auto_recovery: bool = True,
         clock: LocalClock | None = None,
+        fd: str | None = None,
     ) -> None:
+        if fd is not None and fd not in FD_KINDS:
+            raise ValueError(
+                f"fd {fd!r}: one of 'fd' (FD enabled), 'tolerant' (classical, with ISO 11898-1:2015's "
+                "protocol exception) or 'classic' (CAN 2.0, destroys FD frames); None: as the bus says"
+            )
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
         if not isinstance(name, str) or not name or not name.isprintable() or any(c.isspace() for c in name):
@@ -138,6 +172,7 @@ class Node(Receiver):
         self._one_shot = bool(one_shot)
         self._one_shot_pending = 0  # queued requests that are one-shot while the node is not
         self.clock = clock
+        self._fd = fd
         # counters
         self.tx_frames = 0
         self._rx_frames = 0
@@ -194,6 +229,24 @@ class Node(Receiver):
         self._listen_only = value
         if self.bus is not None:
             self.bus.node_changed(self)
+
+    @property
+    def fd(self) -> str:
+        """What the controller is towards CAN FD (ISO 11898-1:2015): 'fd' (`FD`: FD enabled),
+        'tolerant' (`TOLERANT`: classical, with the protocol exception) or 'classic' (`CLASSIC`: a
+        CAN 2.0 controller, FD-intolerant). Given as ``fd=`` when the node is made; when not given,
+        a node is FD enabled on a bus that has a data bit rate (``data_bitrate``) and classic on one
+        that has none, as the controllers of a classical network are."""
+        kind = self._fd
+        if kind is not None:
+            return kind
+        return FD if getattr(self.bus, "data_bitrate", None) else CLASSIC
+
+    @property
+    def fd_declared(self) -> bool:
+        """True when the node was made with an explicit ``fd=`` (a driver checks that it can carry
+        it: an FD-enabled node needs a bus with a data bit rate)."""
+        return self._fd is not None
 
     @property
     def watches_arbitration(self) -> bool:
@@ -258,13 +311,16 @@ class Node(Receiver):
         time (ns on the node's clock): a frame that has not started by then is withdrawn and
         reported as `TxFailed` ('not started by ...') — TTCAN's transmit-enable window.
         Raises `QueueFull` when the transmit queue has no room, `NodeError` in listen-only mode,
-        when bus off, or when not attached.
+        when bus off, when not attached, or for a CAN FD frame when the node is not FD enabled
+        (`fd`: a tolerant or classic controller sends classical frames only).
         """
         if type(frame) is not Frame:
             frame = self._coerce(frame)
         bus = self.bus
         if bus is None or self._listen_only or self.state is BUS_OFF:
             self._refuse()
+        if frame.fd and self.fd != FD:
+            self._refuse_fd(frame)
         if one_shot is None and not_after is None and not self._one_shot:
             req = TxRequest(self, frame, next(bus.seqs), bus.now_ns)
         else:
@@ -349,6 +405,16 @@ class Node(Receiver):
         if self.listen_only:
             raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
         raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
+
+    def _refuse_fd(self, frame: Frame) -> None:
+        data_rate = getattr(self.bus, "data_bitrate", None)
+        why = (
+            f"it is {self.fd!r}: only an FD-enabled controller sends FD frames"
+            if data_rate or self._fd is not None
+            else f"its bus {getattr(self.bus, 'name', '')!r} has no data bit rate (a classical CAN bus; "
+            "CAN FD needs SimBus(bitrate, data_bitrate=...), equal to bitrate for FD without bit rate switching)"
+        )
+        raise NodeError(f"node {self.name!r} cannot send the CAN FD frame {frame!r}: {why}")
 
     def send_periodic(
         self, frame: Frame | Callable[[], Frame], period: int, *, offset: int = 0, count: int | None = None
