@@ -339,7 +339,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     def _fd_lists(self, ackers: list[Node]) -> None:
         """The nodes an FD frame treats apart: those on the bus that are not FD enabled (the
         CAN 2.0 ones among them destroy it), and the FD-enabled receivers and acknowledgers."""
-        self._non_fd = [n for n in self.nodes if n.on_bus and n.fd != FD]
+        self._non_fd[:] = [n for n in self.nodes if n.on_bus and n.fd != FD]  # in place: the fast loop holds it
         self._classic = [n for n in self._non_fd if n.fd == CLASSIC]
         self._eager_fd = [n for n in self._eager if n.fd == FD]
         self._fd_ack_count = sum(1 for n in ackers if n.fd == FD)
@@ -487,7 +487,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         frames_ok = self.frames_ok
         rounds = self.rounds
         delivered = self.delivered
-        log_limit = LOG_LIMIT
+        flush_at = self._log_base + LOG_LIMIT  # the log is flushed when it holds LOG_LIMIT entries
         # one int bound: a frame starts and ends before the next timer (tt) and at or before
         # ``limit`` (int-to-int comparisons are cheaper than against float('inf'))
         if tt == INF:
@@ -500,7 +500,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         # user code ran: nothing else changes them while the loop runs)
         watched = eager or rec_nonzero or record
         non_fd = self._non_fd  # an FD frame with any of these on the bus takes the general path
+        # (a list changed in place: read once)
         frame_ns = self.frame_ns
+        fd_ns = self._fd_ns
         try:
             while frames_ok < stop:
                 t0 = idle_at if idle_at > now else now
@@ -521,15 +523,17 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                     break
                 frame = req.frame
                 nbits = frame.nbits or frame.wire_bits
-                if frame.remote:
-                    if rtr:
-                        break  # automatic replies: the general path
-                    end = t0 + dur[nbits]
-                elif frame.fd:
+                if frame.fd:
                     if non_fd or frame.esi:
                         break  # nodes that are not FD enabled, or an ESI to clear: the general path
-                    end = t0 + frame_ns(frame)
+                    if frame.brs:  # SimBus.frame_ns, its cache hit inlined
+                        end = fd_ns.get(frame.encoded.bits)  # type: ignore[union-attr]  # encoded for nbits
+                        end = t0 + (frame_ns(frame) if end is None else end)
+                    else:
+                        end = t0 + dur[nbits]
                 else:
+                    if rtr and frame.remote:
+                        break  # automatic replies: the general path
                     end = t0 + dur[nbits]
                 heappop(heap)
                 if heap and heap[0][0] == req.key:
@@ -571,9 +575,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 if lazy:
                     log.append((end, frame, node))
                     delivered += 1
-                    if len(log) >= log_limit:
+                    if delivered >= flush_at:  # (delivered is _log_base + len(log): no len() a frame)
                         self._flush()
                         log = self._log
+                        flush_at = self._log_base + LOG_LIMIT
                 if called:
                     self.delivered = delivered
                 for n in eager:
@@ -648,7 +653,6 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                         bound = tt if tt < after else after
                     eager = self._eager
                     lazy = self._lazy
-                    non_fd = self._non_fd
                     watched = eager or rec_nonzero or record
                     if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
                         break
@@ -688,6 +692,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             # a transmitter stuck recessive for good cannot drive the ACK slot either
             deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None and s.start <= self.now_ns}
         ackers = [n for n in self.nodes if n.on_bus and not n.listen_only and n not in deaf]
+        if self.data_bitrate is None:  # (run() asks each time: kept as cheap as before FD)
+            return all(not any(a is not p for a in ackers) for p in pending)
 
         def acknowledged(p: Node) -> bool:  # an FD frame by FD-enabled nodes only
             fd = p.head is not None and p.head.frame.fd

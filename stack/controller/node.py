@@ -172,7 +172,7 @@ class Node(Receiver):
         self._one_shot = bool(one_shot)
         self._one_shot_pending = 0  # queued requests that are one-shot while the node is not
         self.clock = clock
-        self._fd = fd
+        self._fd = fd  # None: as the driver's bus is (see `fd`)
         # counters
         self.tx_frames = 0
         self._rx_frames = 0
@@ -235,8 +235,9 @@ class Node(Receiver):
         """What the controller is towards CAN FD (ISO 11898-1:2015): 'fd' (`FD`: FD enabled),
         'tolerant' (`TOLERANT`: classical, with the protocol exception) or 'classic' (`CLASSIC`: a
         CAN 2.0 controller, FD-intolerant). Given as ``fd=`` when the node is made; when not given,
-        a node is FD enabled on a bus that has a data bit rate (``data_bitrate``) and classic on one
-        that has none, as the controllers of a classical network are."""
+        a node is FD enabled on a bus that carries CAN FD — its driver has a ``data_bitrate``, the
+        contract's sign (`stack.controller.contract`) — and classic on one that has none, as the
+        controllers of a classical network are."""
         kind = self._fd
         if kind is not None:
             return kind
@@ -319,7 +320,7 @@ class Node(Receiver):
         bus = self.bus
         if bus is None or self._listen_only or self.state is BUS_OFF:
             self._refuse()
-        if frame.fd and self.fd != FD:
+        if frame.fd and self._fd != FD and self.fd != FD:
             self._refuse_fd(frame)
         if one_shot is None and not_after is None and not self._one_shot:
             req = TxRequest(self, frame, next(bus.seqs), bus.now_ns)
