@@ -52,16 +52,20 @@ from stack.controller.confinement import (
     after_tx_success,
     state_for,
 )
-from stack.controller.node import CLASSIC, FD
+from stack.controller.node import CLASSIC, FD, Node
 from stack.wire.coding import Field
 from stack.wire.decoder import BitDecoder
 from stack.wire.frame import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stack.controller.node import Node
     from stack.controller.queues import TxRequest
 
+#: Stuck faults of an attempt by node: (level, the bit where the fault ends or None[, the bit where
+#: it begins]) — see `simulate_attempt`.
+StuckFaults = dict[Node, tuple[int, int | None] | tuple[int, int | None, int]]
+
 __all__ = [
+    "StuckFaults",
     "AttemptResult",
     "NodeOutcome",
     "simulate_attempt",
@@ -271,7 +275,7 @@ def simulate_attempt(
     txs: Iterable[TxRequest],
     nodes: Iterable[Node],
     flips: dict[int, Any],
-    stuck: dict[Node, tuple[int, ...]] | None = None,
+    stuck: StuckFaults | None = None,
     deaf_ack: Iterable[Node] = (),
     overload: dict[Node, int] | None = None,
     leave: dict[Node, int] | None = None,
@@ -426,7 +430,7 @@ def _data_phase(frame: Frame | None, views: list[_View]) -> tuple[int, int] | No
     return (first, last) if last >= first else None
 
 
-def _common_prefix(frames: list[Frame], flips: dict[int, Any], stuck: dict[Node, tuple[int, ...]]) -> int:
+def _common_prefix(frames: list[Frame], flips: dict[int, Any], stuck: StuckFaults) -> int:
     """Bits from SOF that every node sees exactly as the transmitters sent them: before the
     first flip, the first difference between transmitters, the ACK slot, and only when no node
     is stuck or listen-only-silent matters (listen-only nodes never drive, so they do not)."""
@@ -553,7 +557,8 @@ def _step_frame(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, i
                     return _rx_result(v, b, res)
                 return None
             else:
-                fld, idx = v.frame.bits.field_at(b) if b < len(v.bits) else (Field.EOF, 0)
+                fb = (v.frame.encoded or v.frame.bits) if v.frame is not None else None
+                fld, idx = fb.field_at(b) if fb is not None and b < len(v.bits) else (Field.EOF, 0)
                 return _error_detected(v, b, "bit", fld, idx if idx is not None else 0, b)
         elif b == v.ack_slot and p == 1:
             return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)

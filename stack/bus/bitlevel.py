@@ -4,16 +4,17 @@ results, fault confinement (rules 1-8 as counted, 9-12 through the node), trace 
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
-from stack.bus.attempt import AttemptResult, sent_frame, simulate_attempt
+from stack.bus.attempt import AttemptResult, StuckFaults, sent_frame, simulate_attempt
 from stack.bus.trace import TraceRecord
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
 from stack.controller.queues import QUEUED, TxRequest
 from stack.wire.frame import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
+    from stack.controller.contract import Timer
     from stack.controller.node import Node
 
 __all__ = ["BitLevelAttempts"]
@@ -23,15 +24,37 @@ class BitLevelAttempts:
     """Bit-level attempts of `stack.bus.sim.SimBus` (a mixin: the bus's scheduling calls
     ``_bitlevel`` to start one and ``_complete_bitlevel`` when it ends)."""
 
-    __slots__ = ()  # SimBus declares the fields
+    if not TYPE_CHECKING:  # SimBus declares the fields (the annotations below are their types)
+        __slots__ = ()
 
     reuse_unacked = True  # reuse the replay of an identical unacknowledged attempt; tests compare
     nodes: list[Node]
-    _unacked: dict[Any, Any]
+    _unacked: dict[Any, AttemptResult]
     trace: list[TraceRecord]
     now_ns: int
-    _tx: Any
+    bitrate: int
+    data_bitrate: int | None
+    rounds: int
+    record: bool
+    frames_ok: int
+    error_frames: int
+    busy_ns: int
+    _idle_at: int
+    _recessive_events: int
+    _rtr: dict[tuple[int, bool], list[Node]]
+    _bus_listeners: list[Callable[[TraceRecord], Any]]
+    _log: list[tuple[int, Frame, Node]]
+    _tx: tuple[tuple[TxRequest, ...], int, AttemptResult | None, Frame | None] | None
     _tx_end: int
+
+    if TYPE_CHECKING:  # what SimBus adds that the bit-level side uses
+
+        def call_at(self, time: int, callback: Callable[..., Any], args: tuple[Any, ...] = ()) -> Timer: ...
+        def offer(self, node: Node, req: TxRequest) -> None: ...
+        def _tx_success(self, q: TxRequest, end: int, idle: int, sof: int, *, passive: bool, rule7: bool) -> None: ...
+        def _suspend(self, node: Node, idle: int) -> None: ...
+        def _auto_reply(self, frame: Frame, sender: Node | None, receivers: Iterable[Node]) -> None: ...
+        def _flush(self) -> None: ...
 
     def _bitlevel(
         self,
@@ -39,7 +62,7 @@ class BitLevelAttempts:
         txs: tuple[TxRequest, ...],
         *,
         flips: dict[int, Any] | None = None,
-        stuck: dict[Node, tuple[int, int | None]] | None = None,
+        stuck: StuckFaults | None = None,
         deaf: Iterable[Node] = (),
         collision: bool = False,
         overload: dict[Node, int] | None = None,

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from stack.bus.attempt import brs_position, sent_frame
+from stack.bus.attempt import StuckFaults, brs_position, sent_frame
 from stack.controller.confinement import PASSIVE
 from stack.controller.events import TxDone
 from stack.controller.node import ErrorState, Node
@@ -343,12 +343,10 @@ class FaultInjector:
         its FD data phase (if any) taken at the data bit rate as sent without error."""
         return self.bus.attempt_bit(t - now, data_phase)
 
-    def _stuck_now(
-        self, now: int, horizon: int = 0, data_phase: tuple[int, int] | None = None
-    ) -> dict[Node, tuple[int, int | None] | tuple[int, int | None, int]]:
+    def _stuck_now(self, now: int, horizon: int = 0, data_phase: tuple[int, int] | None = None) -> StuckFaults:
         """Nodes stuck at ``now``, or from a bit of the attempt starting now within ``horizon``
         ns: (level, the bit where the fault ends or None[, the bit where it starts])."""
-        stuck: dict[Node, tuple[int, int | None] | tuple[int, int | None, int]] = {}
+        stuck: StuckFaults = {}
         for s in self._stuck:
             if s.start < now + horizon + 1 and (s.end is None or now < s.end) and s.node.connected:
                 end = None if s.end is None else self._bits_after(now, s.end, data_phase)

@@ -42,7 +42,7 @@ import random
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from stack.bus.attempt import brs_position, sent_frame
+from stack.bus.attempt import AttemptResult, brs_position, sent_frame
 from stack.bus.bitlevel import BitLevelAttempts
 from stack.bus.delivery import LOG_LIMIT, LazyDelivery
 from stack.bus.fdnodes import classic_fd_attempt
@@ -170,11 +170,13 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self.now_ns = 0
         self._timers: list[tuple[int, int, Timer]] = []
         self.seqs = itertools.count(1)  # requests and timers: ties order by it (the contract's `seqs`)
-        self._contenders: list[TxRequest] = []
+        self._contenders: list[tuple[int, int, TxRequest]] = []  # (key, seq, request): a heap
         self._suspended: list[Node] = []
         self.rounds = 0
         self._idle_at = 0
-        self._tx: tuple[Any, ...] | None = None
+        # the attempt on the wire: transmitters, start, its bit-level result (None: a clean frame)
+        # and the clean frame as sent
+        self._tx: tuple[tuple[TxRequest, ...], int, AttemptResult | None, Frame | None] | None = None
         self._tx_end: int = 0
         # reception
         self._log: list[tuple[int, Frame, Node]] = []
@@ -424,6 +426,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         heappop = heapq.heappop
         while self.frames_ok < stop:
             tt = timers[0][0] if timers else INF
+            tb: float
             if self._tx is not None:
                 tb = self._tx_end
             elif self._contenders:
@@ -443,7 +446,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             else:
                 if tb > limit:
                     break
-                self.now_ns = tb
+                self.now_ns = tb  # type: ignore[assignment]  # an int here: tb < tt, so it is not INF
                 if self._tx is not None:
                     self._complete()
                 elif self.fast and not (
@@ -527,7 +530,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                     if non_fd or frame.esi:
                         break  # nodes that are not FD enabled, or an ESI to clear: the general path
                     if frame.brs:  # SimBus.frame_ns, its cache hit inlined
-                        end = fd_ns.get(frame.encoded.bits)  # type: ignore[union-attr]  # encoded for nbits
+                        end = fd_ns.get(frame.encoded.bits)  # (encoded: nbits read it)
                         end = t0 + (frame_ns(frame) if end is None else end)
                     else:
                         end = t0 + dur[nbits]
@@ -670,6 +673,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         current transmission, or the next arbitration; ``inf`` when idle with nothing queued.
         A real-time driver sleeps until the wall clock reaches it."""
         tt = self._timers[0][0] if self._timers else INF
+        tb: float
         if self._tx is not None:
             tb = self._tx_end
         elif self._contenders:
@@ -829,7 +833,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 diff = d if diff is None else min(diff, d)
         return diff
 
-    def _notify_losers(self, now: int, r: int, txs: list[TxRequest]) -> None:
+    def _notify_losers(self, now: int, r: int, txs: tuple[TxRequest, ...]) -> None:
         """Nodes that watch arbitration hear of each round their offered request lost
         (`Node.lost_arbitration`: ArbitrationLost, and a one-shot request fails)."""
         winners = {q.node for q in txs}
@@ -843,6 +847,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             n.lost_arbitration(now, h, wframe)
 
     def _complete(self) -> None:
+        assert self._tx is not None  # completing the attempt on the wire
         txs, start, detail, frame = self._tx
         self._tx = None
         end = self._tx_end
@@ -850,6 +855,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         if detail is not None:
             self._complete_bitlevel(txs, start, end, idle, detail)
             return
+        assert frame is not None  # a clean attempt carries its frame
         winner = txs[0]
         sender = winner.node
         # an FD frame reaches the FD-enabled nodes only (a tolerant node integrates meanwhile)

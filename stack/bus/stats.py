@@ -49,7 +49,8 @@ class IdStats:
 class BusStatistics:
     """The results of `stack.bus.sim.SimBus` (a mixin over the counters the bus keeps)."""
 
-    __slots__ = ()  # SimBus declares the fields
+    if not TYPE_CHECKING:  # SimBus declares the fields (the annotations below are their types)
+        __slots__ = ()
 
     bitrate: int
     data_bitrate: int | None

@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from heapq import heappush
 from operator import itemgetter
-from typing import Any
+from typing import Any, NoReturn
 
 from stack.controller.clock import LocalClock
 from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
@@ -343,7 +343,7 @@ class Node(Receiver):
             if cur is None:
                 # nothing offered yet: the new head is the queue's — this request when its key is
                 # the lowest and nothing waits before it (PriorityQueue.head, inlined)
-                new = req if dq[0] is req and q.keys[0] == key else q.head()
+                new = req if dq[0] is req and q.keys[0] == key else (q.head() or req)
                 self.offered = new
                 new.head_since = bus.rounds
                 bus.offer(self, new)
@@ -356,11 +356,11 @@ class Node(Receiver):
         cur = self.offered
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
-            new = q.head()
-            self.offered = new
-            if new is not None:
-                new.head_since = bus.rounds
-                bus.offer(self, new)
+            head = q.head()
+            self.offered = head
+            if head is not None:
+                head.head_since = bus.rounds
+                bus.offer(self, head)
         elif not cur.on_wire and req.key < cur.key:
             self.update_head()
         return req
@@ -388,9 +388,8 @@ class Node(Receiver):
     def _expire(self, req: TxRequest) -> None:
         if req.state is QUEUED and not req.on_wire:
             bus = self._driver()
-            self.fail(
-                req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns", "expired"
-            )
+            latest = -1 if req.not_after is None else self.to_local(req.not_after)
+            self.fail(req, bus.now(), f"not started by its latest start time {latest} ns", "expired")
 
     @staticmethod
     def _coerce(frame: Any) -> Frame:
@@ -400,14 +399,14 @@ class Node(Receiver):
             return Frame.from_message(frame)
         raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
 
-    def _refuse(self) -> None:
+    def _refuse(self) -> NoReturn:
         if self.bus is None:
             raise NodeError(f"node {self.name!r} is not attached to a bus")
         if self.listen_only:
             raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
         raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
 
-    def _refuse_fd(self, frame: Frame) -> None:
+    def _refuse_fd(self, frame: Frame) -> NoReturn:
         data_rate = getattr(self.bus, "data_bitrate", None)
         why = (
             f"it is {self.fd!r}: only an FD-enabled controller sends FD frames"
@@ -524,7 +523,7 @@ class Node(Receiver):
             if req.one_shot and not self._one_shot:
                 self._one_shot_pending -= 1
                 if self._one_shot_pending == 0:
-                    self.bus.node_changed(self)
+                    self._driver().node_changed(self)
         if self.tec and rule7:
             self.on_tx_success()
         listeners = self.tx_done_listeners
@@ -546,7 +545,7 @@ class Node(Receiver):
             nxt = dq[0] if dq and dq[0].state is QUEUED and q.keys[0] == req.key else q.head()
             self.offered = nxt
             if nxt is not None:
-                nxt.head_since = self.bus.rounds
+                nxt.head_since = self.bus.rounds  # type: ignore[union-attr]  # a driver reports: attached
             return nxt
         self.update_head()
         return None
@@ -581,7 +580,7 @@ class Node(Receiver):
         ``winner``: emits `ArbitrationLost`; a one-shot request fails."""
         self._emit(ArbitrationLost(self.to_local(t), req.frame, winner))
         if req.one_shot and req.state is QUEUED:
-            r = self.bus.rounds
+            r = self._driver().rounds
             lost = r - req.head_since
             if lost > 0:
                 req.losses += lost
