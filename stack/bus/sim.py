@@ -837,7 +837,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         """Nodes that watch arbitration hear of each round their offered request lost
         (`Node.lost_arbitration`: ArbitrationLost, and a one-shot request fails)."""
         winners = {q.node for q in txs}
-        wframe = txs[0].frame
+        wframe = sent_frame(txs[0].frame, txs[0].node.state is PASSIVE)  # as on the wire (ESI)
         for n in tuple(self._arb_watch):
             h = n.offered
             if n in winners or h is None or h.state is not QUEUED or h.on_wire or n.suspended:

@@ -424,3 +424,43 @@ def test_a_flip_before_a_fixed_stuff_bit_is_caught_by_it(frame, field, bit):
     )
     assert flipped + 1 in frame.bits.fields[Field.FIXED_STUFF]
     assert (rec.detail["error"], rec.detail["field"], rec.detail["bit"]) == ("form", "FIXED_STUFF", flipped + 1)
+
+
+# -- times inside an FD attempt ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rates", [(500_000, 2_000_000), (333_333, 1_234_567), (1_000_000, 8_000_000)])
+def test_bit_times_of_an_attempt_and_their_inverse(rates):
+    # bit k of an attempt starts at k_n / bitrate + k_d / data_bitrate (the data bits before it),
+    # floored to the ns; the bit of a time is the first that starts at or after it (exact times)
+    bitrate, data_bitrate = rates
+    bus = SimBus(bitrate, data_bitrate=data_bitrate)
+    phase = (17, 400)
+
+    def exact(k):
+        data = max(0, min(k, phase[1] + 1) - phase[0])
+        return (Fraction(k - data, bitrate) + Fraction(data, data_bitrate)) * 10**9
+
+    for k in (0, 1, 16, 17, 18, 200, 400, 401, 402, 600):
+        assert bus.attempt_ns(k, phase) == int(exact(k))
+        assert bus.attempt_ns(k) == k * 10**9 // bitrate
+    for ns in range(0, 1_000_000, 997):
+        k = bus.attempt_bit(ns, phase)
+        assert exact(k) >= ns and (k == 0 or exact(k - 1) < ns)
+
+
+def test_a_fault_that_begins_in_the_data_phase_takes_effect_at_its_bit():
+    # c's transmitter sticks dominant 100 us after SOF, inside the data phase (500 kbit/s: BRS
+    # ends 17 bits = 34 us in; then 0.5 us a bit): a's bit error comes at its first recessive bit
+    # from the bit during which 100 us falls
+    f = Frame(0x123, bytes([0x55]) * 32, fd=True, brs=True)
+    brs = iso_bit_counts(f)[0] - 9 - 1  # SOF..BRS are the nominal bits before the tail
+    onset = brs + 1 + -(-(100_000 - (brs + 1) * 2000) // 500)  # first bit starting at or after 100 us
+    expected = next(k for k in range(onset, len(f.bits.bits)) if f.bits.bits[k] == "1")
+    bus = SimBus(500_000, data_bitrate=2_000_000)
+    a, b, c = bus.node("a"), bus.node("b"), bus.node("c")
+    FaultInjector(bus).stuck("c", "dominant", start=100_000, end=1_000_000)
+    a.send(f)
+    bus.run(until=2_000_000)
+    rec = bus.trace[0]
+    assert (rec.detail["error"], rec.detail["bit"], rec.detail["seen_by"]) == ("bit", expected, "a")
