@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 from stack.controller.confinement import (
@@ -51,19 +52,75 @@ from stack.controller.confinement import (
     after_tx_success,
     state_for,
 )
+from stack.controller.node import CLASSIC, FD, Node
 from stack.wire.coding import Field
 from stack.wire.decoder import BitDecoder
+from stack.wire.frame import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stack.controller.node import Node
     from stack.controller.queues import TxRequest
 
-__all__ = ["AttemptResult", "NodeOutcome", "simulate_attempt", "MAX_ATTEMPT_BITS"]
+#: Stuck faults of an attempt by node: (level, the bit where the fault ends or None[, the bit where
+#: it begins]) — see `simulate_attempt`.
+StuckFaults = dict[Node, tuple[int, int | None] | tuple[int, int | None, int]]
+
+__all__ = [
+    "StuckFaults",
+    "AttemptResult",
+    "NodeOutcome",
+    "simulate_attempt",
+    "sent_frame",
+    "brs_position",
+    "fdf_position",
+    "MAX_ATTEMPT_BITS",
+    "INTEGRATION_BITS",
+]
 
 MAX_ATTEMPT_BITS = 1 << 20
+INTEGRATION_BITS = 11  # bus integration: 11 consecutive recessive bits (ISO 11898-1:2015)
 
 # node phases
-FRAME, FLAG, AFTER_FLAG, DELIM, INTERMISSION, IDLE, OFF = range(7)
+FRAME, FLAG, AFTER_FLAG, DELIM, INTERMISSION, IDLE, OFF, INTEGRATING = range(8)
+
+# unstuffed index of FDF and BRS from SOF: standard SOF ID(11) RRS IDE FDF res BRS, extended SOF
+# ID(11) SRR IDE ID(18) RRS FDF res BRS
+_FDF_AT = {False: 14, True: 33}
+_BRS_AT = {False: 16, True: 35}
+
+
+def _stuffed(fb: Any, unstuffed: int) -> int:
+    pos = unstuffed
+    for s in fb.stuff_positions:
+        if s > pos:
+            break
+        pos += 1
+    return pos
+
+
+def fdf_position(frame: Frame) -> int:
+    """The position from SOF (stuff bits counted) of an FD frame's FDF bit, the bit where a
+    classical frame has r0 (standard) or r1 (extended)."""
+    return _stuffed(frame.encoded or frame.bits, _FDF_AT[frame.extended])
+
+
+def brs_position(frame: Frame) -> int:
+    """The position from SOF of an FD frame's BRS bit (as ``frame.bits.position(Field.BRS)``,
+    without building the frame's field table: the engine asks once per FD frame)."""
+    return _stuffed(frame.encoded or frame.bits, _BRS_AT[frame.extended])
+
+
+@lru_cache(maxsize=1024)
+def _with_esi(frame: Frame, esi: bool) -> Frame:
+    return Frame(frame.can_id, frame.data, extended=frame.extended, fd=True, brs=frame.brs, esi=esi)
+
+
+def sent_frame(frame: Frame, passive: bool) -> Frame:
+    """The frame as its transmitter puts it on the wire: an FD frame's ESI is the transmitter's
+    error state at the start of the frame, recessive when it is error passive (ISO 11898-1:2015),
+    whatever the queued frame says; a classical frame as queued."""
+    if not frame.fd or frame.esi is passive:
+        return frame
+    return _with_esi(frame, passive)
 
 
 @dataclass
@@ -84,6 +141,7 @@ class NodeOutcome:
     rec_delta: int = 0
     rules: list[str] = field(default_factory=list)
     overload_flags: int = 0
+    integrating_bit: int = -1  # the protocol exception event: bus integration from this bit
     tec0: int = 0  # the counters the deltas apply to: at the start of the attempt, with rule 7
     rec0: int = 0  # (transmitter's success) or rule 8 (reception) applied when they happened
     # (bit, tec_delta, rec_delta) wherever the counters cross a state boundary (warning 96,
@@ -102,6 +160,12 @@ class AttemptResult:
     outcomes: dict[str, NodeOutcome]
     winner: TxRequest | None
     accepted_frame: Any = None
+    data_phase: tuple[int, int] | None = None
+    """The first and last bit sent at the data bit rate (an FD frame with BRS: after BRS up to the
+    CRC delimiter, or up to the bit where the transmitter detected an error or a node started an
+    active error flag, at whose sample point the nominal rate resumes), or None."""
+    collision: bool = False  # several transmitters whose frames differ (set by the bus)
+    before: dict[str, Any] | None = None  # the nodes' states when the attempt started (set by the bus)
 
 
 class _View:
@@ -135,22 +199,30 @@ class _View:
         "rec0",
         "want_overloads",
         "bit",
+        "kind",
+        "frame",
+        "integrating",
+        "switch_bit",
+        "fd_wire",
     )
 
-    def __init__(self, node: Node, req: TxRequest | None, stuck: int | None, deaf_ack: bool) -> None:
+    def __init__(
+        self, node: Node, req: TxRequest | None, stuck: int | None, deaf_ack: bool, frame: Frame | None = None
+    ) -> None:
         self.node = node
         self.out = NodeOutcome(node.name, "tx" if req is not None else "rx")
         self.role = "tx" if req is not None else "rx"
         self.req = req
-        if req is not None:
-            fb = req.frame.bits
+        self.kind = node.fd
+        self.frame = frame  # a transmitter's frame as it sends it (`sent_frame`)
+        if frame is not None:
+            fb = frame.encoded or frame.bits
             self.bits = fb.bits
             self.stuff = set(fb.stuff_positions)
-            rtr = fb.fields[Field.RTR]
-            self.arb_end = rtr[-1]
+            self.arb_end = fb.arbitration_end
             self.ack_slot = fb.fields[Field.ACK_SLOT][0]
             self.eof_last = fb.fields[Field.EOF][-1]
-        self.dec = BitDecoder()
+        self.dec = BitDecoder(self.kind)
         self.phase = FRAME
         self.flag_kind = ""
         self.flag_n = 0
@@ -171,6 +243,10 @@ class _View:
         self.out.tec0 = node.tec
         self.out.rec0 = node.rec
         self.bit = 0  # the bit being processed (for the trail of state changes)
+        self.want_overloads = 0
+        self.integrating = 0  # recessive bits counted in bus integration
+        self.switch_bit = -1  # the bit of its first error, when it ends an FD data phase there
+        self.fd_wire = False  # an FD frame is on the wire (a CAN 2.0 node cannot receive it)
 
     def intended(self, b: int) -> int:
         """The level this node means to send (its transmitter may be stuck)."""
@@ -199,7 +275,7 @@ def simulate_attempt(
     txs: Iterable[TxRequest],
     nodes: Iterable[Node],
     flips: dict[int, Any],
-    stuck: dict[Node, tuple[int, ...]] | None = None,
+    stuck: StuckFaults | None = None,
     deaf_ack: Iterable[Node] = (),
     overload: dict[Node, int] | None = None,
     leave: dict[Node, int] | None = None,
@@ -222,10 +298,14 @@ def simulate_attempt(
     deaf = set(deaf_ack)
     txs = list(txs)
     tx_nodes = {q.node: q for q in txs}
+    sent = {q.node: sent_frame(q.frame, q.node.state is PASSIVE) for q in txs}
     onset_of = {n: (spec[2] if len(spec) > 2 else 0) for n, spec in stuck.items()}
     views = [
-        _View(n, tx_nodes.get(n), stuck[n][0] if n in stuck and onset_of[n] <= 0 else None, n in deaf) for n in nodes
+        _View(n, tx_nodes.get(n), stuck[n][0] if n in stuck and onset_of[n] <= 0 else None, n in deaf, sent.get(n))
+        for n in nodes
     ]
+    first_frame = sent[txs[0].node] if txs else None
+    fd_on_wire = any(f.fd for f in sent.values())
     release = {v: stuck[v.node][1] for v in views if v.node in stuck}
     # faults that begin inside the attempt: (bit, view, what)
     pending = sorted(
@@ -238,18 +318,26 @@ def simulate_attempt(
     first_error: tuple[str, str, int, int] | None = None
     first_flag_bit: int | None = None
     winner_view = None
-    b = _common_prefix(txs, views, flips, stuck)
+    b = _common_prefix([sent[q.node] for q in txs], flips, stuck)
     if pending:
         b = min(b, pending[0][0])  # the views part from the bit a fault begins
+    if fd_on_wire and first_frame is not None and any(v.kind != FD for v in views):
+        b = min(b, fdf_position(first_frame))  # a node that is not FD enabled reacts to FDF
     if b:
-        # every node saw the same clean bits so far: decode them once and share the state
-        dec = BitDecoder()
-        prefix = txs[0].frame.bits.bits[:b]
-        for c in prefix:
-            dec.feed(1 if c == "1" else 0)
+        # every node saw the same clean bits so far: decode them once per kind of receiver and
+        # share the state
+        prefix = first_frame.bits.bits[:b] if first_frame is not None else ""
+        shared: dict[str, BitDecoder] = {}
         for v in views:
+            dec = shared.get(v.kind)
+            if dec is None:
+                dec = shared[v.kind] = BitDecoder(v.kind)
+                for c in prefix:
+                    dec.feed(1 if c == "1" else 0)
             v.dec = dec.clone()
         wire_bits.append(prefix)
+    for v in views:
+        v.fd_wire = fd_on_wire
     while b < MAX_ATTEMPT_BITS:
         while pending and pending[0][0] <= b:
             _, i, what = pending.pop(0)
@@ -273,7 +361,7 @@ def simulate_attempt(
                 wire = 0
         wire_bits.append(str(wire))
         holders = [release[v] for v in views if v.stuck == 0]
-        if wire == 0 and holders and all(v.phase in (AFTER_FLAG, OFF) or v.listen_only for v in views):
+        if wire == 0 and holders and all(v.phase in (AFTER_FLAG, OFF, INTEGRATING) or v.listen_only for v in views):
             # a stuck-dominant node holds the wire: fast-forward rule 6 in steps of 8 bits, to
             # the first release (or to the end of the attempt for a fault that never ends)
             horizon = min([h for h in holders if h is not None] + [p[0] for p in pending[:1]], default=MAX_ATTEMPT_BITS)
@@ -282,6 +370,8 @@ def simulate_attempt(
                 if v.phase == AFTER_FLAG:
                     v.bit = b
                     _fast_dominant(v, skip)
+                elif v.phase == INTEGRATING:
+                    v.integrating = 0
             wire_bits.append("0" * (skip - 1))
             b += skip
             continue
@@ -317,23 +407,42 @@ def simulate_attempt(
         first_error,
         {v.node.name: v.out for v in views},
         winner_view.req if winner_view else None,
+        data_phase=_data_phase(first_frame, views),
     )
     return res
 
 
-def _common_prefix(txs: list[TxRequest], views: list[_View], flips: dict[int, Any], stuck: dict[Node, int]) -> int:
+def _data_phase(frame: Frame | None, views: list[_View]) -> tuple[int, int] | None:
+    """Bits at the data bit rate (see `AttemptResult.data_phase`): ISO 11898-1:2015 switches to the
+    data bit timing at the sample point of BRS and back at the sample point of the CRC delimiter,
+    or of the bit where an error is detected (error flags go at the nominal rate). The simulated
+    bus has one bit clock for every node: it resumes the nominal rate at the first error that
+    ends the data phase for the wire — the transmitter's, or a node's whose error flag is active
+    (dominant); a passive flag leaves the transmitter sending at the data rate."""
+    if frame is None or not frame.brs:
+        return None
+    fb = frame.encoded or frame.bits
+    first = brs_position(frame) + 1
+    last = fb.crc_delim
+    for v in views:
+        if 0 <= v.switch_bit < last:
+            last = v.switch_bit
+    return (first, last) if last >= first else None
+
+
+def _common_prefix(frames: list[Frame], flips: dict[int, Any], stuck: StuckFaults) -> int:
     """Bits from SOF that every node sees exactly as the transmitters sent them: before the
     first flip, the first difference between transmitters, the ACK slot, and only when no node
     is stuck or listen-only-silent matters (listen-only nodes never drive, so they do not)."""
-    if not txs or stuck:
+    if not frames or stuck:
         return 0
-    fb = txs[0].frame.bits
+    fb = frames[0].encoded or frames[0].bits
     end = fb.fields[Field.ACK_SLOT][0]
     if flips:
         end = min(end, min(flips))
     b0 = fb.bits
-    for q in txs[1:]:
-        b1 = q.frame.bits.bits
+    for f in frames[1:]:
+        b1 = f.bits.bits
         if b1 != b0:
             end = min(end, next(i for i, (x, y) in enumerate(zip(b0, b1)) if x != y))
     return max(0, end)
@@ -394,6 +503,8 @@ def _error_detected(
             out.rules.append("rule 3 exception 2")
         elif not exc1:  # exception 1 is decided when the passive flag ends
             _bump(v, RULE_3_TEC, "rule 3")
+        if v.switch_bit < 0:
+            v.switch_bit = b  # a transmitter leaves an FD data phase at its first error
     else:
         _bump(v, RULE_1_REC, "rule 1")
     if v.phase == OFF:
@@ -401,6 +512,8 @@ def _error_detected(
     v.phase = FLAG
     # a listen-only node never drives the bus: its flag is recessive like a passive one
     v.flag_kind = "passive" if (v.passive or v.listen_only) else "active"
+    if v.switch_bit < 0 and v.flag_kind == "active":
+        v.switch_bit = b  # its flag, at the nominal rate, ends an FD data phase for everyone
     v.flag_n = 0
     v.flag_levels = []
     v.flag_had_dominant = False
@@ -444,7 +557,8 @@ def _step_frame(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, i
                     return _rx_result(v, b, res)
                 return None
             else:
-                fld, idx = v.req.frame.bits.field_at(b) if b < len(v.bits) else (Field.EOF, 0)
+                fb = (v.frame.encoded or v.frame.bits) if v.frame is not None else None
+                fld, idx = fb.field_at(b) if fb is not None and b < len(v.bits) else (Field.EOF, 0)
                 return _error_detected(v, b, "bit", fld, idx if idx is not None else 0, b)
         elif b == v.ack_slot and p == 1:
             return _error_detected(v, b, "ack", Field.ACK_SLOT, 0, b)
@@ -463,6 +577,12 @@ def _step_frame(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, i
         # a receiver sending its dominant ACK reads recessive: a bit error (only a recessive
         # bit read dominant in the ACK slot is exempt)
         return _error_detected(v, b, "bit", Field.ACK_SLOT, 0, dec.position)
+    if p == 1 and v.kind == CLASSIC and v.fd_wire:
+        f = dec.field
+        if f is Field.R1 or (f is Field.R0 and not dec.extended):
+            # an FD frame's FDF, where a CAN 2.0 controller has its reserved bit: it cannot
+            # receive what follows and destroys the frame (see `stack.bus.fdnodes`)
+            return _error_detected(v, b, "form", f, 0, dec.position)
     res = dec.feed(p)
     if res is None:
         return None
@@ -535,6 +655,17 @@ def _step_delim(v: _View, b: int, driven: int, p: int) -> tuple[str, str, int, i
     return None
 
 
+def _step_integrating(v: _View, b: int, driven: int, p: int) -> None:
+    """Bus integration after the protocol exception event: idle after 11 consecutive recessive
+    bits; no error is detected, no counter moves, nothing is driven (ISO 11898-1:2015)."""
+    if p == 0:
+        v.integrating = 0
+        return
+    v.integrating += 1
+    if v.integrating >= INTEGRATION_BITS:
+        v.phase = IDLE
+
+
 def _step_intermission(v: _View, b: int, driven: int, p: int) -> None:
     """Intermission: dominant in its first two bits is an overload condition; after 3 the node
     is idle."""
@@ -555,6 +686,7 @@ _PHASE_STEP = {
     AFTER_FLAG: _step_after_flag,
     DELIM: _step_delim,
     INTERMISSION: _step_intermission,
+    INTEGRATING: _step_integrating,
 }
 
 
@@ -589,4 +721,10 @@ def _rx_result(v: _View, b: int, res: Any) -> tuple[str, str, int, int] | None:
             v.im_n = 0
         return None
     e = res.error
+    if e.kind == "exception":
+        # the protocol exception event: a tolerant node at FDF, an FD node at res recessive
+        v.phase = INTEGRATING
+        v.integrating = 0
+        v.out.integrating_bit = b
+        return None
     return _error_detected(v, b, e.kind, e.field, e.index, e.position)

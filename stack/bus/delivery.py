@@ -34,7 +34,8 @@ class LazyDelivery:
     """The simulated bus's delivery log (a mixin of `stack.bus.sim.SimBus`, which appends to
     ``_log`` as frames complete and counts them in ``delivered``)."""
 
-    __slots__ = ()  # SimBus declares the fields
+    if not TYPE_CHECKING:  # SimBus declares the fields (the annotations below are their types)
+        __slots__ = ()
 
     nodes: list[Node]
     delivered: int

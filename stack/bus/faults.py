@@ -6,7 +6,8 @@ dominant, stuck recessive (a disconnected transmitter), disconnect/reconnect, a 
 acknowledges, and a babbling idiot. Any attempt a fault touches is replayed bit by bit by
 `stack.bus.attempt`, so detection, error frames and fault confinement follow from each node's view.
 
-Random bit errors hit the bits of frames (SOF..EOF), not idle time or error frames. A stuck
+Random bit errors hit the bits of frames (SOF..EOF), not idle time or error frames (CAN FD
+frames: the bits as their transmitter sends them, ESI included). A stuck
 fault or a disconnect that begins while a frame is on the wire takes effect at its bit of that
 frame; a stuck-dominant fault on an idle bus starts an attempt of its own (every node sees a
 SOF followed by dominant bits), at once or when the bus goes idle.
@@ -20,9 +21,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from stack.bus.attempt import StuckFaults, brs_position, sent_frame
+from stack.controller.confinement import PASSIVE
 from stack.controller.events import TxDone
 from stack.controller.node import ErrorState, Node
 from stack.wire.coding import Field
+from stack.wire.fd import worst_case_bits
 from stack.wire.frame import Frame
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -35,12 +39,15 @@ __all__ = ["FaultInjector", "FIELD_GROUPS", "FlipRule"]
 # the error delimiter (8) and intermission (3), with room to spare
 ATTEMPT_MARGIN_BITS = 32
 
-# field groups a user names, in wire order; exact field names are accepted too
+# field groups a user names, in wire order (a frame has the fields of its format: RTR or RRS,
+# r1/r0 or FDF/res/BRS/ESI); exact field names are accepted too
 FIELD_GROUPS: dict[str, tuple[Field, ...]] = {
     "sof": (Field.SOF,),
-    "arbitration": (Field.ID, Field.SRR, Field.IDE, Field.ID_EXT, Field.RTR),
-    "control": (Field.IDE, Field.R1, Field.R0, Field.DLC),
+    "arbitration": (Field.ID, Field.SRR, Field.IDE, Field.ID_EXT, Field.RTR, Field.RRS),
+    "control": (Field.IDE, Field.R1, Field.R0, Field.FDF, Field.RES, Field.BRS, Field.ESI, Field.DLC),
     "data": (Field.DATA,),
+    "stuff_count": (Field.STUFF_COUNT, Field.STUFF_PARITY),
+    "fixed_stuff": (Field.FIXED_STUFF,),
     "crc": (Field.CRC,),
     "crc_delim": (Field.CRC_DELIM,),
     "ack": (Field.ACK_SLOT,),
@@ -76,27 +83,51 @@ _FIELD_MAX = {
     Field.ACK_DELIM: 1,
     Field.EOF: 7,
 }
+# on a CAN FD bus (a data bit rate): FD frames' fields and lengths (standard FD control field:
+# IDE FDF res BRS ESI DLC; 64 data bytes; CRC-21 and its 7 fixed stuff bits; the longest frame)
+_FD_MAX_BITS = _MAX_BITS | {
+    "control": 9,
+    "data": 512,
+    "stuff_count": 4,
+    "fixed_stuff": 7,
+    "crc": 21,
+    "raw": worst_case_bits(64, True, fd=True).total,
+}
+_FD_FIELD_MAX = _FIELD_MAX | {
+    Field.RRS: 1,
+    Field.FDF: 1,
+    Field.RES: 1,
+    Field.BRS: 1,
+    Field.ESI: 1,
+    Field.DATA: 512,
+    Field.STUFF_COUNT: 3,
+    Field.STUFF_PARITY: 1,
+    Field.FIXED_STUFF: 7,
+    Field.CRC: 21,
+}
 
 
-def _resolve_field(name: str) -> tuple[str, tuple[Field, ...] | None, int]:
+def _resolve_field(name: str, fd: bool = False) -> tuple[str, tuple[Field, ...] | None, int]:
     key = str(name).lower()
+    groups, fields = (_FD_MAX_BITS, _FD_FIELD_MAX) if fd else (_MAX_BITS, _FIELD_MAX)
     if key == "raw":
-        return "raw", None, _MAX_BITS["raw"]
-    if key in FIELD_GROUPS:
-        return key, FIELD_GROUPS[key], _MAX_BITS[key]
-    for f in Field:
+        return "raw", None, groups["raw"]
+    if key in groups:
+        return key, FIELD_GROUPS[key], groups[key]
+    for f in fields:
         if f.value.lower() == key or f.name.lower() == key:
-            return f.value, (f,), _FIELD_MAX[f]
-    known = ", ".join(list(FIELD_GROUPS) + [f.value for f in Field] + ["raw"])
-    raise ValueError(f"unknown field {name!r}: one of {known}")
+            return f.value, (f,), fields[f]
+    known = ", ".join([g for g in FIELD_GROUPS if g in groups] + [f.value for f in fields] + ["raw"])
+    extra = "" if fd else " (the fields of CAN FD frames on a bus with a data bit rate)"
+    raise ValueError(f"unknown field {name!r}: one of {known}{extra}")
 
 
 def _group_positions(frame: Frame, fields: tuple[Field, ...], group: str) -> list[int]:
     fb = frame.bits
     if group == "arbitration" and not frame.extended:
-        fields = (Field.ID, Field.RTR)
+        fields = (Field.ID, Field.RTR, Field.RRS)
     if group == "control" and frame.extended:
-        fields = (Field.R1, Field.R0, Field.DLC)
+        fields = (Field.R1, Field.R0, Field.FDF, Field.RES, Field.BRS, Field.ESI, Field.DLC)
     out: list[int] = []
     for f in fields:
         out.extend(fb.fields.get(f, ()))
@@ -196,11 +227,13 @@ class FaultInjector:
         every: bool = False,
     ) -> FlipRule:
         """Flip bit ``bit`` of ``field`` (a group: sof, arbitration, control, data, crc,
-        crc_delim, ack, ack_delim, eof; a field name such as DLC or ID_EXT; or 'raw' for a
-        position from SOF counting stuff bits) in the ``occurrence``-th attempt of frames with
-        ``can_id``. ``nodes`` None: every node sees the flipped level (a global error);
-        otherwise only those nodes do (a local error)."""
-        group, fields, width = _resolve_field(field)
+        crc_delim, ack, ack_delim, eof, and for CAN FD frames stuff_count (the stuff count and its
+        parity bit) and fixed_stuff (the CRC field's fixed stuff bits); a field name such as DLC,
+        ID_EXT, BRS or ESI; or 'raw' for a position from SOF counting stuff bits) in the
+        ``occurrence``-th attempt of frames with ``can_id``. ``nodes`` None: every node sees the
+        flipped level (a global error); otherwise only those nodes do (a local error). A bus
+        with a data bit rate takes the FD fields and lengths (64 data bytes, a 21-bit CRC)."""
+        group, fields, width = _resolve_field(field, self.bus.data_bitrate is not None)
         if isinstance(bit, bool) or not isinstance(bit, int) or not 0 <= bit < width:
             raise ValueError(f"bit {bit!r} outside field {group} ({width} bits at most: 0..{width - 1})")
         if isinstance(occurrence, bool) or not isinstance(occurrence, int) or occurrence < 1:
@@ -305,32 +338,35 @@ class FaultInjector:
         self._countdown[key] = c - length
         return out
 
-    def _bits_after(self, now: int, t: int) -> int:
-        """The bit of an attempt starting at ``now`` during which time ``t`` falls (rounded up)."""
-        return -(-(t - now) * self.bus.bitrate // 1_000_000_000)
+    def _bits_after(self, now: int, t: int, data_phase: tuple[int, int] | None = None) -> int:
+        """The bit of an attempt starting at ``now`` during which time ``t`` falls (rounded up),
+        its FD data phase (if any) taken at the data bit rate as sent without error."""
+        return self.bus.attempt_bit(t - now, data_phase)
 
-    def _stuck_now(self, now: int, horizon: int = 0) -> dict[Node, tuple[int, ...]]:
+    def _stuck_now(self, now: int, horizon: int = 0, data_phase: tuple[int, int] | None = None) -> StuckFaults:
         """Nodes stuck at ``now``, or from a bit of the attempt starting now within ``horizon``
         ns: (level, the bit where the fault ends or None[, the bit where it starts])."""
-        stuck: dict[Node, tuple[int, ...]] = {}
+        stuck: StuckFaults = {}
         for s in self._stuck:
             if s.start < now + horizon + 1 and (s.end is None or now < s.end) and s.node.connected:
-                end = None if s.end is None else self._bits_after(now, s.end)
+                end = None if s.end is None else self._bits_after(now, s.end, data_phase)
                 if s.start <= now:
                     stuck[s.node] = (s.level, end)
                 elif s.node not in stuck:
-                    stuck[s.node] = (s.level, end, self._bits_after(now, s.start))
+                    stuck[s.node] = (s.level, end, self._bits_after(now, s.start, data_phase))
         return stuck
 
-    def _leaving(self, now: int, horizon: int) -> dict[Node, int]:
+    def _leaving(self, now: int, horizon: int, data_phase: tuple[int, int] | None = None) -> dict[Node, int]:
         """Nodes `disconnect` takes off the bus during the attempt starting now: the bit.
         Disconnects already past are dropped (every attempt consults this list)."""
         self._leaves = [(n, at) for n, at in self._leaves if at > now]
-        return {n: self._bits_after(now, at) for n, at in self._leaves if at <= now + horizon and n.connected}
+        return {
+            n: self._bits_after(now, at, data_phase) for n, at in self._leaves if at <= now + horizon and n.connected
+        }
 
     def attempt(self, bus: SimBus, now: int, txs: Sequence[TxRequest]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
-        frame = txs[0].frame
+        frame = sent_frame(txs[0].frame, txs[0].node.state is PASSIVE)  # the bits on the wire
         flips: dict[int, Any] = {}
         for rule in self.flips:
             if rule.can_id is not None and (
@@ -366,8 +402,9 @@ class FaultInjector:
         # faults that begin while this attempt is on the wire are part of it: the frame, its
         # error signalling and intermission (a longer attempt misses only faults starting later)
         horizon = bus.bits_to_ns(length + ATTEMPT_MARGIN_BITS)
-        stuck = self._stuck_now(now, horizon) if self._stuck else {}
-        leave = self._leaving(now, horizon) if self._leaves else {}
+        phase = (brs_position(frame) + 1, frame.bits.crc_delim) if frame.brs else None
+        stuck = self._stuck_now(now, horizon, phase) if self._stuck else {}
+        leave = self._leaving(now, horizon, phase) if self._leaves else {}
         deaf = [n for n in self._deaf if n.on_bus]
         overload = {n: k for n, k in self._overload.items() if n.on_bus and all(q.node is not n for q in txs)}
         if not flips and not stuck and not deaf and not overload and not leave:

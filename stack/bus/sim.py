@@ -12,6 +12,17 @@ Model (CAN 2.0 / ISO 11898-1, at frame granularity with bit-exact lengths):
   recessive where the other sends dominant sees a bit error and the attempt ends in an error
   frame. The engine reports it (`collisions`, trace records of kind 'collision').
 
+CAN FD (ISO 11898-1:2015), on a bus made with a data bit rate (``data_bitrate``):
+- A node is FD enabled, tolerant or classic (`stack.controller.node.Node.fd`); only an FD-enabled
+  node sends FD frames, and only FD-enabled nodes receive and acknowledge them.
+- An FD frame arbitrates as a classical data frame of its identifier (RRS is dominant, FDF comes
+  after arbitration) and lasts its exact length at the nominal rate, except with BRS the bits
+  after BRS up to the CRC delimiter at the data rate (`frame_ns`); error flags, delimiters,
+  overload frames and intermission are always at the nominal rate, and an error in the data phase
+  ends it (`stack.bus.attempt`). Its ESI is recessive when its transmitter is error passive at SOF.
+- A tolerant node goes bus integrating at FDF (the protocol exception): no error, no counter. A
+  classic (CAN 2.0) node answers an FD frame with an error frame (`stack.bus.fdnodes`).
+
 Determinism: events at the same time run in the order they were scheduled; arbitration at an
 instant runs after every timer due at that instant; nothing reads the wall clock or an unseeded
 random source, so a scenario with the same seed gives the same trace.
@@ -31,29 +42,38 @@ import random
 from collections.abc import Callable, Iterable
 from typing import Any
 
+from stack.bus.attempt import AttemptResult, brs_position, sent_frame
 from stack.bus.bitlevel import BitLevelAttempts
 from stack.bus.delivery import LOG_LIMIT, LazyDelivery
+from stack.bus.fdnodes import classic_fd_attempt
 from stack.bus.stats import BusStatistics, IdStats
 from stack.bus.trace import DiscardedTrace, TraceRecord
 from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
 from stack.controller.events import TxDone
-from stack.controller.node import Node, Timer
+from stack.controller.node import CLASSIC, FD, Node, Timer
 from stack.controller.queues import QUEUED, SENT, TxRequest
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
-__all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS"]
+__all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS", "MAX_DATA_BITRATE"]
 
 _heappush = heapq.heappush
 INF = float("inf")
 NEVER = 1 << 62  # a time no simulation reaches (ns: 146 years)
 _tuple_new = tuple.__new__
 SUSPEND_BITS = 8
+# ISO 11898-1:2015 sets no upper limit to the data phase; transceivers of ISO 11898-2:2016 are
+# specified for 2 and 5 Mbit/s, SIC ones up to 8 (the limit of `canstack frame --data-bitrate`)
+MAX_DATA_BITRATE = 16_000_000
+FD_DURATION_CACHE = 4096  # FD frame durations kept per bus (by the frame's bits)
 
 
 class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
 
+    ``data_bitrate`` makes it a CAN FD bus: the bit rate of the data phase of FD frames with BRS
+    (from the nominal bit rate to 16 Mbit/s). Without it the bus is a classical CAN bus: its nodes
+    are CAN 2.0 controllers unless made otherwise (`Node.fd`), none of which sends FD frames.
     ``record`` keeps a `TraceRecord` per bus event in ``trace`` — or, with ``keep=False``, only
     hands each to the `on_trace` listeners (a trace streamed to a file, receptions counted: memory
     stays flat however long the run); ``seed`` seeds ``rng`` (used by
@@ -66,6 +86,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
     # the fields as slots: the engine reads them once a frame (a dict of over 30 keys is slower)
     __slots__ = (
         "bitrate",
+        "data_bitrate",
         "name",
         "seed",
         "rng",
@@ -107,16 +128,38 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         "_busoff_marks",
         "_idle_bits",
         "_unacked",
+        "_fd_ns",
+        "_non_fd",
+        "_classic",
+        "_eager_fd",
+        "_fd_ack_count",
         "__dict__",
         "__weakref__",
     )
 
     def __init__(
-        self, bitrate: int = 500_000, *, seed: int = 0, name: str = "bus0", record: bool = True, keep: bool = True
+        self,
+        bitrate: int = 500_000,
+        *,
+        data_bitrate: int | None = None,
+        seed: int = 0,
+        name: str = "bus0",
+        record: bool = True,
+        keep: bool = True,
     ) -> None:
         if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 1_000 <= bitrate <= 1_000_000:
-            raise ValueError(f"bitrate {bitrate!r}: a CAN 2.0 bus runs at 1000..1000000 bit/s")
+            raise ValueError(f"bitrate {bitrate!r}: a CAN bus arbitrates at 1000..1000000 bit/s")
+        if data_bitrate is not None and (
+            isinstance(data_bitrate, bool)
+            or not isinstance(data_bitrate, int)
+            or not bitrate <= data_bitrate <= MAX_DATA_BITRATE
+        ):
+            raise ValueError(
+                f"data bit rate {data_bitrate!r}: a whole number of bit/s from the nominal bit rate ({bitrate}) "
+                f"to {MAX_DATA_BITRATE} (the data phase is never slower than arbitration)"
+            )
         self.bitrate = bitrate
+        self.data_bitrate = data_bitrate
         self.name = name
         self.seed = seed
         self.rng = random.Random(seed)
@@ -130,11 +173,13 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self.now_ns = 0
         self._timers: list[tuple[int, int, Timer]] = []
         self.seqs = itertools.count(1)  # requests and timers: ties order by it (the contract's `seqs`)
-        self._contenders: list[TxRequest] = []
+        self._contenders: list[tuple[int, int, TxRequest]] = []  # (key, seq, request): a heap
         self._suspended: list[Node] = []
         self.rounds = 0
         self._idle_at = 0
-        self._tx: tuple[Any, ...] | None = None
+        # the attempt on the wire: transmitters, start, its bit-level result (None: a clean frame)
+        # and the clean frame as sent
+        self._tx: tuple[tuple[TxRequest, ...], int, AttemptResult | None, Frame | None] | None = None
         self._tx_end: int = 0
         # reception
         self._log: list[tuple[int, Frame, Node]] = []
@@ -162,15 +207,32 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self._busoff_marks: dict[Node, int] = {}  # recessive-run count when each started recovering
         self._idle_bits = 0  # idle bits between frames, for rule 12 on an idle bus
         self._unacked: dict[Any, Any] = {}  # replays of unacknowledged attempts (`BitLevelAttempts`)
+        # CAN FD: durations of frames with BRS by their bits (`frame_ns`); the nodes on the bus that
+        # are not FD enabled, the CAN 2.0 ones among them; the buffering-free receivers and the
+        # acknowledging nodes that are FD enabled (the only ones an FD frame reaches)
+        self._fd_ns: dict[str, int] = {}
+        self._non_fd: list[Node] = []
+        self._classic: list[Node] = []
+        self._eager_fd: list[Node] = []
+        self._fd_ack_count = 0
 
     # ------------------------------------------------------------------ nodes
     def add(self, node: Node) -> Node:
-        """Attach a node to the bus (it starts receiving and may transmit at the next idle)."""
+        """Attach a node to the bus (it starts receiving and may transmit at the next idle).
+
+        A node made FD enabled (``fd='fd'``) needs a bus with a data bit rate, as an FD
+        controller needs its data bit timing (Linux refuses to bring one up without); a node whose
+        ``fd`` was not given is FD enabled on such a bus and classic on one without (`Node.fd`)."""
         if node.bus is not None:
             raise ValueError(f"node {node.name!r} is already attached to a bus")
         if any(n.name == node.name for n in self.nodes):
             raise ValueError(f"a node named {node.name!r} is already on bus {self.name!r}")
         node.check_listeners(self.capabilities)
+        if node.fd_declared and node.fd == FD and self.data_bitrate is None:
+            raise ValueError(
+                f"node {node.name!r} is FD enabled (fd='fd') but bus {self.name!r} has no data bit rate: "
+                "give SimBus(bitrate, data_bitrate=...) (equal to bitrate for FD frames without bit rate switching)"
+            )
         node.bus = self
         self.nodes.append(node)
         node.rx_cursor = self.delivered
@@ -258,7 +320,9 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         on = node.connected and node.state is not BUS_OFF
         node.on_bus = on
         if on:
-            if node.subscribed:
+            # a node that is not FD enabled receives no FD frame: it is given each frame it gets
+            # (`Node.deliver`) rather than reading the shared log, which every FD frame enters
+            if node.subscribed or (self.data_bitrate is not None and node.fd != FD):
                 self.sync(node)
                 eager.append(node)
             else:
@@ -272,7 +336,18 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         self._lazy = sorted(lazy, key=order.__getitem__)
         self._eager = sorted(eager, key=order.__getitem__)
         self._arb_watch = sorted(watch, key=order.__getitem__)
-        self._ack_count = sum(1 for n in self.nodes if n.connected and not n.listen_only and n.state is not BUS_OFF)
+        ackers = [n for n in self.nodes if n.connected and not n.listen_only and n.state is not BUS_OFF]
+        self._ack_count = len(ackers)
+        if self.data_bitrate is not None:
+            self._fd_lists(ackers)
+
+    def _fd_lists(self, ackers: list[Node]) -> None:
+        """The nodes an FD frame treats apart: those on the bus that are not FD enabled (the
+        CAN 2.0 ones among them destroy it), and the FD-enabled receivers and acknowledgers."""
+        self._non_fd[:] = [n for n in self.nodes if n.on_bus and n.fd != FD]  # in place: the fast loop holds it
+        self._classic = [n for n in self._non_fd if n.fd == CLASSIC]
+        self._eager_fd = [n for n in self._eager if n.fd == FD]
+        self._fd_ack_count = sum(1 for n in ackers if n.fd == FD)
 
     def filters_changed(self, node: Node) -> None:
         """Acceptance filters or remote replies of ``node`` changed (the contract's
@@ -301,8 +376,28 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         return self.call_at(self.now_ns + int(delay), callback, args)
 
     def bits_to_ns(self, bits: int) -> int:
-        """Duration of ``bits`` bit times in ns."""
+        """Duration of ``bits`` bit times in ns (at the nominal bit rate, floored to the ns)."""
         return bits * 1_000_000_000 // self.bitrate
+
+    def frame_ns(self, frame: Frame) -> int:
+        """The time ``frame`` takes on this bus from the start of SOF to the end of EOF, ns: its
+        exact stuffed length at the nominal bit rate — except, in a CAN FD frame with BRS, the
+        bits after BRS up to the CRC delimiter (`FrameBits.data_bits`) at the data bit rate
+        (ISO 11898-1:2015) — floored to the ns as `bits_to_ns` is.
+
+        FD durations are kept by the frame's bits (a dict hit on a string whose hash is cached);
+        `FrameBits.duration_ns` gives the same to the nearest ns (equal whenever both bit times
+        are whole ns)."""
+        fb = frame.encoded or frame.bits
+        if not fb.brs:
+            return self._dur[len(fb.bits)]
+        key = fb.bits
+        t = self._fd_ns.get(key)
+        if t is None:
+            if len(self._fd_ns) >= FD_DURATION_CACHE:
+                self._fd_ns.clear()
+            t = self._fd_ns[key] = self.attempt_ns(len(key), (brs_position(frame) + 1, fb.crc_delim))
+        return t
 
     # ------------------------------------------------------------------ engine
     def offer(self, node: Node, req: TxRequest) -> None:
@@ -334,6 +429,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         heappop = heapq.heappop
         while self.frames_ok < stop:
             tt = timers[0][0] if timers else INF
+            tb: float
             if self._tx is not None:
                 tb = self._tx_end
             elif self._contenders:
@@ -353,7 +449,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             else:
                 if tb > limit:
                     break
-                self.now_ns = tb
+                self.now_ns = tb  # type: ignore[assignment]  # an int here: tb < tt, so it is not INF
                 if self._tx is not None:
                     self._complete()
                 elif self.fast and not (
@@ -397,7 +493,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         frames_ok = self.frames_ok
         rounds = self.rounds
         delivered = self.delivered
-        log_limit = LOG_LIMIT
+        flush_at = self._log_base + LOG_LIMIT  # the log is flushed when it holds LOG_LIMIT entries
         # one int bound: a frame starts and ends before the next timer (tt) and at or before
         # ``limit`` (int-to-int comparisons are cheaper than against float('inf'))
         if tt == INF:
@@ -409,6 +505,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         # what makes every frame run code beyond the loop, the node's own aside (re-read whenever
         # user code ran: nothing else changes them while the loop runs)
         watched = eager or rec_nonzero or record
+        non_fd = self._non_fd  # an FD frame with any of these on the bus takes the general path
+        # (a list changed in place: read once)
+        frame_ns = self.frame_ns
+        fd_ns = self._fd_ns
         try:
             while frames_ok < stop:
                 t0 = idle_at if idle_at > now else now
@@ -428,14 +528,23 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 ):
                     break
                 frame = req.frame
-                if frame.remote and rtr:
-                    break  # automatic replies: the general path
+                nbits = frame.nbits or frame.wire_bits
+                if frame.fd:
+                    if non_fd or frame.esi:
+                        break  # nodes that are not FD enabled, or an ESI to clear: the general path
+                    if frame.brs:  # SimBus.frame_ns, its cache hit inlined
+                        end = fd_ns.get(frame.encoded.bits)  # (encoded: nbits read it)
+                        end = t0 + (frame_ns(frame) if end is None else end)
+                    else:
+                        end = t0 + dur[nbits]
+                else:
+                    if rtr and frame.remote:
+                        break  # automatic replies: the general path
+                    end = t0 + dur[nbits]
                 heappop(heap)
                 if heap and heap[0][0] == req.key:
                     heappush(heap, (req.key, req.seq, req))
                     break
-                nbits = frame.nbits or frame.wire_bits
-                end = t0 + dur[nbits]
                 if end >= bound:
                     heappush(heap, (req.key, req.seq, req))
                     break
@@ -472,9 +581,10 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 if lazy:
                     log.append((end, frame, node))
                     delivered += 1
-                    if len(log) >= log_limit:
+                    if delivered >= flush_at:  # (delivered is _log_base + len(log): no len() a frame)
                         self._flush()
                         log = self._log
+                        flush_at = self._log_base + LOG_LIMIT
                 if called:
                     self.delivered = delivered
                 for n in eager:
@@ -566,6 +676,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         current transmission, or the next arbitration; ``inf`` when idle with nothing queued.
         A real-time driver sleeps until the wall clock reaches it."""
         tt = self._timers[0][0] if self._timers else INF
+        tb: float
         if self._tx is not None:
             tb = self._tx_end
         elif self._contenders:
@@ -588,7 +699,14 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             # a transmitter stuck recessive for good cannot drive the ACK slot either
             deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None and s.start <= self.now_ns}
         ackers = [n for n in self.nodes if n.on_bus and not n.listen_only and n not in deaf]
-        return all(not any(a is not p for a in ackers) for p in pending)
+        if self.data_bitrate is None:  # (run() asks each time: kept as cheap as before FD)
+            return all(not any(a is not p for a in ackers) for p in pending)
+
+        def acknowledged(p: Node) -> bool:  # an FD frame by FD-enabled nodes only
+            fd = p.head is not None and p.head.frame.fd
+            return any(a is not p and (not fd or a.fd == FD) for a in ackers)
+
+        return not any(acknowledged(p) for p in pending)
 
     def _wake(self, now: int) -> None:
         still = []
@@ -647,7 +765,6 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         if self._arb_watch:
             self._notify_losers(now, r, txs)
         frame = winner.frame
-        fb = frame.encoded or frame.bits
         spec = self._faults.attempt(self, now, txs) if self._faults is not None else None
         if len(txs) > 1:
             # several nodes send the same arbitration field: replayed bit by bit, a collision if
@@ -659,11 +776,19 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         if spec is not None:
             self._bitlevel(now, txs, **spec)
             return
-        if self._ack_count <= 1:  # nobody but the transmitter (never listen-only) to acknowledge
+        if frame.fd:
+            frame = sent_frame(frame, winner.node.state is PASSIVE)  # ESI: its state at SOF
+            if self._classic:  # CAN 2.0 nodes destroy it (`stack.bus.fdnodes`)
+                self._classic_attempt(now, winner, frame)
+                return
+            if self._fd_ack_count <= 1:  # only FD-enabled nodes acknowledge an FD frame
+                self._bitlevel(now, txs)  # ACK error
+                return
+        elif self._ack_count <= 1:  # nobody but the transmitter (never listen-only) to acknowledge
             self._bitlevel(now, txs)  # ACK error
             return
-        self._tx = (txs, now, None)
-        self._tx_end = now + self._dur[len(fb.bits)]
+        self._tx = (txs, now, None, frame)
+        self._tx_end = now + self.frame_ns(frame)
 
     def _tied(self, winner: TxRequest, now: int) -> tuple[TxRequest, ...]:
         """Other nodes sending the same arbitration field: they all go on transmitting."""
@@ -682,22 +807,40 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             txs.append(q)
         return tuple(txs)
 
+    def _classic_attempt(self, now: int, req: TxRequest, frame: Frame) -> None:
+        """An FD frame on a bus with CAN 2.0 nodes: their error frame destroys it, or, when all of
+        them are error passive or listen-only, their passive error flags leave it alone. The
+        outcome is fully determined by the nodes' kinds, states and counters (`stack.bus.fdnodes`
+        computes it without the bit-level replay, which a differential test compares it with);
+        anything it does not cover is replayed bit by bit."""
+        nodes = [n for n in self.nodes if n.on_bus]
+        res = classic_fd_attempt(req, frame, nodes) if self.fast_fd_attempts else None
+        if res is None:
+            self._bitlevel(now, (req,))
+        else:
+            self._start_attempt(now, (req,), nodes, res)
+
+    fast_fd_attempts = True  # `stack.bus.fdnodes` for FD frames with CAN 2.0 nodes; tests compare
+
     @staticmethod
     def _first_difference(txs: tuple[TxRequest, ...]) -> int | None:
-        bits0 = txs[0].frame.bits.bits
+        def bits(q: TxRequest) -> str:
+            return sent_frame(q.frame, q.node.state is PASSIVE).bits.bits
+
+        bits0 = bits(txs[0])
         diff = None
         for q in txs[1:]:
-            b = q.frame.bits.bits
+            b = bits(q)
             if b != bits0:
                 d = next(i for i, (x, y) in enumerate(zip(bits0, b)) if x != y)
                 diff = d if diff is None else min(diff, d)
         return diff
 
-    def _notify_losers(self, now: int, r: int, txs: list[TxRequest]) -> None:
+    def _notify_losers(self, now: int, r: int, txs: tuple[TxRequest, ...]) -> None:
         """Nodes that watch arbitration hear of each round their offered request lost
         (`Node.lost_arbitration`: ArbitrationLost, and a one-shot request fails)."""
         winners = {q.node for q in txs}
-        wframe = txs[0].frame
+        wframe = sent_frame(txs[0].frame, txs[0].node.state is PASSIVE)  # as on the wire (ESI)
         for n in tuple(self._arb_watch):
             h = n.offered
             if n in winners or h is None or h.state is not QUEUED or h.on_wire or n.suspended:
@@ -707,16 +850,19 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             n.lost_arbitration(now, h, wframe)
 
     def _complete(self) -> None:
-        txs, start, detail = self._tx
+        assert self._tx is not None  # completing the attempt on the wire
+        txs, start, detail, frame = self._tx
         self._tx = None
         end = self._tx_end
         idle = end + self._ifs_ns
         if detail is not None:
             self._complete_bitlevel(txs, start, end, idle, detail)
             return
+        assert frame is not None  # a clean attempt carries its frame
         winner = txs[0]
-        frame = winner.frame
         sender = winner.node
+        # an FD frame reaches the FD-enabled nodes only (a tolerant node integrates meanwhile)
+        skip = self._non_fd if frame.fd else ()
         self.frames_ok += 1
         self.busy_ns += idle - start
         self._idle_at = idle
@@ -742,13 +888,13 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             self.delivered += 1
             if len(log) >= LOG_LIMIT:
                 self._flush()
-        for n in self._eager:
+        for n in self._eager_fd if frame.fd else self._eager:
             n.deliver(end, frame, sender, start)
         if self._busoff:
             self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
         if self._rec_nonzero:
             for n in tuple(self._rec_nonzero):
-                if n is not sender and n.on_bus:
+                if n is not sender and n.on_bus and n not in skip:
                     n.on_rx_success()
         for q in txs:
             q.on_wire = False

@@ -49,9 +49,11 @@ class IdStats:
 class BusStatistics:
     """The results of `stack.bus.sim.SimBus` (a mixin over the counters the bus keeps)."""
 
-    __slots__ = ()  # SimBus declares the fields
+    if not TYPE_CHECKING:  # SimBus declares the fields (the annotations below are their types)
+        __slots__ = ()
 
     bitrate: int
+    data_bitrate: int | None
     name: str
     nodes: list[Node]
     trace: list[TraceRecord]
@@ -83,9 +85,12 @@ class BusStatistics:
         self._bus_listeners.append(callback)
 
     def summary(self) -> dict[str, Any]:
-        """Bus load, frame and error counts, per-ID latency and per-node counters."""
-        return {
-            "bitrate": self.bitrate,
+        """Bus load, frame and error counts, per-ID latency and per-node counters (and the data bit
+        rate of a CAN FD bus)."""
+        out: dict[str, Any] = {"bitrate": self.bitrate}
+        if self.data_bitrate is not None:
+            out["data_bitrate"] = self.data_bitrate
+        return out | {
             "elapsed_s": self.now_ns / 1e9,
             "frames": self.frames_ok,
             "error_frames": self.error_frames,

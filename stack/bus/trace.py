@@ -109,7 +109,8 @@ def error_frame_content(rec: TraceRecord) -> tuple[int, bytes]:
     tec, _, rec_count = _pairs(d.get("counters")).get(node, "0/0").partition("/")
     tec_n, rec_n = int(tec or 0), int(rec_count or 0)
     data[6], data[7] = min(tec_n, 255), min(rec_n, 255)
-    change = _pairs(d.get("states").replace("->", ">") if d.get("states") else None).get(node)
+    states = d.get("states")
+    change = _pairs(states.replace("->", ">") if states else None).get(node)
     if change:
         new = change.split(">")[-1]
         if new == "bus-off":

@@ -10,6 +10,9 @@ same run (so the figures compare across machines).
   trace recording off: simulated time divided by wall time (the wire is the reference).
 - ``scale_1000_vs_10_nodes``: frames per second with 1000 such nodes (each filtering the 16
   identifiers of its group) divided by the 10-node figure.
+- ``fd_vs_classical_10_nodes``: the same 10 nodes on a CAN FD bus (2 Mbit/s data phase), half of
+  the frames 64-byte FD frames with BRS (`bench_fd_mixed`): frames per second divided by the
+  classical 10-node figure, both measured in this figure, one run of each in turn.
 - ``campaign_realtime_factor_500k``: the reliability campaign (5 nodes, random traffic,
   bit-error rate 1e-4 global and local) at 500 kbit/s, against the same traffic fault-free
   (``campaign_vs_fault_free``).
@@ -50,6 +53,7 @@ __all__ = [
     "bench_python_can_virtual",
     "bench_canstack_pair",
     "bench_saturated",
+    "bench_fd_mixed",
     "bench_campaign",
     "Figure",
     "FIGURES",
@@ -119,6 +123,11 @@ def _resend(node: Any) -> Callable[[TxDone], None]:
     return lambda ev: send(ev.frame)
 
 
+def _alternate(node: Any, a: Frame, b: Frame) -> Callable[[TxDone], None]:
+    send = node.send
+    return lambda ev: send(b if ev.frame is a else a)
+
+
 def bench_saturated(nodes: int, n: int, group_filters: bool) -> tuple[float, float]:
     """(frames per second, real-time factor) for ``nodes`` saturating senders at 1 Mbit/s."""
     bus = SimBus(1_000_000, record=False)
@@ -130,6 +139,24 @@ def bench_saturated(nodes: int, n: int, group_filters: bool) -> tuple[float, flo
         node = bus.node(f"n{i}", **kw)
         node.listen(TxDone, _resend(node))
         node.send(Frame(cid, bytes([i & 0xFF]) * 8))
+    t0 = time.perf_counter()
+    bus.run(frames=n)
+    dt = time.perf_counter() - t0
+    return n / dt, bus.now() / 1e9 / dt
+
+
+def bench_fd_mixed(nodes: int, n: int) -> tuple[float, float]:
+    """(frames per second, real-time factor) for ``nodes`` saturating senders on a CAN FD bus at
+    1 Mbit/s with a 2 Mbit/s data phase, as `bench_saturated` without filters, each sender sending
+    an 8-byte classical frame and a 64-byte FD frame with BRS of one identifier in turn (the other
+    one when the last is done): half of the traffic is FD."""
+    bus = SimBus(1_000_000, data_bitrate=2_000_000, record=False)
+    for i in range(nodes):
+        cid = (0x100 + i) & 0x7FF
+        node = bus.node(f"n{i}")
+        classical = Frame(cid, bytes([i & 0xFF]) * 8)
+        node.listen(TxDone, _alternate(node, classical, Frame(cid, bytes([i & 0xFF]) * 64, fd=True, brs=True)))
+        node.send(classical)
     t0 = time.perf_counter()
     bus.run(frames=n)
     dt = time.perf_counter() - t0
@@ -214,6 +241,33 @@ def _nodes_lines(r: dict[str, Any]) -> list[str]:
         f"{r['realtime_factor_10_nodes']:.1f}x the wire (target >= 50)",
         f"1000 nodes: {r['fps_1000_nodes']:,.0f} frames/s = {r['scale_1000_vs_10_nodes']:.2f} of the 10-node "
         f"figure (target >= 0.5)",
+    ]
+
+
+def _fd(s: Settings) -> dict[str, Any]:
+    n = int(300_000 * s.scale)
+    classical: list[tuple[float, float]] = []
+    fd: list[tuple[float, float]] = []
+    for i in range(s.repeat):  # in turn, so that the machine's load weighs on both alike
+        _progress(f"10 nodes, half of the frames CAN FD (64 bytes, BRS, 2 Mbit/s), and classical: run {i + 1}")
+        fd.append(bench_fd_mixed(10, n))
+        classical.append(bench_saturated(10, n, False))
+    fps_fd, rtf_fd = max(fd)
+    fps, _ = max(classical)
+    return {
+        "fps_10_nodes_fd_half": fps_fd,
+        "realtime_factor_10_nodes_fd_half": rtf_fd,
+        "fps_10_nodes_classical": fps,
+        "fd_vs_classical_10_nodes": fps_fd / fps,
+    }
+
+
+def _fd_lines(r: dict[str, Any]) -> list[str]:
+    return [
+        f"10 nodes @ 1 Mbit/s, 2 Mbit/s data phase, half of the frames CAN FD (64 bytes, BRS): "
+        f"{r['fps_10_nodes_fd_half']:,.0f} frames/s, real-time factor {r['realtime_factor_10_nodes_fd_half']:.1f}x "
+        f"= {r['fd_vs_classical_10_nodes']:.2f} of the classical 10-node frames/s "
+        f"({r['fps_10_nodes_classical']:,.0f}) (target >= 0.8)"
     ]
 
 
@@ -302,6 +356,7 @@ class Figure(NamedTuple):
 FIGURES: tuple[Figure, ...] = (
     Figure("engine", "1 sender -> 1 receiver against python-can's virtual bus", _engine, _engine_lines),
     Figure("nodes", "10 and 1000 saturating nodes", _nodes, _nodes_lines),
+    Figure("fd", "10 saturating nodes, half of the frames CAN FD, against the classical 10", _fd, _fd_lines),
     Figure("campaign", "the reliability campaign against the same traffic fault-free", _campaign, _campaign_lines),
     Figure("decode", "capture decoding against sigrok-cli (needs the corpus)", _decode, _decode_lines),
     Figure("pycan", "python-can integration: periodic jitter, plugin and serve throughput", _pycan, _pycan_lines),

@@ -13,7 +13,8 @@ replies that changed (`filters_changed`), error counters that changed (`counters
 fault-confinement state change (`state_changed`) and a bus-off recovery to start
 (`start_recovery`). ``capabilities`` says which node-level facts the driver can know (see
 `CAPABILITIES`), so that profiles and the conformance tests can tell "not known here" from
-"did not happen".
+"did not happen". A driver of a CAN FD bus has a ``data_bitrate`` (the bit rate of the data phase,
+None or absent on a classical bus): a node whose `Node.fd` was not given is FD enabled on it.
 
 **What a driver may do with a node** — its public driver-side surface, all documented on `Node`:
 read ``offered`` (the request it offers to arbitration now), ``queue``, ``acceptance``,

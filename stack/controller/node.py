@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from heapq import heappush
 from operator import itemgetter
-from typing import Any
+from typing import Any, NoReturn
 
 from stack.controller.clock import LocalClock
 from stack.controller.confinement import ACTIVE, BUS_OFF, ErrorState, after_rx_success, after_tx_success, state_for
@@ -31,7 +31,33 @@ from stack.controller.queues import ABORTED, FAILED, QUEUED, SENT, QueueFull, Sp
 from stack.controller.receiver import Receiver, Subscription
 from stack.wire.frame import Frame, MessageLike
 
-__all__ = ["Node", "NodeError", "Subscription", "Timer", "QueueFull", "ErrorState", "PeriodicTask", "Driver"]
+__all__ = [
+    "Node",
+    "NodeError",
+    "Subscription",
+    "Timer",
+    "QueueFull",
+    "ErrorState",
+    "PeriodicTask",
+    "Driver",
+    "FD",
+    "TOLERANT",
+    "CLASSIC",
+    "FD_KINDS",
+]
+
+#: What a controller is towards CAN FD (ISO 11898-1:2015), the value of `Node.fd`:
+FD = "fd"
+"""FD enabled: sends and receives classical and CAN FD frames."""
+TOLERANT = "tolerant"
+"""A classical controller with ISO 11898-1:2015's protocol exception: at a recessive FDF bit it
+goes bus integrating (no error frame) until it reads 11 recessive bits; it sends no FD frames."""
+CLASSIC = "classic"
+"""A CAN 2.0 controller (FD-intolerant): an FD frame is an error to it, answered with an error
+frame that destroys the frame; it sends no FD frames."""
+FD_KINDS = (FD, TOLERANT, CLASSIC)
+"""The three, named as the receiver modes of `stack.wire.decoder.BitDecoder` (a node receives with
+the decoder of its kind)."""
 
 _EVERY_CAPABILITY = frozenset(CAPABILITIES)
 _new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
@@ -46,7 +72,8 @@ class Node(Receiver):
     acceptance ``filters`` (python-can format), ``receive_own_messages`` (self-reception),
     ``listen_only`` (no ACK, no transmission, no error flags), ``one_shot`` (no retransmission
     after a lost arbitration or an error; `send` can override it per frame), ``auto_recovery``
-    (rule 12 without asking), ``clock`` (a `LocalClock`: the node's own oscillator).
+    (rule 12 without asking), ``clock`` (a `LocalClock`: the node's own oscillator), ``fd`` (what
+    the controller is towards CAN FD: `FD`, `TOLERANT` or `CLASSIC`; see `fd`).
 
     Driver-side state (`stack.controller.contract`): ``offered`` is the request the controller
     offers to arbitration now; ``listeners`` the callbacks by event type (drivers read it to know
@@ -91,6 +118,7 @@ class Node(Receiver):
         "suspended",
         "on_bus",
         "connected",
+        "_fd",
         "__dict__",
         "__weakref__",
     )
@@ -110,7 +138,13 @@ class Node(Receiver):
         one_shot: bool = False,
         auto_recovery: bool = True,
         clock: LocalClock | None = None,
+        fd: str | None = None,
     ) -> None:
+        if fd is not None and fd not in FD_KINDS:
+            raise ValueError(
+                f"fd {fd!r}: one of 'fd' (FD enabled), 'tolerant' (classical, with ISO 11898-1:2015's "
+                "protocol exception) or 'classic' (CAN 2.0, destroys FD frames); None: as the bus says"
+            )
         if isinstance(rx_fifo_size, bool) or not isinstance(rx_fifo_size, int) or rx_fifo_size < 1:
             raise ValueError(f"rx_fifo_size {rx_fifo_size!r} must be a positive int")
         if not isinstance(name, str) or not name or not name.isprintable() or any(c.isspace() for c in name):
@@ -138,6 +172,7 @@ class Node(Receiver):
         self._one_shot = bool(one_shot)
         self._one_shot_pending = 0  # queued requests that are one-shot while the node is not
         self.clock = clock
+        self._fd = fd  # None: as the driver's bus is (see `fd`)
         # counters
         self.tx_frames = 0
         self._rx_frames = 0
@@ -194,6 +229,25 @@ class Node(Receiver):
         self._listen_only = value
         if self.bus is not None:
             self.bus.node_changed(self)
+
+    @property
+    def fd(self) -> str:
+        """What the controller is towards CAN FD (ISO 11898-1:2015): 'fd' (`FD`: FD enabled),
+        'tolerant' (`TOLERANT`: classical, with the protocol exception) or 'classic' (`CLASSIC`: a
+        CAN 2.0 controller, FD-intolerant). Given as ``fd=`` when the node is made; when not given,
+        a node is FD enabled on a bus that carries CAN FD — its driver has a ``data_bitrate``, the
+        contract's sign (`stack.controller.contract`) — and classic on one that has none, as the
+        controllers of a classical network are."""
+        kind = self._fd
+        if kind is not None:
+            return kind
+        return FD if getattr(self.bus, "data_bitrate", None) else CLASSIC
+
+    @property
+    def fd_declared(self) -> bool:
+        """True when the node was made with an explicit ``fd=`` (a driver checks that it can carry
+        it: an FD-enabled node needs a bus with a data bit rate)."""
+        return self._fd is not None
 
     @property
     def watches_arbitration(self) -> bool:
@@ -258,13 +312,16 @@ class Node(Receiver):
         time (ns on the node's clock): a frame that has not started by then is withdrawn and
         reported as `TxFailed` ('not started by ...') — TTCAN's transmit-enable window.
         Raises `QueueFull` when the transmit queue has no room, `NodeError` in listen-only mode,
-        when bus off, or when not attached.
+        when bus off, when not attached, or for a CAN FD frame when the node is not FD enabled
+        (`fd`: a tolerant or classic controller sends classical frames only).
         """
         if type(frame) is not Frame:
             frame = self._coerce(frame)
         bus = self.bus
         if bus is None or self._listen_only or self.state is BUS_OFF:
             self._refuse()
+        if frame.fd and self._fd != FD and (self._fd is not None or not getattr(bus, "data_bitrate", None)):
+            self._refuse_fd(frame)  # (`fd`, spelt out: a property call per FD frame costs 2 % of the FD bench)
         if one_shot is None and not_after is None and not self._one_shot:
             req = TxRequest(self, frame, next(bus.seqs), bus.now_ns)
         else:
@@ -286,7 +343,7 @@ class Node(Receiver):
             if cur is None:
                 # nothing offered yet: the new head is the queue's — this request when its key is
                 # the lowest and nothing waits before it (PriorityQueue.head, inlined)
-                new = req if dq[0] is req and q.keys[0] == key else q.head()
+                new = req if dq[0] is req and q.keys[0] == key else (q.head() or req)
                 self.offered = new
                 new.head_since = bus.rounds
                 bus.offer(self, new)
@@ -299,11 +356,11 @@ class Node(Receiver):
         cur = self.offered
         if cur is None:
             # nothing offered yet: the new head is the queue's (this request, unless others wait)
-            new = q.head()
-            self.offered = new
-            if new is not None:
-                new.head_since = bus.rounds
-                bus.offer(self, new)
+            head = q.head()
+            self.offered = head
+            if head is not None:
+                head.head_since = bus.rounds
+                bus.offer(self, head)
         elif not cur.on_wire and req.key < cur.key:
             self.update_head()
         return req
@@ -331,9 +388,8 @@ class Node(Receiver):
     def _expire(self, req: TxRequest) -> None:
         if req.state is QUEUED and not req.on_wire:
             bus = self._driver()
-            self.fail(
-                req, bus.now(), f"not started by its latest start time {self.to_local(req.not_after)} ns", "expired"
-            )
+            latest = -1 if req.not_after is None else self.to_local(req.not_after)
+            self.fail(req, bus.now(), f"not started by its latest start time {latest} ns", "expired")
 
     @staticmethod
     def _coerce(frame: Any) -> Frame:
@@ -343,12 +399,22 @@ class Node(Receiver):
             return Frame.from_message(frame)
         raise TypeError(f"send() takes a Frame or can.Message, not {type(frame).__name__}")
 
-    def _refuse(self) -> None:
+    def _refuse(self) -> NoReturn:
         if self.bus is None:
             raise NodeError(f"node {self.name!r} is not attached to a bus")
         if self.listen_only:
             raise NodeError(f"node {self.name!r} is listen-only: it cannot transmit")
         raise NodeError(f"node {self.name!r} is bus off: it cannot transmit until it recovers")
+
+    def _refuse_fd(self, frame: Frame) -> NoReturn:
+        data_rate = getattr(self.bus, "data_bitrate", None)
+        why = (
+            f"it is {self.fd!r}: only an FD-enabled controller sends FD frames"
+            if data_rate or self._fd is not None
+            else f"its bus {getattr(self.bus, 'name', '')!r} has no data bit rate (a classical CAN bus; "
+            "CAN FD needs SimBus(bitrate, data_bitrate=...), equal to bitrate for FD without bit rate switching)"
+        )
+        raise NodeError(f"node {self.name!r} cannot send the CAN FD frame {frame!r}: {why}")
 
     def send_periodic(
         self, frame: Frame | Callable[[], Frame], period: int, *, offset: int = 0, count: int | None = None
@@ -457,7 +523,7 @@ class Node(Receiver):
             if req.one_shot and not self._one_shot:
                 self._one_shot_pending -= 1
                 if self._one_shot_pending == 0:
-                    self.bus.node_changed(self)
+                    self._driver().node_changed(self)
         if self.tec and rule7:
             self.on_tx_success()
         listeners = self.tx_done_listeners
@@ -479,7 +545,7 @@ class Node(Receiver):
             nxt = dq[0] if dq and dq[0].state is QUEUED and q.keys[0] == req.key else q.head()
             self.offered = nxt
             if nxt is not None:
-                nxt.head_since = self.bus.rounds
+                nxt.head_since = self.bus.rounds  # type: ignore[union-attr]  # a driver reports: attached
             return nxt
         self.update_head()
         return None
@@ -514,7 +580,7 @@ class Node(Receiver):
         ``winner``: emits `ArbitrationLost`; a one-shot request fails."""
         self._emit(ArbitrationLost(self.to_local(t), req.frame, winner))
         if req.one_shot and req.state is QUEUED:
-            r = self.bus.rounds
+            r = self._driver().rounds
             lost = r - req.head_since
             if lost > 0:
                 req.losses += lost

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
+from collections.abc import Sequence
 from enum import Enum
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from stack.controller.exceptions import QueueFull
 from stack.wire.frame import Frame
@@ -150,6 +151,8 @@ class SpecialRequest(TxRequest):
 
     __slots__ = ("one_shot", "not_after", "expiry")
     special = True
+    if TYPE_CHECKING:  # the slot takes the place of TxRequest's property
+        one_shot: bool
 
     def __init__(
         self, node: RequestOwner, frame: Frame, seq: int, t_queued: int, one_shot: bool, not_after: int | None
@@ -170,7 +173,7 @@ class TxQueue:
     keys: list[int]
     size: int
 
-    moved: ClassVar[list[TxRequest]] = []  # each subclass that moves requests sets its own list
+    moved: Sequence[TxRequest] = ()  # requests the last push moved out of hardware (mailboxes)
 
     def push(self, req: TxRequest) -> bool:
         """Queue a request; True if it moved other requests out of hardware (mailbox abort),

@@ -15,9 +15,6 @@ from stack.controller.events import Received
 from stack.controller.filters import AcceptanceFilter
 from stack.wire.frame import Frame
 
-if TYPE_CHECKING:  # pragma: no cover
-    from stack.controller.contract import Driver
-
 __all__ = ["Receiver", "Subscription"]
 
 _new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
@@ -42,9 +39,10 @@ class Subscription:
 class Receiver:
     """Receive side of `Node` (see the module docstring)."""
 
-    __slots__ = ()  # Node declares the fields
+    if not TYPE_CHECKING:  # Node declares the fields (the annotations below are their types)
+        __slots__ = ()
 
-    bus: Driver | Any | None
+    bus: Any  # the driver (`stack.controller.contract.Driver`, which takes the whole Node), or None
     clock: LocalClock | None
     acceptance: AcceptanceFilter
     receive_own_messages: bool
@@ -56,7 +54,15 @@ class Receiver:
     _rx_frames: int
     _rx_overruns: int
     _listen_only: bool
-    # also used from Node: to_local(), listen_only
+
+    if TYPE_CHECKING:  # what Node adds that the receive side uses
+
+        def to_local(self, t_bus: int) -> int: ...
+
+        def unsubscribe(self, sub: Subscription) -> None: ...
+
+        @property
+        def listen_only(self) -> bool: ...
 
     def deliver(self, t: int, frame: Frame, sender: Any = None, sof: int = -1) -> None:
         """The driver's report of a valid frame on the bus at ``t`` (start of frame ``sof``, bus
@@ -181,10 +187,6 @@ class Receiver:
         if self.bus is not None:
             self.bus.node_changed(self)
         return sub
-
-    def unsubscribe(self) -> None:
-        """Stop receiving through this callback."""
-        self.node.unsubscribe(self)
 
     def recv(self) -> tuple[int, Frame] | None:
         """Pop the oldest frame from the receive FIFO as (time_ns, frame), or None if empty."""

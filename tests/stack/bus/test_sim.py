@@ -405,3 +405,109 @@ def test_a_frame_completes_in_a_run_only_when_it_ends_by_the_time_bound(fast, sl
     bus.run(until=end + slack)
     assert a.tx_frames == (2 if slack >= 0 else 1)
     assert b.recv() is not None
+
+
+def _random_fd_network(seed: int) -> tuple:
+    """A seeded random CAN FD network: nodes FD enabled, tolerant or classic (CAN 2.0), some of
+    them near the error-passive limit or listen-only; classical and FD frames (any length, with or
+    without BRS, ESI asked or not) from callbacks and periodic tasks; sometimes random bit errors.
+    Returns everything observable, as `_random_network` does."""
+    import random
+
+    from stack.bus.faults import FaultInjector
+    from stack.controller.events import TxDone
+    from stack.wire.frame import FD_LENGTHS
+
+    rng = random.Random(seed)
+    rate = rng.choice([125_000, 500_000, 1_000_000])
+    bus = SimBus(
+        rate, data_bitrate=rng.choice([rate, 2 * rate, 2_000_000, 5_000_000]), seed=seed, record=rng.random() < 0.8
+    )
+    ids = [rng.choice([0x000, 0x100, 0x101, 0x1FF, 0x200, 0x7FF]) for _ in range(6)]
+
+    def frame(r, kind):
+        ext = r.random() < 0.2
+        cid = r.choice(ids) | ((r.randrange(1 << 18)) << 11 if ext else 0)
+        cid = (cid & 0x7FF) << 18 | (cid >> 11) if ext else cid
+        if kind == "fd" and r.random() < 0.6:
+            n = r.choice(FD_LENGTHS)
+            fill = r.choice([0x00, 0xFF, None])
+            data = bytes(r.randrange(256) if fill is None else fill for _ in range(n))
+            return Frame(cid, data, extended=ext, fd=True, brs=r.random() < 0.7, esi=r.random() < 0.1)
+        if r.random() < 0.1:
+            return Frame(cid, remote=True, dlc=r.randint(0, 8), extended=ext)
+        return Frame(cid, bytes(r.randrange(256) for _ in range(r.randint(0, 8))), extended=ext)
+
+    nodes, log = [], []
+    kinds = ["fd"] + [rng.choice(["fd", "fd", "tolerant", "classic"]) for _ in range(rng.randint(1, 5))]
+    for i, kind in enumerate(kinds):
+        n = bus.node(f"n{i}", fd=kind, rx_fifo_size=rng.choice([4, 64]), listen_only=i > 1 and rng.random() < 0.1)
+        if rng.random() < 0.3:
+            n.set_counters(rng.choice([0, 120, 127, 130, 250]), rng.choice([0, 95, 127, 130]), 0)
+        nodes.append(n)
+    talkers = [n for n in nodes if not n.listen_only]
+    for n in talkers:
+        own = random.Random(seed * 31 + len(log))
+        budget = [rng.randint(3, 30)]
+
+        def send_some(target, own=own, budget=budget):
+            if budget[0] > 0:
+                budget[0] -= 1
+                try:
+                    target.send(frame(own, target.fd))
+                except Exception as exc:  # bus off: part of what is compared
+                    log.append(("refused", type(exc).__name__))
+
+        target = rng.choice(talkers)
+        if rng.random() < 0.4:
+            n.subscribe(
+                lambda ev, t=target, s=send_some: (log.append(("rx", ev.time, ev.frame.key, ev.frame.esi)), s(t))
+            )
+        elif rng.random() < 0.5:
+            n.listen(TxDone, lambda ev, t=target, s=send_some: s(t))
+        if rng.random() < 0.4:
+            n.send_periodic(
+                frame(rng, n.fd),
+                rng.choice([300_000, 1_000_000]),
+                offset=rng.randint(0, 100_000),
+                count=rng.randint(1, 8),
+            )
+        for _ in range(rng.randint(0, 6)):
+            try:
+                n.send(frame(rng, n.fd))
+            except Exception as exc:
+                log.append(("refused", type(exc).__name__))
+    if rng.random() < 0.15:
+        FaultInjector(bus).bit_errors(rng.choice([1e-4, 1e-3]))
+    bus.call_at(rng.randint(0, 3_000_000), lambda: log.extend(("recv", n.name, n.recv()) for n in nodes))
+    bus.run(until=rng.choice([2_000_000, 6_000_000]))
+    return (
+        [r.as_tuple() + (r.frame.fd, r.frame.brs, r.frame.esi) for r in bus.trace],
+        {n.name: (n.counters(), n.state) for n in nodes},
+        {n.name: [(t, f, f.esi, s.name) for t, f, s in n.rx_fifo] for n in nodes},
+        {n.name: sorted((r.frame.key, r.seq) for r in n.pending()) for n in nodes},
+        bus.now(),
+        bus.frames_ok,
+        bus.error_frames,
+        bus.rounds,
+        bus.busy_ns,
+        log,
+    )
+
+
+@pytest.mark.parametrize("seed", range(120))
+def test_fast_loop_matches_the_general_path_on_random_fd_networks(monkeypatch, seed):
+    monkeypatch.setattr(SimBus, "fast", True)
+    fast = _random_fd_network(seed)
+    monkeypatch.setattr(SimBus, "fast", False)
+    assert fast == _random_fd_network(seed)
+
+
+@pytest.mark.parametrize("seed", range(120))
+def test_fd_attempts_with_can_2_nodes_match_the_bit_level_replay_on_random_networks(monkeypatch, seed):
+    # `stack.bus.fdnodes` computes an FD frame's attempt on a bus with CAN 2.0 nodes at once: the
+    # same trace, counters and receptions as replaying it bit by bit for every node
+    monkeypatch.setattr(SimBus, "fast_fd_attempts", True)
+    computed = _random_fd_network(seed)
+    monkeypatch.setattr(SimBus, "fast_fd_attempts", False)
+    assert computed == _random_fd_network(seed)

@@ -11,7 +11,7 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
 @pytest.mark.subprocess
-@pytest.mark.parametrize("script", ["quickstart.py", "restbus_example.py"])
+@pytest.mark.parametrize("script", ["quickstart.py", "restbus_example.py", "fd_intolerant.py"])
 def test_example_runs(script, tmp_path):
     p = subprocess.run(
         [sys.executable, str(EXAMPLES / script)], cwd=tmp_path, capture_output=True, text=True, timeout=120
