@@ -48,10 +48,14 @@ def stable_rng(seed: int, *parts: object) -> random.Random:
 
 
 def frame_of(m: MessageDecl) -> Frame:
-    """The frame a declared message sends (its data, or zeros)."""
+    """The frame a declared message sends (its data, or zeros): a CAN FD frame (with BRS) when
+    the message says so, its data ``m.length`` bytes."""
     if m.remote:
         return Frame(m.can_id, extended=m.extended, remote=True, dlc=m.dlc)
-    return Frame(m.can_id, m.data if m.data is not None else bytes(m.dlc), extended=m.extended)
+    data = m.data if m.data is not None else bytes(m.length)
+    if m.fd:
+        return Frame(m.can_id, data, extended=m.extended, fd=True, brs=m.brs)
+    return Frame(m.can_id, data, extended=m.extended)
 
 
 class Track:

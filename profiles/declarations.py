@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from stack.wire.frame import data_length
+
 __all__ = ["Scenario", "NodeDecl", "MessageDecl", "FaultDecl", "ms_to_ns"]
 
 
@@ -46,6 +48,12 @@ class MessageDecl:
     brs: bool = False
 
     @property
+    def length(self) -> int:
+        """Data bytes the frame carries: ``dlc`` for a classical data frame (0..8), the CAN FD
+        length of the DLC code for an FD frame (9..15 mean 12..64 bytes), none for a remote frame."""
+        return 0 if self.remote else data_length(self.dlc, self.fd)
+
+    @property
     def interval_ns(self) -> int | None:
         """The period, or the minimum inter-arrival time of a sporadic message."""
         return self.period_ns if self.period_ns is not None else self.sporadic_ns
@@ -60,7 +68,9 @@ class MessageDecl:
 class NodeDecl:
     """A node: its name, profile, controller configuration (queue policy, sizes), oscillator
     (``drift_ppm``, ``clock_offset_ns``), its messages, an optional application hook
-    (``app = "module:function"``) and the keys its profile adds (``options``)."""
+    (``app = "module:function"``), the keys its profile adds (``options``) and what its
+    controller is towards CAN FD (``fd``: 'fd', 'tolerant' or 'classic' as `stack.controller.node`
+    names them; None: as the bus says — FD enabled on a bus with a data bit rate)."""
 
     name: str
     profile: str
@@ -75,6 +85,7 @@ class NodeDecl:
     app: str | None
     messages: list[MessageDecl]
     options: dict[str, Any] = field(default_factory=dict)
+    fd: str | None = None
 
     @property
     def policy(self) -> str:

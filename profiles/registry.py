@@ -81,7 +81,9 @@ class ProfileKind:
     ``bounds(scenario)`` gives the profile's own analytic worst case per message where it has one
     (message name -> (bound on the measured response in ns or None, a note)), printed as
     ``rta_ms`` where the CAN response-time analysis gives none; ``text(figures)`` the lines the
-    readable table prints of the profile's figures (those under ``result_key``).
+    readable table prints of the profile's figures (those under ``result_key``); ``fd_messages``
+    is True when its messages may be CAN FD frames (``fd = true``), otherwise such a message —
+    and a node's ``fd = true`` — is refused with ``fd_note`` saying why.
     """
 
     name: str
@@ -97,6 +99,8 @@ class ProfileKind:
     bounds: Callable[[Scenario], dict[str, tuple[int | None, str | None]]] | None = None
     text: Callable[[dict[str, Any]], list[str]] | None = None
     description: str = ""
+    fd_messages: bool = False
+    fd_note: str = ""
 
 
 _KINDS: dict[str, ProfileKind] = {}

@@ -169,6 +169,11 @@ _DEVICE_KEYS = {
     "canopen": Key(dict, {}, doc="device options (heartbeat_ms, sync_window_us, tpdo, rpdo, values, ...)"),
 }
 
+_FD_NOTE = (
+    "CANopen FD (CiA 1301) is out of scope: canopen nodes send classical CAN frames (CiA 301); an FD-enabled "
+    "controller is fd = 'fd'"
+)
+
 DEVICE = ProfileKind(
     name="canopen",
     build=CanopenDeviceProfile,
@@ -179,6 +184,7 @@ DEVICE = ProfileKind(
     summarize=_summarize,
     text=_text,
     description="CiA 301 device (NMT, heartbeat, SYNC, PDO, SDO, EMCY)",
+    fd_note=_FD_NOTE,
 )
 """``profile = "canopen"``: a `CanopenDevice` on the node."""
 
@@ -190,6 +196,7 @@ MASTER = ProfileKind(
     result_key="canopen",
     summarize=_summarize,
     description="CiA 301 NMT master, SYNC producer, heartbeat consumer",
+    fd_note=_FD_NOTE,
 )
 """``profile = "canopen-master"``: a `CanopenMaster` on the node."""
 

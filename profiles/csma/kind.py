@@ -38,6 +38,7 @@ CSMA = ProfileKind(
         )
     },
     description="native CSMA/CR (plain CAN arbitration)",
+    fd_messages=True,
 )
 """``profile = "csma"``: plain CAN arbitration."""
 

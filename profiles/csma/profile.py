@@ -72,7 +72,10 @@ class CsmaProfile(Profile):
     def set_data(self, name: str, data: bytes) -> None:
         """Application hook: the payload the next instances of message ``name`` carry."""
         old = self.frames[name]
-        self.frames[name] = type(old)(old.can_id, data, extended=old.extended)
+        if old.fd:
+            self.frames[name] = type(old)(old.can_id, data, extended=old.extended, fd=True, brs=old.brs)
+        else:
+            self.frames[name] = type(old)(old.can_id, data, extended=old.extended)
 
     def summary(self) -> dict[str, Any]:
         """Per node: the queue policy and whether a schedule gates it."""
@@ -82,24 +85,33 @@ class CsmaProfile(Profile):
 def message_specs(decl: NodeDecl, exact: bool = False) -> list[MessageSpec]:
     """The node's messages as the response-time analysis models them: period (or minimum
     inter-arrival) and release jitter on the node's clock (its drift goes with them), deadline
-    from the nominal release; with ``exact``, each frame's own length (its payload is fixed)
-    instead of worst-case stuffing."""
+    from the nominal release, CAN FD and BRS as declared; with ``exact``, each frame's own length
+    (its payload is fixed; with BRS, the part of it at the data rate) instead of worst-case
+    stuffing."""
     from profiles.analysis.rta import MessageSpec
     from stack.wire.coding import INTERMISSION_BITS
 
-    return [
-        MessageSpec(
-            m.name,
-            m.can_id,
-            m.extended,
-            m.dlc,
-            m.interval_ns,
-            m.deadline_ns or m.interval_ns,
-            m.jitter_ns,
-            frame_of(m).bits.length + INTERMISSION_BITS if exact else None,
-            node=decl.name,
-            drift_ppm=decl.drift_ppm,
+    out = []
+    for m in decl.messages:
+        if m.interval_ns is None:
+            continue
+        bits = frame_of(m).bits if exact else None
+        out.append(
+            MessageSpec(
+                m.name,
+                m.can_id,
+                m.extended,
+                m.dlc,
+                m.interval_ns,
+                m.deadline_ns or m.interval_ns,
+                m.jitter_ns,
+                None if bits is None else bits.length + INTERMISSION_BITS,
+                node=decl.name,
+                drift_ppm=decl.drift_ppm,
+                fd=m.fd,
+                brs=m.brs,
+                # an exact frame with BRS: how many of its bits go at the data rate
+                data_bits=bits.data_bits if bits is not None and m.brs else None,
+            )
         )
-        for m in decl.messages
-        if m.interval_ns is not None
-    ]
+    return out

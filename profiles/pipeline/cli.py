@@ -3,7 +3,7 @@ response-time analysis (registered under the ``canstack.commands`` entry point g
 
 Every output named on the command line is checked before the run (a long run must not end in
 an error with nothing written), and written before anything is printed (output piped into
-``head`` must not lose a file); overrides (``--seed``, ``--bitrate``, ``--duration``, ``--set``)
+``head`` must not lose a file); overrides (``--seed``, ``--bitrate``, ``--data-bitrate``, ``--duration``, ``--set``)
 change the scenario as it was read, and its own checks see the result.
 """
 
@@ -51,8 +51,8 @@ def check_samples_output(path: str, option: str = "--samples") -> None:
 
 
 def scenario_with_overrides(args: argparse.Namespace) -> Any:
-    """The scenario file with ``--set KEY=VALUE``, ``--seed``, ``--bitrate`` and ``--duration``
-    applied to it as read, then checked by its own rules (a value that breaks one is named as the
+    """The scenario file with ``--set KEY=VALUE``, ``--seed``, ``--bitrate``, ``--data-bitrate``
+    and ``--duration`` applied to it as read, then checked by its own rules (a value that breaks one is named as the
     file's own would be)."""
     from profiles.pipeline.examples import scenario_path
     from profiles.pipeline.overrides import override
@@ -60,18 +60,17 @@ def scenario_with_overrides(args: argparse.Namespace) -> Any:
 
     scenario = load_scenario(scenario_path(args.scenario))
     specs = list(args.set or [])
-    for option, key in (("seed", "bus.seed"), ("bitrate", "bus.bitrate"), ("duration", "bus.duration")):
+    for option, key in (
+        ("seed", "bus.seed"),
+        ("bitrate", "bus.bitrate"),
+        ("data_bitrate", "bus.data_bitrate"),
+        ("duration", "bus.duration"),
+    ):
         value = getattr(args, option, None)
         if value is not None:
             if any(s.partition("=")[0].strip() == key for s in specs):
-                raise CliError(f"--{option} and --set {key}=... both given: give one")
+                raise CliError(f"--{option.replace('_', '-')} and --set {key}=... both given: give one")
             specs.append(f"{key}={value!r}")
-    if getattr(args, "data_bitrate", None) is not None:
-        # the hook for CAN FD: the scenario has no data phase yet, so nothing could use it
-        raise CliError(
-            "--data-bitrate: scenarios run CAN 2.0 frames (no data phase to switch to); it applies once "
-            "CAN FD messages reach scenario files"
-        )
     if not specs:
         return scenario
     return parse_scenario(override(scenario.raw, specs), scenario.source)
@@ -192,7 +191,8 @@ def add_override_options(p: argparse.ArgumentParser, *, duration: bool = True) -
     p.add_argument(
         "--data-bitrate",
         type=parse_data_bitrate,
-        help="CAN FD data phase (bit/s): for scenarios with FD messages (none yet: refused)",
+        help="the scenario's [bus] data_bitrate instead (bit/s of the CAN FD data phase: makes the bus a CAN FD "
+        "bus)",
     )
     p.add_argument(
         "--set",

@@ -89,7 +89,18 @@ def analyse_scenario(scenario: Scenario, *, verdict_only: bool = False) -> dict[
         if own:
             notes.append("messages with a bound of their own profile (a schedule's window) show it as rta_ms")
         return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
-    results = analyse(specs, scenario.bitrate, errors=errors, queues=queues, verdict_only=verdict_only) if specs else {}
+    results = (
+        analyse(
+            specs,
+            scenario.bitrate,
+            errors=errors,
+            queues=queues,
+            verdict_only=verdict_only,
+            data_bitrate=scenario.data_bitrate,
+        )
+        if specs
+        else {}
+    )
     methods = sorted({r.method for r in results.values()})
     if "fifo" in methods or "mailbox" in methods:
         notes.append(
@@ -143,6 +154,8 @@ def message_rows(scenario: Scenario, recorder: Recorder, analysis: dict[str, Any
                 "id": m.can_id,
                 "extended": m.extended,
                 "dlc": m.dlc,
+                "fd": m.fd,
+                "brs": m.brs,
                 "period_ms": None if m.period_ns is None else m.period_ns / 1e6,
                 "sporadic_ms": None if m.sporadic_ns is None else m.sporadic_ns / 1e6,
                 "deadline_ms": None if m.deadline_ns is None else m.deadline_ns / 1e6,
@@ -249,6 +262,10 @@ def _message_lines(messages: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+def _rate(bitrate: int) -> str:
+    return f"{bitrate / 1e6:g} Mbit/s" if bitrate >= 1_000_000 else f"{bitrate // 1000} kbit/s"
+
+
 def format_table(result_json: dict[str, Any]) -> str:
     """The readable summary of a run: bus figures, one line per message (every figure of the
     JSON's message objects), worst offenders first (deadline misses, then the largest response
@@ -256,7 +273,9 @@ def format_table(result_json: dict[str, Any]) -> str:
     messages with no bound and why."""
     r = result_json
     lines = [
-        f"{r['scenario']}: {r['driver']} bus, {r['bitrate'] // 1000} kbit/s, {r['duration']:.3f} s, "
+        f"{r['scenario']}: {r['driver']} bus, {r['bitrate'] // 1000} kbit/s"
+        + (f" (data {_rate(r['data_bitrate'])})" if r.get("data_bitrate") else "")
+        + f", {r['duration']:.3f} s, "
         f"{r['frames']} frames, {r['error_frames']} error frames, bus load {100 * r['bus_load']:.1f} %"
         + (" (interrupted)" if r.get("interrupted") else ""),
         "",

@@ -83,6 +83,7 @@ class Result:
             "driver": self.driver,
             "seed": self.scenario.seed,
             "bitrate": self.scenario.bitrate,
+            "data_bitrate": self.scenario.data_bitrate,
             "duration": self.duration_s,
             "bus_load": self.bus_load,
             "frames": self.frames,
@@ -113,6 +114,8 @@ def _node_config(d: NodeDecl) -> dict[str, Any]:
     }
     if d.policy == "mailbox":
         cfg.update(mailboxes=d.mailboxes, abort=d.abort)
+    if d.fd is not None:
+        cfg["fd"] = d.fd
     if d.drift_ppm or d.clock_offset_ns:
         cfg["clock"] = LocalClock(offset_ns=d.clock_offset_ns, drift_ppm=d.drift_ppm)
     return cfg
@@ -220,7 +223,14 @@ def run_scenario(
     `stack.io.progress.TimeLimitExceeded` past it.
     """
     records = bool(record) or plot or trace is not None or bool(scenario.faults)
-    bus = SimBus(scenario.bitrate, seed=scenario.seed, name="bus0", record=records, keep=bool(record))
+    bus = SimBus(
+        scenario.bitrate,
+        data_bitrate=scenario.data_bitrate,
+        seed=scenario.seed,
+        name="bus0",
+        record=records,
+        keep=bool(record),
+    )
     built = build(scenario, bus, bus=bus, recorder=Recorder(keep_all=samples is not None))
     inject_faults(bus, scenario.faults, scenario.source)
     tracks = built.context.recorder.tracks
@@ -394,6 +404,9 @@ def run_on_pycan(
     if interface == "canstack":
         import stack.io.pycan  # noqa: F401  (registers the interface when canstack is not installed)
     bus_kwargs.setdefault("bitrate", scenario.bitrate)
+    if scenario.data_bitrate is not None:  # a CAN FD bus: python-can's fd=True with its data phase
+        bus_kwargs.setdefault("fd", True)
+        bus_kwargs.setdefault("data_bitrate", scenario.data_bitrate)
     try:
         drv = PyCanDriver(interface=interface, channel=channel, **bus_kwargs)
         built = build(scenario, drv)

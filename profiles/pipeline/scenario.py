@@ -41,6 +41,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from profiles.analysis.model import MAX_DATA_BITRATE
 from profiles.base import frame_of
 from profiles.declarations import MessageDecl, NodeDecl, Scenario, ms_to_ns
 from profiles.pipeline.faults import read_fault
@@ -60,6 +61,10 @@ from profiles.schema import (
     show,
     where,
 )
+
+from stack.controller.node import FD, FD_KINDS
+from stack.wire.coding import INTERMISSION_BITS
+from stack.wire.frame import FD_LENGTHS, data_length
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -97,6 +102,12 @@ BUS_KEYS = {
         "simulated seconds",
     ),
     "seed": Key(int, 0, doc="seed of every random choice (jitter, sporadic arrivals, bit errors)"),
+    "data_bitrate": Key(
+        int,
+        None,
+        in_range(1_000, MAX_DATA_BITRATE, "a CAN FD data phase runs at the bitrate .. 16 Mbit/s"),
+        "bit/s of the CAN FD data phase (makes the bus a CAN FD bus; none: a classical CAN bus)",
+    ),
 }
 
 NODE_KEYS = {
@@ -116,6 +127,13 @@ NODE_KEYS = {
     "drift_ppm": Key(float, 0.0, in_range(-100_000, 100_000, "ppm of the node's oscillator")),
     "clock_offset_ms": Key(float, 0.0, lambda v: non_negative_time("a clock offset")(abs(v))),
     "listen_only": Key(bool, False),
+    "fd": Key(
+        str,
+        None,
+        one_of(*FD_KINDS),
+        "the controller towards CAN FD: fd (FD enabled) | tolerant (ISO protocol exception) | classic (CAN 2.0, "
+        "destroys FD frames); default: fd on a bus with data_bitrate, classic without",
+    ),
     "app": Key(
         str,
         None,
@@ -129,7 +147,20 @@ MESSAGE_KEYS = {
     "name": Key(str, REQUIRED, lambda v: None if v else "a message needs a name"),
     "id": Key(int, REQUIRED, non_negative()),
     "extended": Key(bool, False),
-    "dlc": Key(int, REQUIRED, in_range(0, 8, "a CAN 2.0 data frame carries 0..8 bytes")),
+    "dlc": Key(
+        int,
+        None,
+        in_range(0, 15, "a DLC code: 0..8, and 9..15 for 12..64 bytes of CAN FD"),
+        "the DLC code (0..8; 9..15 mean 12..64 bytes in a CAN FD frame), or give length",
+    ),
+    "length": Key(
+        int,
+        None,
+        in_range(0, 64, "data bytes: 0..8, or 12, 16, 20, 24, 32, 48, 64 in a CAN FD frame"),
+        "data bytes (0..8; 12, 16, 20, 24, 32, 48, 64 in a CAN FD frame), or give dlc",
+    ),
+    "fd": Key(bool, False, doc="a CAN FD frame (needs [bus] data_bitrate)"),
+    "brs": Key(bool, False, doc="bit rate switch: the FD frame's data phase at [bus] data_bitrate"),
     "data": Key(str, None, doc="payload as hex (default zeros)"),
     "remote": Key(bool, False),
     "period_ms": Key(float, None, positive_time("a period")),
@@ -242,6 +273,11 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
             top[name] = Key((dict, list), None)
     t = read_table(raw, top, where(source, "top level"))
     bus = read_table(t["bus"], BUS_KEYS, where(source, "[bus]"))
+    if bus["data_bitrate"] is not None and bus["data_bitrate"] < bus["bitrate"]:
+        raise ScenarioError(
+            f"{where(source, '[bus]')}: data_bitrate: {bus['data_bitrate']} is below the bitrate {bus['bitrate']} "
+            "(the data phase of a CAN FD frame is at least as fast as its arbitration; equal: FD without BRS gain)"
+        )
     if not t["nodes"]:
         raise ScenarioError(f"{where(source, '[[nodes]]')}: a scenario needs at least one node")
     nodes: list[NodeDecl] = []
@@ -271,12 +307,42 @@ def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario
         analysis=analysis,
         plot=plot,
         raw=dict(raw),
+        data_bitrate=bus["data_bitrate"],
     )
+    _check_fd(sc)
     for kind in kinds.values():
         if kind.parse is not None:
             kind.parse(sc, {name: raw[name] for name in kind.tables if name in raw})
     sc.warnings.extend(_frame_time_warnings(sc))
     return sc
+
+
+def _check_fd(sc: Scenario) -> None:
+    """CAN FD on this bus (ISO 11898-1:2015, as `stack.bus.sim.SimBus` runs it): an FD frame or
+    an FD-enabled node needs a bus with a data bit rate — there is no default, since a bus without
+    one is a classical CAN bus whose nodes are CAN 2.0 controllers (give data_bitrate = bitrate for
+    FD frames without a faster data phase); only an FD-enabled node sends FD frames."""
+    fd_bus = sc.data_bitrate is not None
+    for n in sc.nodes:
+        loc = where(sc.source, f"[[nodes]] {n.name!r}")
+        if n.fd == FD and not fd_bus:
+            raise ScenarioError(
+                f"{loc}: fd: 'fd': an FD-enabled controller needs a CAN FD bus: give [bus] data_bitrate (bit/s of "
+                "the data phase; equal to bitrate for FD frames without bit rate switching)"
+            )
+        for m in n.messages:
+            mloc = where(sc.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+            key = "brs" if m.brs else "fd"
+            if m.fd and not fd_bus:
+                raise ScenarioError(
+                    f"{mloc}: {key}: true: a CAN FD frame needs a CAN FD bus: give [bus] data_bitrate (bit/s of the "
+                    "data phase; equal to bitrate for FD frames without bit rate switching)"
+                )
+            if m.fd and n.fd is not None and n.fd != FD:
+                raise ScenarioError(
+                    f"{mloc}: fd: true: node {n.name!r} is {n.fd!r} (fd = {n.fd!r}): only an FD-enabled controller "
+                    "(fd = 'fd') sends CAN FD frames"
+                )
 
 
 def _check_integers(raw: Any, source: str, path: str = "") -> None:
@@ -298,7 +364,8 @@ def _frame_time_warnings(sc: Scenario) -> list[str]:
     out = []
     for n in sc.nodes:
         for m in n.messages:
-            frame_ns = (frame_of(m).bits.length + 3) * 1e9 / sc.bitrate
+            bits = frame_of(m).bits
+            frame_ns = bits.duration_ns(sc.bitrate, sc.data_bitrate) + INTERMISSION_BITS * 1e9 / sc.bitrate
             loc = where(sc.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
             what = f"the frame's own time on the bus ({frame_ns / 1e6:.4g} ms at {sc.bitrate} bit/s)"
             key = "period_ms" if m.period_ns is not None else "sporadic_ms"
@@ -324,6 +391,8 @@ def _node(rn: Any, i: int, source: str) -> NodeDecl:
     if not isinstance(profile, str) or profile not in kinds:
         raise ScenarioError(f"{loc}: profile: {show(profile)} is not one of {', '.join(map(repr, sorted(kinds)))}")
     kind = profile_kind(profile)
+    if not kind.fd_messages:
+        _refuse_fd(rn, loc, profile, kind.fd_note)
     d = read_table(rn, NODE_KEYS, loc, extra=kind.node_keys)
     _policy, mailboxes, abort = parse_queue(d["queue"], loc)
     messages = []
@@ -344,7 +413,22 @@ def _node(rn: Any, i: int, source: str) -> NodeDecl:
         app=d["app"],
         messages=messages,
         options=options,
+        fd=d["fd"],
     )
+
+
+def _refuse_fd(rn: Mapping[str, Any], loc: str, profile: str, note: str) -> None:
+    """A profile whose frames are classical: a node's ``fd = true`` or a message's is refused
+    here, before the keys' own checks, with the profile's reason (``ProfileKind.fd_note``)."""
+    why = note or f"{profile} nodes send classical CAN frames only (CAN FD messages go on csma nodes)"
+    if rn.get("fd") is True:
+        raise ScenarioError(f"{loc}: fd: true: {why}")
+    messages = rn.get("messages")
+    if isinstance(messages, list):
+        for j, rm in enumerate(messages, 1):
+            if isinstance(rm, Mapping) and rm.get("fd") is True:
+                label = f"[[nodes.messages]] #{j}" + (f" {show(rm.get('name'))}" if "name" in rm else "")
+                raise ScenarioError(f"{loc} > {label}: fd: true: {why}")
 
 
 def _message(
@@ -372,16 +456,17 @@ def _message(
     interval = d["period_ms"] if d["period_ms"] is not None else d["sporadic_ms"]
     if interval is not None and d["jitter_ms"] >= interval:
         raise ScenarioError(f"{loc}: jitter_ms: {d['jitter_ms']!r} must be below the period {interval!r} ms")
+    dlc = _dlc(d, loc)
     data = None
     if d["data"] is not None:
         try:
             data = bytes.fromhex(d["data"])
         except ValueError:
             raise ScenarioError(f"{loc}: data: {show(d['data'])} is not hex bytes") from None
-        if len(data) != d["dlc"]:
-            raise ScenarioError(
-                f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for dlc {d['dlc']}"
-            )
+        want = data_length(dlc, d["fd"])
+        if len(data) != want and not d["remote"]:
+            size = f"length {want}" if d["length"] is not None else f"dlc {dlc}" + (f" ({want} bytes)" if want != dlc else "")
+            raise ScenarioError(f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for {size}")
     if d["remote"] and data is not None:
         raise ScenarioError(f"{loc}: data: a remote frame carries no data (its dlc is the length it requests)")
     deadline = d["deadline_ms"] if d["deadline_ms"] is not None else interval
@@ -390,7 +475,7 @@ def _message(
         node=node,
         can_id=d["id"],
         extended=d["extended"],
-        dlc=d["dlc"],
+        dlc=dlc,
         data=data,
         remote=d["remote"],
         period_ns=None if d["period_ms"] is None else ms_to_ns(d["period_ms"]),
@@ -400,7 +485,47 @@ def _message(
         jitter_ns=ms_to_ns(d["jitter_ms"]),
         deadline_ns=None if deadline is None else ms_to_ns(deadline),
         options={k: d[k] for k in extra},
+        fd=d["fd"],
+        brs=d["brs"],
     )
+
+
+def _dlc(d: Mapping[str, Any], loc: str) -> int:
+    """The DLC code of a message from ``dlc`` or ``length`` (one of them, not both), checked
+    against its format (ISO 11898-1:2015): a classical frame 0..8 (a remote frame's dlc is the
+    length it requests), a CAN FD frame 0..15 — 9..15 are 12, 16, 20, 24, 32, 48, 64 bytes — and
+    no remote frame in CAN FD (RRS is always dominant); ``brs`` only in an FD frame."""
+    if d["brs"] and not d["fd"]:
+        raise ScenarioError(f"{loc}: brs: true needs fd = true (bit rate switching exists only in CAN FD frames)")
+    if d["fd"] and d["remote"]:
+        raise ScenarioError(
+            f"{loc}: remote: true with fd = true: CAN FD has no remote frames (its RRS bit is always dominant); "
+            "a remote frame is classical (fd = false)"
+        )
+    if d["dlc"] is not None and d["length"] is not None:
+        raise ScenarioError(f"{loc}: give dlc (the DLC code) or length (data bytes), not both")
+    if d["dlc"] is None and d["length"] is None:
+        raise ScenarioError(f"{loc}: key 'dlc' or 'length' is required (the DLC code, or the data bytes)")
+    if d["length"] is not None:
+        n = d["length"]
+        if d["fd"]:
+            if n not in FD_LENGTHS:
+                raise ScenarioError(
+                    f"{loc}: length: {n} is not a CAN FD data length: one of 0..8, 12, 16, 20, 24, 32, 48, 64"
+                )
+            return FD_LENGTHS.index(n)
+        if n > 8:
+            raise ScenarioError(
+                f"{loc}: length: {n} is outside 0..8 (a CAN 2.0 data frame carries 0..8 bytes; up to 64 with fd = true)"
+            )
+        return int(n)
+    dlc = int(d["dlc"])
+    if not d["fd"] and dlc > 8:
+        raise ScenarioError(
+            f"{loc}: dlc: {dlc} is outside 0..8 (a CAN 2.0 data frame carries 0..8 bytes; dlc 9..15 are CAN FD "
+            "lengths: fd = true)"
+        )
+    return dlc
 
 
 def _check_unique(nodes: list[NodeDecl], source: str) -> None:

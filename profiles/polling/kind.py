@@ -222,6 +222,11 @@ def text(figures: dict[str, Any]) -> list[str]:
     return lines
 
 
+_FD_NOTE = (
+    "master/slave polling sends classical CAN frames only (its fragments and its analysis are for 8-byte "
+    "frames); CAN FD messages go on csma nodes"
+)
+
 MASTER = ProfileKind(
     name="master",
     build=_build_master,
@@ -233,6 +238,7 @@ MASTER = ProfileKind(
     traffic=_traffic,
     text=text,
     description="master/slave polling: the master runs its poll list as a cycle",
+    fd_note=_FD_NOTE,
 )
 """``profile = "master"``: runs its poll list as a cycle."""
 
@@ -244,6 +250,7 @@ SLAVE = ProfileKind(
     timed_messages=False,
     traffic=_traffic,
     description="master/slave polling: a slave answers its master's requests",
+    fd_note=_FD_NOTE,
 )
 """``profile = "slave"``: answers its master's requests."""
 

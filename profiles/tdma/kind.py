@@ -152,6 +152,8 @@ TDMA = ProfileKind(
     bounds=_bounds,
     text=text,
     description="time-triggered CAN (TTCAN-like, ISO 11898-4): windows in a system matrix",
+    fd_note="TDMA nodes send classical CAN frames only (ISO 11898-4 time-triggered CAN: the windows are "
+    "sized for them); CAN FD messages go on csma nodes",
 )
 """``profile = "tdma"`` and the ``[tdma]`` table: messages in the windows of a system matrix."""
 

@@ -745,6 +745,12 @@ def _check_gated(scenario: Scenario, sched: Schedule) -> None:
         if n.name not in sched.gated:
             continue
         for m in n.messages:
+            if m.fd:
+                loc = where(scenario.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")
+                raise ScenarioError(
+                    f"{loc}: fd: true: the TDMA gate fits classical CAN frames into its arbitrating windows, not "
+                    "CAN FD frames (set tdma_gated = false on the node to let it send at any time)"
+                )
             f = frame_ns_worst(m.dlc, m.extended, m.remote, sched.bit_ns)
             if not any(w.length_ns >= f + sched.budget_ns for w in arb):
                 loc = where(scenario.source, f"[[nodes]] {n.name!r}", f"[[nodes.messages]] {m.name!r}")

@@ -133,7 +133,11 @@ def test_overrides_give_the_run_an_edited_file_gives(tmp_path, capsys):
         (["--set", "bus.bitrate"], "--set 'bus.bitrate': expected KEY=VALUE"),
         (["--set", "bus.bitrate=2000000"], "[bus]: bitrate: 2000000 is outside 1000..1000000"),
         (["--seed", "3", "--set", "bus.seed=4"], "--seed and --set bus.seed=... both given"),
-        (["--data-bitrate", "2000000"], "--data-bitrate: scenarios run CAN 2.0 frames"),
+        (["--data-bitrate", "100000"], "[bus]: data_bitrate: 100000 is below the bitrate 125000"),
+        (
+            ["--data-bitrate", "2000000", "--set", "bus.data_bitrate=4000000"],
+            "--data-bitrate and --set bus.data_bitrate=... both given",
+        ),
         (["--out", "r.txt"], "write .json (the result) or .csv (one row per message)"),
         (["--samples", "s.json"], "--samples 's.json': write .csv or .parquet"),
         (["--trace", "t.xyz"], "unknown suffix '.xyz'"),
