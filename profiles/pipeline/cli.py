@@ -55,10 +55,12 @@ def scenario_with_overrides(args: argparse.Namespace) -> Any:
     and ``--duration`` applied to it as read, then checked by its own rules (a value that breaks one is named as the
     file's own would be)."""
     from profiles.pipeline.examples import scenario_path
-    from profiles.pipeline.overrides import override
-    from profiles.pipeline.scenario import load_scenario, parse_scenario
+    from profiles.pipeline.overrides import KeyPathError, override
+    from profiles.pipeline.scenario import parse_scenario, read_toml
+    from profiles.schema import ScenarioError
 
-    scenario = load_scenario(scenario_path(args.scenario))
+    path = scenario_path(args.scenario)
+    raw = read_toml(path)
     specs = list(args.set or [])
     for option, key in (
         ("seed", "bus.seed"),
@@ -71,6 +73,20 @@ def scenario_with_overrides(args: argparse.Namespace) -> Any:
             if any(s.partition("=")[0].strip() == key for s in specs):
                 raise CliError(f"--{option.replace('_', '-')} and --set {key}=... both given: give one")
             specs.append(f"{key}={value!r}")
+    try:
+        scenario = parse_scenario(raw, str(path))
+    except ScenarioError as exc:
+        if not specs:
+            raise
+        # a file complete only with its overrides (FD messages, and --data-bitrate for the bus):
+        # the changed scenario is checked, and its first broken rule reported
+        try:
+            changed = override(raw, specs)
+        except KeyPathError:
+            raise
+        except Exception:  # a file too broken to find the keys in: its own first error
+            raise exc from None
+        return parse_scenario(changed, str(path))
     if not specs:
         return scenario
     return parse_scenario(override(scenario.raw, specs), scenario.source)
@@ -191,8 +207,7 @@ def add_override_options(p: argparse.ArgumentParser, *, duration: bool = True) -
     p.add_argument(
         "--data-bitrate",
         type=parse_data_bitrate,
-        help="the scenario's [bus] data_bitrate instead (bit/s of the CAN FD data phase: makes the bus a CAN FD "
-        "bus)",
+        help="the scenario's [bus] data_bitrate instead (bit/s of the CAN FD data phase: makes the bus a CAN FD bus)",
     )
     p.add_argument(
         "--set",

@@ -61,7 +61,6 @@ from profiles.schema import (
     show,
     where,
 )
-
 from stack.controller.node import FD, FD_KINDS
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import FD_LENGTHS, data_length
@@ -73,6 +72,7 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = [
     "load_scenario",
+    "read_toml",
     "parse_scenario",
     "ScenarioError",
     "parse_queue",
@@ -235,6 +235,12 @@ def parse_queue(text: str, loc: str) -> tuple[str, int | None, bool]:
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and check a scenario file (see the module docstring)."""
+    return parse_scenario(read_toml(path), str(Path(path)))
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A scenario file's TOML as a dictionary, unchecked (`ScenarioError` naming the file when it
+    cannot be read or is not TOML); `parse_scenario` checks it."""
     p = Path(path)
     try:
         text = p.read_bytes()
@@ -254,7 +260,7 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: not a scenario: its tables or lists are nested too deep to read") from None
     except ValueError as exc:  # an integer of more digits than Python converts (4,300)
         raise ScenarioError(f"{p}: not valid TOML: {' '.join(str(exc).split()[:12])}") from None
-    return parse_scenario(raw, str(p))
+    return raw
 
 
 def parse_scenario(raw: Mapping[str, Any], source: str = "scenario") -> Scenario:
@@ -465,7 +471,11 @@ def _message(
             raise ScenarioError(f"{loc}: data: {show(d['data'])} is not hex bytes") from None
         want = data_length(dlc, d["fd"])
         if len(data) != want and not d["remote"]:
-            size = f"length {want}" if d["length"] is not None else f"dlc {dlc}" + (f" ({want} bytes)" if want != dlc else "")
+            size = (
+                f"length {want}"
+                if d["length"] is not None
+                else f"dlc {dlc}" + (f" ({want} bytes)" if want != dlc else "")
+            )
             raise ScenarioError(f"{loc}: data: {len(data)} byte{'s' if len(data) != 1 else ''} given for {size}")
     if d["remote"] and data is not None:
         raise ScenarioError(f"{loc}: data: a remote frame carries no data (its dlc is the length it requests)")

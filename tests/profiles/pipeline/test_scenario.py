@@ -82,7 +82,11 @@ def test_a_good_scenario_reads_into_typed_declarations():
         ("bus.bitrate", "500k", "good.toml: [bus]: bitrate: '500k' is a string, expected an integer"),
         ("bus.bitrate", True, "good.toml: [bus]: bitrate: True is a boolean, expected an integer"),
         ("bus.duration", 0, "good.toml: [bus]: duration: 0 must be at least 1e-06"),
-        ("bus.colour", "red", "good.toml: [bus]: unknown key 'colour' (allowed: bitrate, data_bitrate, duration, seed)"),
+        (
+            "bus.colour",
+            "red",
+            "good.toml: [bus]: unknown key 'colour' (allowed: bitrate, data_bitrate, duration, seed)",
+        ),
         ("bus", _DELETE, "good.toml: top level: key 'bus' is required"),
         ("nodes.0.queue", "lifo", "good.toml: [[nodes]] #1 'engine': queue: 'lifo' is not one of 'priority', 'fifo'"),
         ("nodes.0.queue", "mailboxes:0", "'mailboxes:N', 'mailboxes-abort:N' (N from 1 to 9999 transmit mailboxes)"),
