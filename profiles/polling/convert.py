@@ -33,7 +33,11 @@ def free_ids(used: set[int], count: int, *, start: int = 0, step: int = 1) -> li
 
 def express_message_set(mset: MessageSet) -> dict[str, Any]:
     """The set as a scenario: a master ``master`` and one slave per sending node (see the
-    module docstring)."""
+    module docstring). A set with a CAN FD message is refused
+    (ValueError naming it: the study lists the profile as skipped)."""
+    fd = [m.name for m in mset.messages if m.fd]
+    if fd:
+        raise ValueError(f"CAN FD message {fd[0]!r}: master/slave polling sends classical CAN frames only")
     cycle = min(m.period_ns for m in mset.messages)
     polled = [m for m in mset.messages if m.period_ns == cycle]
     cyclic = [m for m in mset.messages if m.period_ns != cycle]

@@ -64,25 +64,32 @@ def converter_for(profile: str) -> Converter | None:
 def _csma(mset: MessageSet, queue: str) -> dict:
     nodes: dict[str, list[dict[str, Any]]] = {n: [] for n in mset.nodes}
     for m in mset.messages:
-        nodes[m.node].append(
-            {
-                "name": m.name,
-                "id": m.can_id,
-                "extended": m.extended,
-                "dlc": m.dlc,
-                "period_ms": m.period_ns / 1e6,
-                "deadline_ms": m.deadline_ns / 1e6,
-            }
-        )
+        msg: dict[str, Any] = {
+            "name": m.name,
+            "id": m.can_id,
+            "extended": m.extended,
+            "dlc": m.dlc,
+            "period_ms": m.period_ns / 1e6,
+            "deadline_ms": m.deadline_ns / 1e6,
+        }
+        if m.fd:
+            msg.update(fd=True, brs=m.brs)
+        nodes[m.node].append(msg)
+    bus: dict[str, Any] = {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed}
+    if mset.data_bitrate is not None or mset.fd:
+        # an FD frame needs an FD bus: without BRS its data phase is at the nominal rate
+        bus["data_bitrate"] = mset.data_bitrate if mset.data_bitrate is not None else mset.bitrate
     return {
-        "bus": {"bitrate": mset.bitrate, "duration": mset.duration_s, "seed": mset.seed},
+        "bus": bus,
         "nodes": [{"name": n, "profile": "csma", "queue": queue, "messages": ms} for n, ms in nodes.items()],
     }
 
 
 def csma_scenario(mset: MessageSet) -> dict:
     """CSMA/CR's converter: every node sends its messages periodically from offset 0 (all
-    released together: the analysis' critical instant) through a priority queue."""
+    released together: the analysis' critical instant) through a priority queue; CAN FD
+    messages as FD frames (BRS as the set says) on a bus with the set's data bit rate (its
+    bit rate when it has none: FD frames without BRS)."""
     return _csma(mset, "priority")
 
 
@@ -96,12 +103,29 @@ register_converter("csma", csma_scenario)
 
 def message_set_from_scenario(scenario: Any) -> MessageSet:
     """The periodic and sporadic messages of a checked scenario as a `MessageSet` (a sporadic
-    message at its minimum inter-arrival time; messages without either are left out)."""
+    message at its minimum inter-arrival time; messages without either are left out), CAN FD
+    and BRS as declared, with the bus's data bit rate."""
     msgs = tuple(
-        StudyMessage(m.name, m.node, m.can_id, m.dlc, m.interval_ns, m.deadline_ns or m.interval_ns, m.extended)
+        StudyMessage(
+            m.name,
+            m.node,
+            m.can_id,
+            m.dlc,
+            m.interval_ns,
+            m.deadline_ns or m.interval_ns,
+            m.extended,
+            fd=m.fd,
+            brs=m.brs,
+        )
         for m in scenario.messages
         if m.interval_ns is not None and not m.remote
     )
     if not msgs:
         raise ValueError(f"{scenario.source}: no periodic or sporadic data message to study")
-    return MessageSet(scenario.bitrate, msgs, scenario.duration_ns / 1e9, scenario.seed)
+    return MessageSet(
+        scenario.bitrate,
+        msgs,
+        scenario.duration_ns / 1e9,
+        scenario.seed,
+        data_bitrate=getattr(scenario, "data_bitrate", None),
+    )

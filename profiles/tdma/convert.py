@@ -28,7 +28,13 @@ MAX_MATRIX = 64
 
 def express_message_set(mset: MessageSet) -> dict[str, Any]:
     """The set as a TDMA scenario (see the module docstring). Every time is a whole number of NTU
-    (level 1: bit times), as the schedule's time marks are."""
+    (level 1: bit times), as the schedule's time marks are. A set with a CAN FD message is refused
+    (ValueError naming it: the study lists the profile as skipped)."""
+    fd = [m.name for m in mset.messages if m.fd]
+    if fd:
+        raise ValueError(
+            f"CAN FD message {fd[0]!r}: TDMA sends classical CAN frames only (its windows are sized for them)"
+        )
     bit_ns = 1e9 / mset.bitrate
     ntu_us = bit_ns / 1000
 

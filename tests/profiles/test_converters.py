@@ -66,3 +66,42 @@ def test_tdma_times_are_whole_ntu_at_any_bitrate(bitrate):
             assert abs(w[key] / ntu_us - round(w[key] / ntu_us)) < 1e-9, (key, w[key])
     data = run_scenario(parse_scenario(raw, "tdma-converted")).to_json()
     assert data["tdma"]["outside"] == 0 and all(m["sent"] > 0 for m in data["messages"])
+
+
+def _fd_set(data_bitrate=2_000_000):
+    msgs = (
+        StudyMessage("big", "n0", 0x100, 15, 5 * MS, 5 * MS, fd=True, brs=True),  # 64 bytes
+        StudyMessage("mid", "n1", 0x180, 9, 10 * MS, 10 * MS, fd=True),  # 12 bytes, no BRS
+        StudyMessage("plain", "n1", 0x200, 8, 10 * MS, 10 * MS),
+    )
+    return MessageSet(500_000, msgs, 0.05, seed=1, data_bitrate=data_bitrate)
+
+
+def test_csma_carries_fd_messages_and_the_set_comes_back_from_the_scenario():
+    from profiles.sweeps.converters import csma_scenario, message_set_from_scenario
+
+    mset = _fd_set()
+    sc = parse_scenario(csma_scenario(mset), "fd-converted")
+    assert sc.data_bitrate == 2_000_000
+    big, mid, plain = sc.messages
+    assert (big.fd, big.brs, big.length, mid.fd, mid.brs, mid.length, plain.fd) == (
+        True, True, 64, True, False, 12, False,
+    )  # fmt: skip
+    back = message_set_from_scenario(sc)
+    assert back.data_bitrate == mset.data_bitrate and back.messages == mset.messages
+    res = run_scenario(sc)
+    assert all(r["sent"] > 0 and r["deadline_misses"] == 0 for r in res.to_json()["messages"])
+
+
+def test_an_fd_set_without_a_data_bitrate_runs_its_fd_frames_at_the_nominal_rate():
+    from profiles.sweeps.converters import csma_scenario
+
+    msgs = (StudyMessage("mid", "n1", 0x180, 9, 10 * MS, 10 * MS, fd=True),)
+    sc = parse_scenario(csma_scenario(MessageSet(500_000, msgs, 0.05)), "fd-converted")
+    assert sc.data_bitrate == 500_000 and sc.messages[0].fd
+
+
+@pytest.mark.parametrize("convert", [as_tdma, as_master_slave])
+def test_classical_only_profiles_refuse_an_fd_set_naming_the_message(convert):
+    with pytest.raises(ValueError, match=r"CAN FD message 'big': .* classical CAN frames only"):
+        convert(_fd_set())
