@@ -80,6 +80,15 @@ def analyse_scenario(scenario: Scenario, *, verdict_only: bool = False) -> dict[
         errors = ErrorModel(round(scenario.analysis["t_error_ms"] * 1e6), burst)
         error_model = {"t_error_ms": scenario.analysis["t_error_ms"], "burst": burst}
     notes: list[str] = []
+    classic = [d.name for d in scenario.nodes if d.fd == "classic" and not d.listen_only]
+    if classic and any(m.fd for m in scenario.messages):
+        # ISO 11898-1:2015's FD-intolerant node: its error flags destroy FD frames (stack.bus.fdnodes)
+        notes.append(
+            f"node{'s' if len(classic) > 1 else ''} {', '.join(classic)} (fd = 'classic'): a CAN 2.0 controller "
+            "destroys every CAN FD frame with an error frame until it is error passive, which no error model "
+            "bounds: the analysis does not apply to this bus"
+        )
+        return {"results": {}, "own": own, "assumptions": {"applies": False, "notes": notes, "error_model": None}}
     if unmodelled:
         notes.append(
             "no worst-case model of the traffic of "
