@@ -27,7 +27,8 @@ PLOT_RECORDS = 200_000
 
 class BusMonitor:
     """The subscription of the monitor node (see the module docstring). ``tracks`` by arbitration
-    key, ``senders`` the node that sends each key; ``t0`` the driver time the run starts at."""
+    key, ``senders`` the node that sends each key; ``t0`` the driver time the run starts at;
+    ``data_bitrate`` the CAN FD data phase's rate (frames with BRS)."""
 
     def __init__(
         self,
@@ -38,6 +39,7 @@ class BusMonitor:
         *,
         trace: TraceWriter | None = None,
         plot: bool = False,
+        data_bitrate: int | None = None,
     ) -> None:
         self.tracks = tracks
         self.senders = senders
@@ -48,7 +50,8 @@ class BusMonitor:
         self.busy_ns = 0
         self.records: list[TraceRecord] = []
         self._ifs_ns = round(INTERMISSION_BITS * 1e9 / bitrate)
-        self._bit_ns = 1e9 / bitrate
+        self._bitrate = bitrate
+        self._data_bitrate = data_bitrate
 
     def __call__(self, ev: Received) -> None:
         """One frame on the bus (every frame: the monitor has no filters)."""
@@ -57,7 +60,8 @@ class BusMonitor:
         tr = self.tracks.get(frame.key)
         if tr is not None:
             tr.observed(ev.time, ev.sof)
-        sof = ev.sof if ev.sof >= 0 else ev.time - round(frame.bits.length * self._bit_ns)
+        # no SOF time from the interface: the frame's own duration (a CAN FD frame's at both rates)
+        sof = ev.sof if ev.sof >= 0 else ev.time - frame.bits.duration_ns(self._bitrate, self._data_bitrate)
         self.busy_ns += ev.time - sof + self._ifs_ns
         end = ev.time - self.t0
         if self.trace is not None:

@@ -429,7 +429,9 @@ def run_on_pycan(
             for p in built.profiles.values():
                 p.start()
             t0 = drv.now()
-            monitor = BusMonitor(by_key, senders, scenario.bitrate, t0, trace=sink, plot=plot)
+            monitor = BusMonitor(
+                by_key, senders, scenario.bitrate, t0, trace=sink, plot=plot, data_bitrate=scenario.data_bitrate
+            )
             monitor_node.subscribe(monitor)
         drv.start()
         try:
