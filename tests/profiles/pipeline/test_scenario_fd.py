@@ -197,3 +197,33 @@ def test_cli_data_bitrate_and_set_reach_the_bus(tmp_path, capsys):
         data = json.loads(capsys.readouterr().out)
         loads[data["data_bitrate"]] = data["bus_load"]
     assert loads[8_000_000] < loads[2_000_000]
+
+
+def test_the_run_sends_fd_frames_and_its_bus_load_counts_both_rates():
+    """Every frame of the run as declared (FDF, BRS, length), and the bus load from a second
+    computation: each frame's bits at the nominal rate up to BRS and after the CRC delimiter,
+    at the data rate between (ISO 11898-1:2015; `FrameBits.data_bits` counts the latter), plus
+    the 3-bit intermission at the nominal rate, over the run's 50 ms. (Without an FD-enabled
+    receiver no one acknowledges the FD frames: the tolerant node integrates meanwhile.)"""
+    from profiles.pipeline.runner import run_scenario
+
+    raw = copy.deepcopy(BASE)
+    raw["nodes"].append({"name": "dash"})  # FD enabled (the default): it acknowledges FD frames
+    res = run_scenario(parse_scenario(raw, "fd.toml"), record=True)
+    frames = [r.frame for r in res.trace if r.kind == "frame"]
+    by_id = {f.can_id: f for f in frames}
+    assert (by_id[0x100].fd, by_id[0x100].brs, len(by_id[0x100].data)) == (True, True, 64)
+    assert (by_id[0x180].fd, by_id[0x180].brs, len(by_id[0x180].data)) == (True, False, 16)
+    assert (by_id[0x200].fd, len(by_id[0x200].data)) == (False, 8)
+    assert len(frames) == 10 + 5 + 5 and res.error_frames == 0
+    busy = 0.0
+    for f in frames:
+        bits = f.bits
+        data = bits.data_bits if f.brs else 0
+        busy += (len(bits.bits) - data + 3) / 500_000 + data / 2_000_000
+    assert res.bus_load == pytest.approx(busy / 0.05, abs=1e-6)
+    row = {m["name"]: m for m in res.to_json()["messages"]}["Big"]
+    assert (row["fd"], row["brs"], row["dlc"]) == (True, True, 15)
+    assert res.to_json()["data_bitrate"] == 2_000_000
+    # the legacy node is tolerant: it received the classical frames only
+    assert res.nodes["legacy"]["rx_frames"] == 5
