@@ -149,7 +149,7 @@ def test_names_and_indices_resolve_to_paths():
         ("nodes.motor.queue=fifo", "nodes has no element 'motor' (names: engine, body)"),
         ("nodes.engine.messages.Nope.dlc=1", "has no element 'Nope' (names: EngineData, EngineTemp)"),
         ("nodes.engine.quue=fifo", "has no key 'quue'"),
-        ("bus.bitrat=1", "bus has no key 'bitrat' (keys: bitrate, duration, seed)"),
+        ("bus.bitrat=1", "bus has no key 'bitrat' (keys: bitrate, data_bitrate, duration, seed)"),
         ("buss.bitrate=1", "the scenario has no 'buss'"),
         ("faults.3.rate=1", "has no element '3'"),
         ("faults.0.bogus=1", "has no key 'bogus'"),
