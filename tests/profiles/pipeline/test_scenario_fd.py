@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+from pathlib import Path
 
 import pytest
 
@@ -227,3 +228,40 @@ def test_the_run_sends_fd_frames_and_its_bus_load_counts_both_rates():
     assert res.to_json()["data_bitrate"] == 2_000_000
     # the legacy node is tolerant: it received the classical frames only
     assert res.nodes["legacy"]["rx_frames"] == 5
+
+
+def test_sweep_varies_the_data_bitrate(capsys):
+    """``sweep --vary bus.data_bitrate=...``: a faster data phase, a lower bus load and a lower
+    bound for a BRS frame (its data-phase bits take less time), everything else equal."""
+    from stack.cli import main
+
+    example = str(Path(__file__).resolve().parents[3] / "examples" / "fd_packed.toml")
+    args = ["sweep", example, "--vary", "bus.data_bitrate=1000000,4000000", "--duration", "0.02", "--workers", "1"]
+    assert main([*args, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out.splitlines()[0])
+    slow, fast = sorted(data["rows"], key=lambda r: r["bus.data_bitrate"])
+    assert (slow["bus.data_bitrate"], fast["bus.data_bitrate"]) == (1_000_000, 4_000_000)
+    assert fast["bus_load"] < slow["bus_load"] and fast["Adas.rta_ms"] < slow["Adas.rta_ms"]
+    assert slow["error_frames"] == fast["error_frames"] == 0
+
+
+def test_a_classic_node_destroys_fd_frames_and_the_analysis_says_it_does_not_apply():
+    """examples/fd_intolerant.toml: a CAN 2.0 node's error flags destroy FD frames (each costs
+    the transmitter 8, ISO 11898-1 rule 3) until its receive errors make it error passive; with
+    the node tolerant, no error frame and the analysis bounds every message."""
+    from profiles.pipeline.runner import run_scenario
+    from profiles.pipeline.scenario import load_scenario
+
+    example = Path(__file__).resolve().parents[3] / "examples" / "fd_intolerant.toml"
+    classic = run_scenario(load_scenario(example)).to_json()
+    assert classic["error_frames"] > 0
+    assert classic["nodes"]["gateway"]["retransmissions"] == classic["error_frames"]
+    assert classic["nodes"]["legacy"]["rxerr"] >= 127  # error passive at some point: FD frames then pass
+    assert classic["analysis"]["applies"] is False
+    assert any("fd = 'classic'" in n for n in classic["analysis"]["notes"])
+    assert all(m["rta_ms"] is None for m in classic["messages"])
+    raw = load_scenario(example).raw
+    raw["nodes"][-1]["fd"] = "tolerant"
+    tolerant = run_scenario(parse_scenario(raw, str(example))).to_json()
+    assert tolerant["error_frames"] == 0 and tolerant["analysis"]["applies"] is True
+    assert all(m["response_ms"]["max"] < m["rta_ms"] for m in tolerant["messages"])
