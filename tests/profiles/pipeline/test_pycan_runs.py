@@ -220,3 +220,28 @@ def test_every_format_holds_the_bus_time_of_what_the_monitor_received(tmp_path, 
     # .asc keeps 10 us, .blf 1 us (or 10 us), .log and .csv 1 us: the same times to that
     assert all(abs(a - b) < 1e-5 and i == j for (a, i), (b, j) in zip(got, want))
     assert got[0][0] > 0 and got[-1][0] <= res.duration_s
+
+
+def test_an_fd_scenario_runs_on_a_virtual_fd_bus_and_a_logger_sees_fd_frames():
+    """A scenario with a data bit rate opens its python-can bus with fd=True: python-can's own
+    logger on the same channel receives the messages as CAN FD frames with BRS, at their length."""
+    raw = {
+        "bus": {"bitrate": 500_000, "data_bitrate": 2_000_000, "duration": 0.3},
+        "nodes": [
+            {
+                "name": "a",
+                "messages": [{"name": "big", "id": 0x100, "fd": True, "brs": True, "length": 64, "period_ms": 5}],
+            },
+            {"name": "b", "messages": [{"name": "small", "id": 0x200, "dlc": 4, "period_ms": 10}]},
+        ],
+    }
+    ch = f"fd-{os.getpid()}"
+    with can.Bus(interface="virtual", channel=ch, fd=True) as bus:
+        res = run_on_pycan(parse_scenario(raw, "fd.toml"), "virtual", ch, duration_s=0.3)
+        got = []
+        while (m := bus.recv(0)) is not None:
+            got.append(m)
+    kinds = {(m.arbitration_id, m.is_fd, m.bitrate_switch, len(m.data)) for m in got}
+    assert kinds == {(0x100, True, True, 64), (0x200, False, False, 4)}
+    rows = {m["name"]: m for m in res.to_json()["messages"]}
+    assert rows["big"]["sent"] > 0 and rows["small"]["sent"] > 0
