@@ -134,7 +134,9 @@ def _assign_ids(args: argparse.Namespace) -> int:
     errors = None
     if scenario.analysis.get("t_error_ms") is not None:
         errors = ErrorModel(round(scenario.analysis["t_error_ms"] * 1e6), scenario.analysis.get("error_burst") or 1)
-    result = assign_priorities(specs, scenario.bitrate, order=args.order, errors=errors)
+    result = assign_priorities(
+        specs, scenario.bitrate, order=args.order, errors=errors, data_bitrate=scenario.data_bitrate
+    )
     ids = identifiers_for(specs, result.order)
     text = Path(args.scenario).read_text(encoding="utf-8")
     Path(args.out).write_text(_rewrite(text, scenario.source, ids), encoding="utf-8")
@@ -150,7 +152,9 @@ def _assign_ids(args: argparse.Namespace) -> int:
         # the one `canstack experiment` gives, with the FIFO and mailbox bounds of its nodes
         queues = {d.name: NodeQueue(d.policy, d.mailboxes, d.abort) for d in scenario.nodes}
         renumbered = [dataclasses.replace(s, can_id=ids[s.name]) for s in specs]
-        verdict = analyse(renumbered, scenario.bitrate, errors=errors, queues=queues)
+        verdict = analyse(
+            renumbered, scenario.bitrate, errors=errors, queues=queues, data_bitrate=scenario.data_bitrate
+        )
         missed = [name for name, r in verdict.items() if not r.schedulable]
         if not missed:
             print("every message schedulable (Davis et al. 2007; FIFO and mailbox bounds of profiles.analysis.rta)")

@@ -265,3 +265,24 @@ def test_a_classic_node_destroys_fd_frames_and_the_analysis_says_it_does_not_app
     tolerant = run_scenario(parse_scenario(raw, str(example))).to_json()
     assert tolerant["error_frames"] == 0 and tolerant["analysis"]["applies"] is True
     assert all(m["response_ms"]["max"] < m["rta_ms"] for m in tolerant["messages"])
+
+
+def test_assign_ids_orders_fd_messages_by_deadline(tmp_path, capsys):
+    """``canstack scenario assign-ids --order dm`` on an FD scenario (BRS frames need the data bit
+    rate in the analysis): identifiers handed out again shortest deadline first."""
+    from stack.cli import main
+
+    src = tmp_path / "fd.toml"
+    src.write_text(
+        "[bus]\nbitrate = 500000\ndata_bitrate = 2000000\nduration = 0.05\n\n[[nodes]]\nname = 'a'\n\n"
+        "[[nodes.messages]]\nname = 'slow'\nid = 0x100\nfd = true\nbrs = true\nlength = 64\nperiod_ms = 20\n\n"
+        "[[nodes.messages]]\nname = 'fast'\nid = 0x200\nfd = true\nbrs = true\nlength = 16\nperiod_ms = 2\n\n"
+        "[[nodes]]\nname = 'rx'\n"
+    )
+    out = tmp_path / "dm.toml"
+    assert main(["scenario", "assign-ids", str(src), "--out", str(out), "--order", "dm"]) == 0
+    capsys.readouterr()
+    from profiles.pipeline.scenario import load_scenario
+
+    ids = {m.name: m.can_id for m in load_scenario(out).messages}
+    assert ids["fast"] < ids["slow"]
