@@ -5,18 +5,21 @@ what to analyse and plot — read from TOML and checked before anything runs.
     bitrate = 500000          # bit/s
     duration = 2.0            # simulated seconds
     seed = 1
+    data_bitrate = 2000000    # optional: a CAN FD bus, the data phase's bit/s (no default)
 
     [[nodes]]
     name = "engine"
     profile = "csma"          # csma (default) | the profiles registered in `profiles.registry`
     queue = "priority"        # priority | fifo | mailboxes:N | mailboxes-abort:N
     drift_ppm = 0             # the node's oscillator (read for every profile)
+    fd = "fd"                 # on a CAN FD bus: fd (default) | tolerant | classic
 
     [[nodes.messages]]
     name = "EngineData"
     id = 0x100
     extended = false
-    dlc = 8
+    dlc = 8                   # or: length = 8 (bytes); CAN FD: dlc 0..15, length up to 64
+    fd = false                # a CAN FD frame (needs data_bitrate); brs = true: its data phase at it
     period_ms = 10            # or: sporadic_ms = 20 (minimum inter-arrival; mean_ms for the mean)
     offset_ms = 0
     jitter_ms = 0             # release jitter, uniform in [0, jitter], seeded
