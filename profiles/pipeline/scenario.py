@@ -330,7 +330,8 @@ def _check_fd(sc: Scenario) -> None:
     """CAN FD on this bus (ISO 11898-1:2015, as `stack.bus.sim.SimBus` runs it): an FD frame or
     an FD-enabled node needs a bus with a data bit rate — there is no default, since a bus without
     one is a classical CAN bus whose nodes are CAN 2.0 controllers (give data_bitrate = bitrate for
-    FD frames without a faster data phase); only an FD-enabled node sends FD frames."""
+    FD frames without a faster data phase); only an FD-enabled node sends FD frames. An FD message
+    that no other FD-enabled node can acknowledge is a warning."""
     fd_bus = sc.data_bitrate is not None
     for n in sc.nodes:
         loc = where(sc.source, f"[[nodes]] {n.name!r}")
@@ -351,6 +352,11 @@ def _check_fd(sc: Scenario) -> None:
                 raise ScenarioError(
                     f"{mloc}: fd: true: node {n.name!r} is {n.fd!r} (fd = {n.fd!r}): only an FD-enabled controller "
                     "(fd = 'fd') sends CAN FD frames"
+                )
+            if m.fd and not any(o is not n and o.fd in (None, FD) and not o.listen_only for o in sc.nodes):
+                # only FD-enabled nodes acknowledge an FD frame (a tolerant one integrates meanwhile)
+                sc.warnings.append(
+                    f"{mloc}: fd: true: no other FD-enabled node acknowledges it: every attempt ends in an ACK error"
                 )
 
 

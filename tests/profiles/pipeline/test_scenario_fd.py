@@ -131,6 +131,7 @@ def test_fd_without_brs_at_the_nominal_rate_is_legal():
     """FDF without BRS: an FD frame at one bit rate (data_bitrate = bitrate)."""
     raw = _with("bus.data_bitrate", 500000)
     raw["nodes"][0]["messages"][0]["brs"] = False
+    raw["nodes"].append({"name": "dash"})  # an FD-enabled receiver: no warning
     sc = parse_scenario(raw, "fd.toml")
     assert sc.data_bitrate == sc.bitrate and not sc.warnings
 
@@ -286,3 +287,19 @@ def test_assign_ids_orders_fd_messages_by_deadline(tmp_path, capsys):
 
     ids = {m.name: m.can_id for m in load_scenario(out).messages}
     assert ids["fast"] < ids["slow"]
+
+
+def test_an_fd_message_nobody_can_acknowledge_is_a_warning():
+    """Only FD-enabled nodes acknowledge an FD frame (ISO 11898-1:2015: a tolerant node
+    integrates, a listen-only one sends no ACK): BASE's only other node is tolerant."""
+    sc = parse_scenario(BASE, "fd.toml")
+    assert [w.split(": fd: ")[0] for w in sc.warnings] == [
+        "fd.toml: [[nodes]] 'gateway' > [[nodes.messages]] 'Big'",
+        "fd.toml: [[nodes]] 'gateway' > [[nodes.messages]] 'Mid'",
+    ]
+    assert all("no other FD-enabled node acknowledges it" in w for w in sc.warnings)
+    raw = copy.deepcopy(BASE)
+    raw["nodes"].append({"name": "dash", "listen_only": True})
+    assert len(parse_scenario(raw, "fd.toml").warnings) == 2
+    raw["nodes"][-1]["listen_only"] = False
+    assert parse_scenario(raw, "fd.toml").warnings == []
