@@ -36,7 +36,6 @@ from profiles.canopen.master import CanopenMaster
 from profiles.canopen.options import DeviceOptions, MasterOptions
 from profiles.registry import ProfileKind
 from profiles.schema import Key, ScenarioError, in_range, where
-from profiles.text import id_text, table
 
 if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Context
@@ -123,44 +122,10 @@ def _summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
 
 
 def _text(figures: dict[str, Any]) -> list[str]:
-    """Per node the NMT state (and the state its master saw, when they differ) and heartbeats;
-    per PDO the SYNC-to-reception latency the master measured and the PDOs a device did not send
-    inside the synchronous window."""
-    masters = [f for f in figures.values() if f.get("profile") == "canopen-master"]
-    missed = {(m["node"], n["node_id"]): n["heartbeats_missed"] for m in masters for n in m["nodes"]}
-    state = {n["node_id"]: n["nmt_state"] for m in masters for n in m["nodes"]}
-    rows = []
-    for f in figures.values():
-        if f.get("profile") == "canopen":
-            miss = sum(v for (_, nid), v in missed.items() if nid == f["node_id"])
-            seen = state.get(f["node_id"], "-")
-            rows.append([f["node"], f["node_id"], f["nmt_state"], seen, f["heartbeats_sent"], miss])
-    lines = table(
-        ["CANopen node", "id", "NMT state", "as the master saw it", "heartbeats sent", "missed"],
-        rows,
-        left={0, 2, 3},
-        widest={0: 16},
-    )
-    late = {
-        (f["node_id"], tp.get("cob_id")): tp.get("not_in_window", 0)
-        for f in figures.values()
-        if f.get("profile") == "canopen"
-        for tp in f["tpdos"]
-    }
-    for m in masters:
-        prow = []
-        for p in m["pdos"]:
-            s = p["sync_latency_ms"] or {}
-            lat = "/".join(f"{s[k]:.3f}" for k in ("min", "mean", "p99", "max")) if s.get("count") else "-"
-            prow.append(
-                [p["pdo"], id_text(p["cob_id"], False), p["received"], lat, late.get((p["node_id"], p["cob_id"]), 0)]
-            )
-        lines += table(
-            [f"PDO (master {m['node']})", "COB-ID", "received", "SYNC->end min/mean/p99/max (ms)", "not in window"],
-            prow,
-            left=2,
-        )
-    return lines
+    """Every figure of the ``canopen`` result as tables (`profiles.canopen.text.canopen_lines`)."""
+    from profiles.canopen.text import canopen_lines
+
+    return canopen_lines(figures)
 
 
 _DEVICE_KEYS = {

@@ -78,6 +78,6 @@ def test_text_table_lists_nodes_and_pdo_latency():
     from profiles.pipeline.metrics import format_table
 
     text = format_table(run_scenario(parse_scenario(copy.deepcopy(BASE), "co.toml")).to_json())
-    assert "CANopen node" in text and re.search(r"^TPDO1 +0x181 ", text, re.M)
+    assert "CANopen node" in text and re.search(r"^TPDO1 +a +0x181 ", text, re.M)
     # no declared messages: no empty message table, a line that says why
     assert "message " not in text and "no messages declared" in text
