@@ -154,16 +154,22 @@ def _attach_uds(rb: RestBus, specs: list[tuple[str, int, int]], vin: str, info: 
             raise UnknownNameError("simulated node", node, rb.ecus, f"(--uds; simulated: {', '.join(rb.ecus)})")
         for i in (req, resp):
             if i in used:
-                raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier {i:#x} is already used by --uds {used[i]}")
+                raise CliError(
+                    f"--uds {node}:{req:#x}:{resp:#x}: identifier {format_id(i, False)} is already used by "
+                    f"--uds {used[i]}"
+                )
             used[i] = node
         clash = [m.name for m in rb.db.messages if m.frame_id in (req, resp) and not m.is_extended_frame]
         if clash:
             raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier of message {clash[0]} in the database")
         srv = attach_uds(ecu, req, resp, vin=vin)
         servers.append(srv)
-        print(f"UDS: {node} answers requests on {req:#05x}, responds on {resp:#05x}; DIDs:", file=info)
+        print(
+            f"UDS: {node} answers requests on {format_id(req, False)}, responds on {format_id(resp, False)}; DIDs:",
+            file=info,
+        )
         for d in sorted(srv.dids):
-            print(f"  {d:#06x}  {srv.dids[d].name}", file=info)
+            print(f"  0x{d:04X}  {srv.dids[d].name}", file=info)
     return servers
 
 
@@ -288,7 +294,9 @@ def restbus_command(args: argparse.Namespace) -> int:
     stats: dict[tuple[str, str], list[Any]] = {}
 
     def _count(rec: BusRecord) -> None:
-        st = stats.setdefault((rec.sender, rec.name or hex(rec.frame.can_id)), [0, rec.time, rec.time, rec])
+        st = stats.setdefault(
+            (rec.sender, rec.name or format_id(rec.frame.can_id, rec.frame.extended)), [0, rec.time, rec.time, rec]
+        )
         st[0] += 1
         st[2] = rec.time
         st[3] = rec

@@ -21,6 +21,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from stack.wire.frame import id_text
+
 from .checks import hook_from_spec
 from .errors import DbcError, DbcLoadError
 from .interaction import attribute
@@ -51,7 +53,7 @@ def validate_database(db: Any, path: str) -> None:
             raise DbcLoadError(
                 p,
                 _line(lines, rf"^\s*BO_\s+{dbc_id}\s+{re.escape(m.name)}\b"),
-                f"message {m.name}: frame identifier {m.frame_id:#x} is already message {seen[key]}'s "
+                f"message {m.name}: frame identifier {id_text(m.frame_id, bool(m.is_extended_frame))} is already message {seen[key]}'s "
                 "(a frame identifier names one message)",
             )
         seen[key] = m.name

@@ -42,7 +42,7 @@ from fractions import Fraction
 
 from stack import arbitration_key
 from stack.wire.fd import worst_case_bits
-from stack.wire.frame import data_length
+from stack.wire.frame import data_length, id_text
 
 __all__ = [
     "MessageSpec",
@@ -418,7 +418,7 @@ def prepare(
         if a.key == b.key:
             raise ValueError(
                 f"messages {a.spec.name!r} and {b.spec.name!r}: the same arbitration key "
-                f"(identifier 0x{a.spec.can_id:X}, {'extended' if a.spec.extended else 'standard'}); "
+                f"(identifier {id_text(a.spec.can_id, a.spec.extended)}, {'extended' if a.spec.extended else 'standard'}); "
                 "two streams may not share an identifier"
             )
     return out

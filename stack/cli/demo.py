@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.bus.sim import SimBus
-from stack.cli import CliError, parse_bitrate, parse_data_bitrate, parse_int, plural, seconds_type
+from stack.cli import CliError, format_id, parse_bitrate, parse_data_bitrate, parse_int, plural, seconds_type
 from stack.cli.runs import (
     MAX_SIM_SECONDS,
     check_output,
@@ -495,7 +495,7 @@ def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: A
         f"{'ID':>10}  {'frames':>6}  {'mean period (ms)':>16}  {'p99 deviation (ms)':>18}",
     ]
     for (cid, ext, rtr), ts in sorted(seen.items()):
-        ident = (f"0x{cid:08X}" if ext else f"0x{cid:03X}") + (" RTR" if rtr else "")
+        ident = format_id(cid, ext, rtr)
         gaps = [b - a for a, b in zip(ts, ts[1:])]
         if gaps:
             mean = statistics.fmean(gaps)

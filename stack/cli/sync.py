@@ -9,7 +9,7 @@ import math
 from dataclasses import replace
 from typing import Any
 
-from stack.cli import CliError, parse_sample_point
+from stack.cli import CliError, format_id, parse_sample_point
 from stack.cli.bittiming import add_timing_arguments, limits_from_args
 from stack.phy.bittiming import BusDelays, Solution, format_hz, solve
 from stack.phy.bittiming_fd import solve_fd
@@ -167,7 +167,7 @@ def _run_tdc(args: argparse.Namespace) -> int:
         f"data brp {d.brp}, {d.nbt} tq of {d.tq_ns:g} ns (tseg1 {d.tseg1}, tseg2 {d.tseg2}), sjw {d.sjw}, "
         f"sample point {d.sample_point:.1f} %"
     )
-    print("frames: " + ", ".join(f"0x{f.can_id:03x} [{f.data.hex()}]" for f in TDC_FRAMES))
+    print("frames: " + ", ".join(f"{format_id(f.can_id, f.extended)} [{f.data.hex()}]" for f in TDC_FRAMES))
     print(f"loop delay {loop:g} ns (a data bit is {d.nbt * d.tq_ns:g} ns):")
     print("  without TDC: " + ("ok" if without is None else f"fails: {without.describe()}"))
     if with_tdc is None:
@@ -226,7 +226,7 @@ def _run(args: argparse.Namespace) -> int:
         f"{args.bitrate} bit/s, {args.clock} Hz clock: brp {s.brp}, {s.nbt} tq (tseg1 {s.tseg1}, tseg2 {s.tseg2}), "
         f"sjw {s.sjw}, sample point {s.sample_point:.1f} %, {s.timing.nof_samples} sample(s)"
     )
-    print("frames: " + ", ".join(f"0x{f.can_id:03x} [{f.data.hex()}]" for f in worst_case_frames()))
+    print("frames: " + ", ".join(f"{format_id(f.can_id, f.extended)} [{f.data.hex()}]" for f in worst_case_frames()))
     for d, f in res.scan:
         print(
             f"  drift +-{d:8.0f} ppm: {'ok' if f is None else f'fails ({f.drift_ppm:+.0f} ppm): ' + f.reception.describe()}"
@@ -238,7 +238,9 @@ def _run(args: argparse.Namespace) -> int:
     else:
         ff = res.first_failure
         print(f"largest drift received: {res.max_drift_ppm:.0f} ppm")
-        print(f"first failure at {ff.drift_ppm:+.0f} ppm, frame 0x{ff.frame.can_id:03x}: {ff.reception.describe()}")
+        print(
+            f"first failure at {ff.drift_ppm:+.0f} ppm, frame {format_id(ff.frame.can_id, ff.frame.extended)}: {ff.reception.describe()}"
+        )
     print(
         f"formula tolerance: {res.formula_ppm:.0f} ppm (SJW/(20 NBT) {s.tolerance_resync * 1e4:.0f}, "
         f"min(PS1,PS2)/(2(13 NBT-PS2)) {s.tolerance_error_flag * 1e4:.0f}); "

@@ -50,7 +50,7 @@ BAD = [
     (
         "duplicateid",
         mutate("BO_ 1024 ClusterStatus", "BO_ 1952 ClusterStatus"),
-        ["ClusterDiagResponse", "0x7a0", "ClusterStatus"],
+        ["ClusterDiagResponse", "0x7A0", "ClusterStatus"],
     ),
     (
         "checksum",
@@ -164,4 +164,4 @@ def test_duplicate_id_is_one_line_on_stderr_of_the_command(tmp_path):
         timeout=120,
     )
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
-    assert "0x7a0" in out.stderr
+    assert "0x7A0" in out.stderr  # BO_ 1952: 11-bit, upper-case hex as every output

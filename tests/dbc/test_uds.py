@@ -216,8 +216,8 @@ def test_restbus_uds_prints_its_dids(capsys):
     out, err = capsys.readouterr()
     assert code == 0, err
     lines = out.splitlines()
-    assert lines[0] == "UDS: TCM answers requests on 0x7e1, responds on 0x7e9; DIDs:"
+    assert lines[0] == "UDS: TCM answers requests on 0x7E1, responds on 0x7E9; DIDs:"
     db = load_database(SAMPLE)
     signals = [f"{m.name}.{s.name}" for m in db.messages if "TCM" in m.senders for s in m.signals]
     assert [line.split()[1] for line in lines[1 : 1 + len(signals)]] == signals
-    assert lines[1 + len(signals) : 3 + len(signals)] == ["  0xf186  ActiveDiagnosticSession", "  0xf190  VIN"]
+    assert lines[1 + len(signals) : 3 + len(signals)] == ["  0xF186  ActiveDiagnosticSession", "  0xF190  VIN"]

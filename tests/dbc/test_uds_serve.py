@@ -48,10 +48,10 @@ def test_udsoncan_reads_vin_and_signal_from_restbus_over_serve():
         listed = []
         for line in proc.stdout:  # the DIDs are printed when it starts
             listed.append(line.strip())
-            if line.strip().startswith("0xf190"):
+            if line.strip().startswith("0xF190"):
                 break
-        assert listed[0].startswith("UDS: ECM answers requests on 0x7e0, responds on 0x7e8")
-        assert "0x1000  EngineData.EngineSpeed" in listed and "0xf190  VIN" in listed
+        assert listed[0].startswith("UDS: ECM answers requests on 0x7E0, responds on 0x7E8")
+        assert "0x1000  EngineData.EngineSpeed" in listed and "0xF190  VIN" in listed
 
         watcher = can.Bus(interface="canstack", channel=server.url, receive_own_messages=False)
         seen: list[can.Message] = []
