@@ -16,6 +16,10 @@ same run (so the figures compare across machines).
 - ``campaign_realtime_factor_500k``: the reliability campaign (5 nodes, random traffic,
   bit-error rate 1e-4 global and local) at 500 kbit/s, against the same traffic fault-free
   (``campaign_vs_fault_free``).
+- ``unacked_fast_vs_bitlevel``: one node alone on a 1 Mbit/s bus retransmitting a frame nobody
+  acknowledges (error passive after its first 16 ACK errors): CPU seconds per simulated second
+  with the replay of the identical attempt reused (`SimBus.reuse_unacked`, the serve fast path)
+  and replaying every attempt bit by bit, the ratio of the two.
 - ``decode_vs_sigrok`` (when the corpus and sigrok-cli are present): see `stack.cli.bench_io.decode_benchmark`;
   without the corpus (``--corpus``, default ``../shared/corpus``) the figure is skipped with a note.
 - ``pycan``: the python-can integration (`stack.cli.bench_io.benchmark`): 10 ms periodic jitter against
@@ -55,6 +59,7 @@ __all__ = [
     "bench_saturated",
     "bench_fd_mixed",
     "bench_campaign",
+    "bench_unacked",
     "Figure",
     "FIGURES",
     "Settings",
@@ -197,6 +202,21 @@ def bench_campaign(frames: int, ber: float, seed: int = 1) -> tuple[float, int]:
     return bus.now() / 1e9 / dt, bus.error_frames
 
 
+def bench_unacked(sim_s: float, reuse: bool) -> float:
+    """CPU seconds per simulated second of a node alone on a 1 Mbit/s bus whose frame nobody
+    acknowledges (it retransmits at once, rule 3 and its exception 1 in error passive), with the
+    replay of an identical unacknowledged attempt reused or not (`SimBus.reuse_unacked`); timed
+    from error passive on, trace recording off."""
+    bus = SimBus(1_000_000, record=False)
+    bus.reuse_unacked = reuse
+    bus.node("alone").send(Frame(0x123, bytes(8)))
+    bus.run(until=10_000_000)  # 16 ACK errors (rule 3) take it to error passive in about 3 ms
+    start = bus.now()
+    t0 = time.process_time()
+    bus.run(until=start + int(sim_s * 1e9))
+    return (time.process_time() - t0) / ((bus.now() - start) / 1e9)
+
+
 @dataclass(frozen=True)
 class Settings:
     """What every figure is measured with: ``repeat`` runs each (the best counts), counts scaled
@@ -294,6 +314,28 @@ def _campaign_lines(r: dict[str, Any]) -> list[str]:
     ]
 
 
+def _unacked(s: Settings) -> dict[str, Any]:
+    fast: list[float] = []
+    slow: list[float] = []
+    for i in range(s.repeat):  # in turn, so that the machine's load weighs on both alike
+        _progress(f"a lone node, unacknowledged frame, 1 Mbit/s: fast path and bit by bit, run {i + 1}")
+        fast.append(bench_unacked(2.0 * s.scale, True))
+        slow.append(bench_unacked(0.2 * s.scale, False))
+    return {
+        "unacked_cpu_per_sim_s_fast": min(fast),
+        "unacked_cpu_per_sim_s_bitlevel": min(slow),
+        "unacked_fast_vs_bitlevel": min(slow) / min(fast),
+    }
+
+
+def _unacked_lines(r: dict[str, Any]) -> list[str]:
+    return [
+        f"a lone node @ 1 Mbit/s retransmitting an unacknowledged frame: {r['unacked_cpu_per_sim_s_fast']:.3f} CPU s "
+        f"per simulated s with the fast path vs {r['unacked_cpu_per_sim_s_bitlevel']:.3f} bit by bit: "
+        f"{r['unacked_fast_vs_bitlevel']:.1f}x"
+    ]
+
+
 def _decode(s: Settings) -> dict[str, Any]:
     from stack.cli.bench_io import decode_benchmark
 
@@ -358,6 +400,7 @@ FIGURES: tuple[Figure, ...] = (
     Figure("nodes", "10 and 1000 saturating nodes", _nodes, _nodes_lines),
     Figure("fd", "10 saturating nodes, half of the frames CAN FD, against the classical 10", _fd, _fd_lines),
     Figure("campaign", "the reliability campaign against the same traffic fault-free", _campaign, _campaign_lines),
+    Figure("unacked", "a lone node's unacknowledged frame: the fast path against bit by bit", _unacked, _unacked_lines),
     Figure("decode", "capture decoding against sigrok-cli (needs the corpus)", _decode, _decode_lines),
     Figure("pycan", "python-can integration: periodic jitter, plugin and serve throughput", _pycan, _pycan_lines),
 )

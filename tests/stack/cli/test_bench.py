@@ -81,3 +81,30 @@ def test_an_unknown_figure_name_is_one_line_and_exit_2(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--only 'decode,warp'" in err and "engine" in err and "decode" in err
+
+
+def test_the_unacknowledged_frame_figure_measures_both_paths_of_the_same_bus(monkeypatch, capsys):
+    """The fast path's figure times both ways of carrying the same traffic: the bus each builds
+    reaches error passive and sends nothing (a lone node: every attempt an ACK error), and the
+    ratio is the bit-level CPU time over the fast path's."""
+    from stack.bus.sim import SimBus
+    from stack.cli import bench
+
+    built = []
+    real = SimBus
+
+    def spy(*a, **k):
+        b = real(*a, **k)
+        built.append(b)
+        return b
+
+    monkeypatch.setattr(bench, "SimBus", spy)
+    assert main(["--only", "unacked", "--quick", "--repeat", "1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [b.reuse_unacked for b in built] == [True, False]
+    for b in built:
+        (node,) = b.nodes
+        assert node.state.value == "error-passive" and node.tec == 128 and node.tx_frames == 0 and b.frames_ok == 0
+    assert out["unacked_fast_vs_bitlevel"] == pytest.approx(
+        out["unacked_cpu_per_sim_s_bitlevel"] / out["unacked_cpu_per_sim_s_fast"]
+    )
