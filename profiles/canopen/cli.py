@@ -107,7 +107,9 @@ def canopen_command(args: argparse.Namespace) -> int:
     from profiles.canopen.dictionary import DEFAULT_EDS, load_od
     from stack.io.driver import PyCanDriver
 
-    load_od(args.eds, args.node_id)  # a bad EDS is one line (EdsError names the file) before any bus opens
+    # a bad EDS is one line (EdsError names the file) before any bus opens; what the canopen library
+    # would log about it (no DeviceInfo section, ...) is one warning naming the file
+    load_od(args.eds, args.node_id, warn=lambda w: print(f"canstack: warning: {w}", file=sys.stderr))
     app = None if args.app is None else load_app(args.app)
     if args.interface == "canstack":
         from stack.io import pycan  # noqa: F401  (registers the interface when not installed)

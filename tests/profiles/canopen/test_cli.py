@@ -270,3 +270,26 @@ def test_the_app_of_a_device_in_another_process_raises_emcy_writes_objects_and_r
                     proc.communicate()
     assert proc.returncode == 130, err
     assert "canstack canopen:" not in err  # no callback failed on the driver's thread
+
+
+@pytest.mark.wallclock
+@pytest.mark.subprocess
+def test_an_eds_without_device_info_is_one_warning_naming_the_file(tmp_path):
+    """CiA 306 makes [DeviceInfo] mandatory; the canopen library logs its absence. Through the
+    command that is exactly one warning line on stderr, naming the file, and the device runs."""
+    import re
+
+    text = DEFAULT_EDS.read_text()
+    eds = tmp_path / "no_info.eds"
+    eds.write_text(re.sub(r"(?ms)^\[DeviceInfo\]\n.*?(?=^\[)", "", text))
+    assert "[DeviceInfo]" in text and "DeviceInfo" not in eds.read_text()
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    argv = ["canopen", str(eds), "--node-id", "5", "--interface", "virtual", "--channel", "noinfo", "--duration", "0.2"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "stack.cli", *argv], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f"canstack: warning: {eds}: ") and "DeviceInfo" in lines[0]
+    assert "node 5: PRE_OPERATIONAL, 1 boot-up" in proc.stdout
