@@ -23,7 +23,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.sweeps.comparison import ProfilesStudy
     from profiles.sweeps.schedulability import SchedulabilityStudy
 
-__all__ = ["sweep_plot", "write_sweep_plots", "schedulability_plot", "profiles_plot", "metric_label", "wants_log"]
+__all__ = [
+    "sweep_plot",
+    "write_sweep_plots",
+    "schedulability_plot",
+    "profiles_plot",
+    "metric_label",
+    "wants_log",
+    "x_scale",
+]
 
 _LABELS = {
     "bus_load": "bus load (%)",
@@ -66,6 +74,18 @@ def wants_log(values: Sequence[Any]) -> bool:
     if not values or not _numeric(values) or min(values) <= 0:
         return False
     return max(values) / min(values) >= LOG_SPAN
+
+
+def x_scale(values: Sequence[Any], log_x: bool | None = None) -> str:
+    """The scale of a sweep plot's varied key: ``"category"`` for values that are not all
+    numbers, ``"log"`` when ``log_x`` asks for it (None: when they span two decades or more,
+    `wants_log`) and every value is above 0 (a logarithmic axis has no place for 0 or below),
+    else ``"linear"``."""
+    if not _numeric(values):
+        return "category"
+    if (wants_log(values) if log_x is None else log_x) and values and min(values) > 0:
+        return "log"
+    return "linear"
 
 
 def sweep_plot(
@@ -111,9 +131,10 @@ def sweep_plot(
                 color=line.get_color(),
                 linewidth=0,
             )
-    if not numeric:
+    scale_x = x_scale(xs, log_x)
+    if scale_x == "category":
         ax.set_xticks(range(len(xs)), [str(x) for x in xs])
-    elif (wants_log(xs) if log_x is None else log_x) and min(xs) > 0:
+    elif scale_x == "log":
         ax.set_xscale("log")
     ax.set_xlabel(xkey + (" (log scale)" if ax.get_xscale() == "log" else ""))
     ax.set_ylabel(metric_label(metric))

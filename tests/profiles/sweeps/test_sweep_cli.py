@@ -339,3 +339,57 @@ def test_study_bad_input_is_one_line_and_exit_2(capsys, args, message):
     code, stdout, err = run(capsys, "study", *args)
     assert code == 2 and stdout == ""
     assert len(err.strip().splitlines()) == 1 and message in err, err
+
+
+def test_the_x_scale_of_a_sweep_plot():
+    """Log when asked, or (by default) when the values span two decades (100x) or more; never
+    with a value at or below 0, which a log axis cannot place; names on a category axis."""
+    from profiles.sweeps.plots import x_scale
+
+    assert x_scale([1, 2, 5]) == "linear" and x_scale([1, 2, 5], log_x=True) == "log"
+    assert x_scale([1, 10, 100]) == "log" and x_scale([1, 10, 99]) == "linear"  # 100x is two decades
+    assert x_scale([1, 10, 100], log_x=False) == "linear"
+    assert x_scale([0, 10, 1000]) == "linear" and x_scale([0, 10, 1000], log_x=True) == "linear"
+    assert x_scale(["priority", "fifo"], log_x=True) == "category"
+
+
+@pytest.mark.parametrize(
+    "values,flag,scale",
+    [
+        ("1:2:0.5", [], "linear"),
+        ("1:2:0.5", ["--log-x"], "log"),
+        ("1,10,100", [], "log"),  # two decades: log without being asked
+        ("1,10,100", ["--no-log-x"], "linear"),
+    ],
+)
+def test_sweep_log_x_reaches_the_written_figure(tmp_path, capsys, monkeypatch, values, flag, scale):
+    """The axis of the figure as it is saved (matplotlib cannot read a PNG back, so the figure is
+    looked at on its way to the file), and the PNG is written."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    seen = []
+    save = Figure.savefig
+
+    def looking(fig, *a, **k):
+        seen.append(fig.axes[0].get_xscale())
+        return save(fig, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", looking)
+    code, _, err = run(
+        capsys,
+        "sweep",
+        EXAMPLE,
+        "--vary",
+        f"nodes.engine.messages.EngineSpeed.period_ms={values}",
+        "--duration",
+        "0.02",
+        "--plot",
+        str(tmp_path / "p"),
+        "--metric",
+        "bus_load",
+        *flag,
+    )
+    assert code == 0, err
+    assert seen == [scale]
+    assert (tmp_path / "p" / "bus_load.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
