@@ -161,3 +161,30 @@ def test_every_canopen_figure_of_the_json_is_in_the_text(capsys, scenario):
             row = _row(rows, *what.split(), names[nid], nid)
             assert row[-3:] == [str(len(ts)), f"{min(ts):.3f}", f"{max(ts):.3f}"]
         assert (3, "heartbeat lost") in kinds and (1, "boot-up") in kinds
+
+
+def test_node_guarding_figures_are_in_the_text():
+    """A master guarding its nodes (CiA 301 7.2.8.3.2.1, heartbeat 0): per node the requests,
+    replies, missed replies and toggle errors the JSON counts, in the master's node table."""
+    from profiles.pipeline.metrics import format_table
+    from profiles.pipeline.runner import run_scenario
+    from profiles.pipeline.scenario import parse_scenario
+
+    raw = {
+        "bus": {"bitrate": 1_000_000, "duration": 0.3},
+        "nodes": [
+            {"name": "plc", "profile": "canopen-master", "canopen": {"nodes": [1, 2], "node_guarding_ms": 20}},
+            {"name": "a", "profile": "canopen", "node_id": 1, "canopen": {"heartbeat_ms": 0}},
+            {"name": "b", "profile": "canopen", "node_id": 2, "canopen": {"heartbeat_ms": 0}},
+        ],
+        "faults": [{"kind": "disconnect", "node": "b", "at_ms": 150}],
+    }
+    data = run_scenario(parse_scenario(raw, "guarded.toml")).to_json()
+    blocks = _blocks(format_table(data))
+    rows = _table(blocks, "node (master plc)", "guarding requests", "toggle errors")
+    names = {1: "a", 2: "b"}
+    for n in data["canopen"]["plc"]["nodes"]:
+        g = n["guarding"]
+        row = _row(rows, names[n["node_id"]], n["node_id"])
+        assert row[-4:] == [str(g["requests"]), str(g["replies"]), str(g["missed"]), str(g["toggle_errors"])]
+    assert data["canopen"]["plc"]["nodes"][1]["guarding"]["missed"] > 0  # b unplugged: replies missed
