@@ -34,6 +34,7 @@ from profiles.base import Profile
 from profiles.canopen.device import CanopenDevice
 from profiles.canopen.master import CanopenMaster
 from profiles.canopen.options import DeviceOptions, MasterOptions
+from profiles.canopen.text import canopen_lines
 from profiles.registry import ProfileKind
 from profiles.schema import Key, ScenarioError, in_range, where
 
@@ -123,8 +124,6 @@ def _summarize(profiles: list[Profile], context: Context) -> dict[str, Any]:
 
 def _text(figures: dict[str, Any]) -> list[str]:
     """Every figure of the ``canopen`` result as tables (`profiles.canopen.text.canopen_lines`)."""
-    from profiles.canopen.text import canopen_lines
-
     return canopen_lines(figures)
 
 
