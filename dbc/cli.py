@@ -155,13 +155,17 @@ def _attach_uds(rb: RestBus, specs: list[tuple[str, int, int]], vin: str, info: 
         for i in (req, resp):
             if i in used:
                 raise CliError(
-                    f"--uds {node}:{req:#x}:{resp:#x}: identifier {format_id(i, False)} is already used by "
+                    f"--uds {node}:{format_id(req, False)}:{format_id(resp, False)}: identifier {format_id(i, False)} is "
+                    "already used by "
                     f"--uds {used[i]}"
                 )
             used[i] = node
         clash = [m.name for m in rb.db.messages if m.frame_id in (req, resp) and not m.is_extended_frame]
         if clash:
-            raise CliError(f"--uds {node}:{req:#x}:{resp:#x}: identifier of message {clash[0]} in the database")
+            raise CliError(
+                f"--uds {node}:{format_id(req, False)}:{format_id(resp, False)}: identifier of message {clash[0]} "
+                "in the database"
+            )
         srv = attach_uds(ecu, req, resp, vin=vin)
         servers.append(srv)
         print(
