@@ -86,13 +86,16 @@ def validate_database(db: Any, path: str) -> None:
 
 def _check_signal(db: Any, p: str, lines: list[str] | None, m: Any, s: Any) -> None:
     where = f"message {m.name} signal {s.name}"
-    line = _line(lines, rf"^\s*SG_\s+{re.escape(s.name)}\b")
+
+    def line() -> int | None:  # looked up only for an error: a scan of the text per signal is slow
+        return _line(lines, rf"^\s*SG_\s+{re.escape(s.name)}\b")
+
     if s.conversion.scale == 0:
-        raise DbcLoadError(p, line, f"{where}: scale 0 (a physical value could not be turned back into raw bits)")
+        raise DbcLoadError(p, line(), f"{where}: scale 0 (a physical value could not be turned back into raw bits)")
     if s.start < 0:
-        raise DbcLoadError(p, line, f"{where}: start bit {s.start} is negative")
+        raise DbcLoadError(p, line(), f"{where}: start bit {s.start} is negative")
     if s.length <= 0:
-        raise DbcLoadError(p, line, f"{where}: length {s.length} bits (a signal has at least 1 bit)")
+        raise DbcLoadError(p, line(), f"{where}: length {s.length} bits (a signal has at least 1 bit)")
     start = attribute(db, s, "GenSigStartValue")
     if s.raw_initial is not None:
         start = s.raw_initial
@@ -101,7 +104,7 @@ def _check_signal(db: Any, p: str, lines: list[str] | None, m: Any, s: Any) -> N
         if not lo <= start <= hi:
             raise DbcLoadError(
                 p,
-                _line(lines, rf'^\s*BA_\s+"GenSigStartValue"\s+SG_\s+\d+\s+{re.escape(s.name)}\b') or line,
+                _line(lines, rf'^\s*BA_\s+"GenSigStartValue"\s+SG_\s+\d+\s+{re.escape(s.name)}\b') or line(),
                 f"{where}: start value (GenSigStartValue) {start:g} is outside its {s.length}-bit raw range "
                 f"[{lo} .. {hi}]",
             )
