@@ -10,17 +10,21 @@ import sys
 import time
 from typing import Any
 
-from stack.cli import CliError, format_id, parse_bitrate, plural
+from stack.cli import CliError, format_id, parse_bitrate, parse_data_bitrate, plural
 from stack.cli.runs import MAX_SIM_SECONDS, check_trace_output, trace_note, trc_dropped, writing
 from stack.io.progress import run_sliced
 
 from .diag.ecu import DEFAULT_VIN
-from .errors import load_database
+from .errors import FdNotCarriedError, load_database
 from .restbus import BusRecord, RestBus, json_value
 from .stimulus import Change, check_changes, parse_assignment, read_stimulus, schedule
 from .validate import validate_database
 
-__all__ = ["register", "restbus_command", "positive_ms"]
+__all__ = ["register", "restbus_command", "positive_ms", "DEFAULT_DATA_BITRATE"]
+
+#: The data bit rate of the simulated bus with ``--fd`` and no ``--data-bitrate`` (the rate ISO
+#: 11898-2:2016 transceivers are first specified for, and python-can's canstack interface's default).
+DEFAULT_DATA_BITRATE = 2_000_000
 
 
 def register(subparsers: Any) -> None:
@@ -50,6 +54,20 @@ def register(subparsers: Any) -> None:
         default=None,
         help="bit/s: the simulated bus's (default 500000), or passed to every python-can "
         "connection (default: the interface's own)",
+    )
+    p.add_argument(
+        "--data-bitrate",
+        type=parse_data_bitrate,
+        default=None,
+        metavar="D",
+        help="a CAN FD bus: the data phase's bit/s (CAN FD messages with bit rate switching); on a python-can bus "
+        "passed with fd=True",
+    )
+    p.add_argument(
+        "--fd",
+        action="store_true",
+        help=f"a CAN FD bus: python-can's fd=True (the interface's data bit rate); the simulated bus at "
+        f"--data-bitrate, default {DEFAULT_DATA_BITRATE}",
     )
     p.add_argument("--seed", type=int, default=0, help="simulated bus seed")
     p.add_argument(
@@ -206,17 +224,22 @@ def _stdout_to_devnull() -> None:
     os.close(devnull)
 
 
-def _open_driver(interface: str, channel: str | None, bitrate: int | None) -> Any:
+def _open_driver(
+    interface: str, channel: str | None, bitrate: int | None, fd: bool = False, data_bitrate: int | None = None
+) -> Any:
     """The python-can driver of `stack.io.driver` on ``interface``/``channel``: ``open_bus`` if the
     module offers it, else a `PyCanDriver` opening one ``can.Bus`` per node; ``bitrate`` (None:
-    the interface's default) is passed to every connection."""
+    the interface's default) is passed to every connection, and for a CAN FD bus (``fd``, or a
+    ``data_bitrate``) python-can's ``fd=True`` and the ``data_bitrate`` if given."""
     try:
         from stack.io import driver  # imported here: the simulated bus needs no python-can driver
     except ImportError:
         raise CliError("python-can driver not available yet (stack.io.driver)") from None
-    if interface == "canstack":
-        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     kw: dict[str, Any] = {} if bitrate is None else {"bitrate": bitrate}
+    if fd or data_bitrate is not None:
+        kw["fd"] = True
+    if data_bitrate is not None:
+        kw["data_bitrate"] = data_bitrate
     open_bus = getattr(driver, "open_bus", None)
     if open_bus is not None:
         return open_bus(interface, channel, **kw)
@@ -269,6 +292,29 @@ def _line(rec: BusRecord) -> str:
     return f"{rec.time / 1e9:12.6f}  {rec.sender:<8} {ident}  {rec.name or '?':<20} {sigs}"
 
 
+def _restbus(args: argparse.Namespace, db: Any, bus: Any, records: bool) -> RestBus:
+    """The rest bus of the arguments on ``bus``, not started; a CAN FD message on a bus without
+    FD is one line naming the message and the option that makes the bus an FD one."""
+    try:
+        # on a python-can FD bus the controllers are FD enabled whether or not the data rate is known
+        fd = args.interface is not None and (args.fd or args.data_bitrate is not None)
+        return RestBus(
+            db,
+            bus,
+            dut=args.dut,
+            records=records,
+            start=False,
+            default_cycle_ms=args.default_cycle,
+            node_options={"fd": "fd"} if fd else None,
+        )
+    except FdNotCarriedError as exc:
+        offer = "--data-bitrate D (e.g. 2000000)" if args.interface is None else "--fd or --data-bitrate D"
+        raise CliError(
+            f"{args.dbc}: message {exc.message} is a CAN FD frame and the bus carries classical frames only: "
+            f"give {offer} for a CAN FD bus"
+        ) from None
+
+
 def restbus_command(args: argparse.Namespace) -> int:
     """Run the rest-bus simulation the arguments describe; 0 on success, 130 when Ctrl-C stopped
     it (the summary so far and the trace are still written)."""
@@ -283,6 +329,16 @@ def restbus_command(args: argparse.Namespace) -> int:
         raise CliError("give either --bus sim or --interface/--channel, not both")
     if args.channel is not None and args.interface is None:
         raise CliError("--channel needs --interface")
+    data_bitrate = args.data_bitrate
+    if args.interface is None:
+        if data_bitrate is None and args.fd:
+            data_bitrate = DEFAULT_DATA_BITRATE
+        nominal = args.bitrate or 500_000
+        if data_bitrate is not None and data_bitrate < nominal:
+            raise CliError(
+                f"--data-bitrate {data_bitrate} below the nominal bit rate {nominal}: the data phase is at least as "
+                "fast (give the nominal rate for CAN FD frames without bit rate switching)"
+            )
     if args.trace is not None:
         check_trace_output(args.trace)
     db = load_database(args.dbc)
@@ -344,8 +400,8 @@ def restbus_command(args: argparse.Namespace) -> int:
     if args.interface is None:
         from stack.bus.sim import SimBus
 
-        bus = SimBus(args.bitrate or 500_000, seed=args.seed, record=bool(args.trace))
-        rb = RestBus(db, bus, dut=args.dut, records=False, start=False, default_cycle_ms=args.default_cycle)
+        bus = SimBus(args.bitrate or 500_000, data_bitrate=data_bitrate, seed=args.seed, record=bool(args.trace))
+        rb = _restbus(args, db, bus, records=False)
         checked = _check_something_to_simulate(rb)
         _attach_uds(rb, args.uds, args.vin, info)
         rb.on_record(_count)
@@ -362,12 +418,10 @@ def restbus_command(args: argparse.Namespace) -> int:
                 file=info,
             )
     else:
-        bus = _open_driver(args.interface, args.channel, args.bitrate)
+        bus = _open_driver(args.interface, args.channel, args.bitrate, args.fd, data_bitrate)
         failure: str | None = None
         try:
-            rb = RestBus(
-                db, bus, dut=args.dut, records=bool(args.trace), start=False, default_cycle_ms=args.default_cycle
-            )
+            rb = _restbus(args, db, bus, records=bool(args.trace))
             checked = _check_something_to_simulate(rb)
             _attach_uds(rb, args.uds, args.vin, info)
             sys.stdout.flush()

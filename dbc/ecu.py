@@ -5,6 +5,11 @@ interaction layer (`dbc.interaction`), and decodes every frame of the database i
 It acts only through the node (``send``, ``call_at``, ``now``, ``subscribe``), so the same ECU
 runs on the simulated bus and on a python-can bus.
 
+CAN FD messages (cantools' ``Message.is_fd``, from the DBC's ``VFrameFormat``) go out as FD
+frames, with bit rate switching as the DBC's ``CANFD_BRS`` attribute says (`dbc.transmit.fd_format`)
+and their payload padded to the next CAN FD length; the node must be FD enabled (a bus with a data
+bit rate), else the ECU refuses to be made (`FdNotCarriedError`, naming the message).
+
 Values are physical (scaled) values, or choice names for signals with a value table. Encoding
 and decoding are cantools' ``Message.encode``/``decode``: what goes on the wire is exactly what
 cantools gives for the same values.
@@ -24,9 +29,9 @@ import cantools
 from stack import Frame, NodeAPI, Received
 
 from .checks import checks_from_attributes
-from .errors import ChoiceError, DbcError, SignalRangeError, UnknownNameError, load_database
+from .errors import ChoiceError, DbcError, FdNotCarriedError, SignalRangeError, UnknownNameError, load_database
 from .interaction import MessageTiming, SendType, message_timing
-from .transmit import SignalLimits, TxMessage, frame_id_of, initial_values
+from .transmit import SignalLimits, TxMessage, fd_format, frame_id_of, frame_of_payload, initial_values
 
 __all__ = [
     "Ecu",
@@ -40,6 +45,7 @@ __all__ = [
     "SKIP_KINDS",
     "NO_NODE",
     "senderless",
+    "j1939_pgn",
 ]
 
 #: The DBC's placeholder for "no node" (``Vector__XXX``); an `Ecu` of that name sends the
@@ -52,21 +58,21 @@ def senderless(message: Any) -> bool:
     return all(s == NO_NODE for s in message.senders)
 
 
-#: Why a database message cannot be a CAN 2.0 frame, as `unsupported_reason` names it, in the
+#: Why a database message cannot be a CAN frame, as `unsupported_reason` names it, in the
 #: order messages are summarised.
-SKIP_KINDS = ("CAN FD", "longer than 8 bytes", "container")
+SKIP_KINDS = ("longer than 8 bytes", "longer than 64 bytes", "container")
 
 
 def unsupported_reason(m: Any) -> tuple[str, str] | None:
-    """Why a cantools message cannot be sent or received as a CAN 2.0 frame (a data field of at
-    most 8 bytes, ISO 11898-1 classical frames): (kind, explanation), kind one of `SKIP_KINDS`;
-    None when it can."""
+    """Why a cantools message cannot be sent or received as one CAN frame (ISO 11898-1:2015: a
+    classical frame carries at most 8 data bytes, a CAN FD frame at most 64): (kind,
+    explanation), kind one of `SKIP_KINDS`; None when it can."""
     if m.is_container:
-        return "container", "container message (AUTOSAR): not a CAN 2.0 frame"
-    if m.is_fd:
-        return "CAN FD", f"CAN FD frame ({m.length} byte{'s' if m.length != 1 else ''}): not a CAN 2.0 frame"
-    if m.length > 8:
-        return "longer than 8 bytes", f"{m.length} bytes: a CAN 2.0 frame carries at most 8"
+        return "container", "container message (AUTOSAR): not one CAN frame"
+    if m.is_fd and m.length > 64:
+        return "longer than 64 bytes", f"{m.length} bytes: a CAN FD frame carries at most 64"
+    if not m.is_fd and m.length > 8:
+        return "longer than 8 bytes", f"{m.length} bytes: a classical CAN frame carries at most 8 (CAN FD: 64)"
     return None
 
 
@@ -118,11 +124,12 @@ def node_names(db: cantools.database.can.Database) -> list[str]:
 
 
 class _RxMessage:
-    __slots__ = ("message", "name", "hooks", "values", "decode", "time", "count", "muxed")
+    __slots__ = ("message", "name", "length", "hooks", "values", "decode", "time", "count", "muxed")
 
     def __init__(self, message: Any, hooks: list[Any]) -> None:
         self.message = message
         self.name = message.name
+        self.length = message.length
         self.hooks = hooks
         self.values: dict[str, Any] | None = None
         self.decode = message.decode
@@ -147,8 +154,9 @@ class Ecu:
       cycle time (else they are sent on `send` only). ``name`` may be ``"Vector__XXX"``
       (`NO_NODE`): that ECU sends the messages no node sends.
 
-    Transmitted: every message whose DBC senders include ``name`` (messages longer than 8 bytes
-    — CAN FD — and container messages are listed in ``unsupported`` and skipped). Received:
+    Transmitted: every message whose DBC senders include ``name``, CAN FD messages as FD frames
+    (the node must be FD enabled, else `FdNotCarriedError`); classical messages longer than 8
+    bytes and container messages are listed in ``unsupported`` and skipped. Received:
     every other message of the database, matched by identifier and format (J1939 messages
     also by PGN, any source address). A received frame that fails a check is reported
     (`CheckFailed` to `on_check_failed` callbacks, ``check_failures`` counter) and its values are
@@ -211,7 +219,12 @@ class Ecu:
                 self._rx[m.name] = rx
                 self._rx_by_id[frame_id_of(m)] = rx
                 if m.protocol == "j1939" and m.is_extended_frame:
-                    self._rx_by_pgn.setdefault(_pgn(m.frame_id), rx)
+                    self._rx_by_pgn.setdefault(j1939_pgn(m.frame_id), rx)
+        kind = getattr(node, "fd", "fd")  # a node that does not say (a test's stand-in) is not refused
+        if kind != "fd":
+            fd_tx = next((tx for tx in self._tx.values() if tx.fd), None)
+            if fd_tx is not None:
+                raise FdNotCarriedError(fd_tx.name, getattr(node, "name", "?"), kind, fd_tx.length)
         self._msg_cbs: dict[str, list[Callable[[MessageReceived], Any]]] = {}
         self._sig_cbs: dict[str, dict[str, list[Callable[[SignalChanged], Any]]]] = {}
         self._fail_cbs: list[Callable[[CheckFailed], Any]] = []
@@ -449,8 +462,7 @@ class Ecu:
             if m.name in self.unsupported:
                 raise DbcError(f"message {message} cannot be encoded: {self.unsupported[m.name]}")
             vals = initial_values(self.db, m) if values is None else dict(values)
-            data = m.encode(vals, strict=False)
-            return Frame(m.frame_id, data, extended=bool(m.is_extended_frame))
+            return frame_of_payload(m, m.encode(vals, strict=False), fd_format(self.db, m)[1])
         return tx.preview(values)
 
     def decode_frame(self, frame: Frame) -> tuple[str, dict[str, Any]] | None:
@@ -459,7 +471,7 @@ class Ecu:
         m = self._lookup(frame)
         if m is None:
             return None
-        return m.name, m.decode(frame.data, decode_choices=True, scaling=True)
+        return m.name, m.decode(_payload(frame.data, m.length), decode_choices=True, scaling=True)
 
     def _lookup(self, frame: Frame) -> Any:
         rx = self._rx_by_id.get((frame.can_id, frame.extended))
@@ -469,7 +481,7 @@ class Ecu:
             if tx.can_id == frame.can_id and tx.extended == frame.extended:
                 return tx.message
         if frame.extended and self._rx_by_pgn:
-            rx = self._rx_by_pgn.get(_pgn(frame.can_id))
+            rx = self._rx_by_pgn.get(j1939_pgn(frame.can_id))
             if rx is not None:
                 return rx.message
         return None
@@ -533,13 +545,14 @@ class Ecu:
         if rx is None:
             if not (frame.extended and self._rx_by_pgn):
                 return
-            rx = self._rx_by_pgn.get(_pgn(frame.can_id))
+            rx = self._rx_by_pgn.get(j1939_pgn(frame.can_id))
             if rx is None:
                 return
         if frame.remote:
             return
+        data = frame.data if len(frame.data) <= rx.length else frame.data[: rx.length]
         try:
-            decoded = rx.decode(frame.data)
+            decoded = rx.decode(data)
         except Exception as exc:  # short frame, bad multiplexer value ...
             self._fail(ev.time, rx, "decode", " ".join(str(exc).split()), frame)
             return
@@ -547,7 +560,7 @@ class Ecu:
         if rx.hooks:
             bad = []
             for h in rx.hooks:
-                reason = h.rx(frame.data, decoded)
+                reason = h.rx(data, decoded)
                 if reason is not None:
                     bad.append(reason)
                     self._fail(ev.time, rx, h.name, reason, frame)
@@ -580,13 +593,19 @@ class Ecu:
         return f"<Ecu {self.name} tx={len(self._tx)} rx={len(self._rx)}>"
 
 
-def _pgn(can_id: int) -> int:
-    """J1939 PGN of a 29-bit identifier (PDU1: destination address not part of the PGN)."""
+def j1939_pgn(can_id: int) -> int:
+    """The J1939 parameter group number of a 29-bit identifier (SAE J1939-21): bits 8..25, the
+    PDU specific byte (the destination address) left out when the PDU format is below 240 (PDU1)."""
     pf = (can_id >> 16) & 0xFF
     pgn = (can_id >> 8) & 0x3FFFF
     if pf < 240:
         pgn &= 0x3FF00
     return pgn
+
+
+def _payload(data: bytes, length: int) -> bytes:
+    """A received frame's data without the padding a CAN FD frame adds after the DBC's length."""
+    return data if len(data) <= length else data[:length]
 
 
 def _fmt(x: float) -> str:

@@ -21,6 +21,7 @@ __all__ = [
     "UnknownNameError",
     "SignalRangeError",
     "ChoiceError",
+    "FdNotCarriedError",
     "closest",
     "load_database",
 ]
@@ -65,6 +66,19 @@ class SignalRangeError(DbcError):
 
 class ChoiceError(UnknownNameError):
     """A choice (value table) name the signal does not define."""
+
+
+class FdNotCarriedError(DbcError):
+    """An ECU would send a CAN FD ``message`` from a node that is not FD enabled (a bus without a
+    data bit rate: ISO 11898-1:2015 lets only an FD-enabled controller send FD frames)."""
+
+    def __init__(self, message: str, node: str, kind: str, length: int) -> None:
+        self.message = message
+        self.node = node
+        super().__init__(
+            f"message {message} is a CAN FD frame ({length} bytes) but node {node} is {kind!r}, not FD enabled: "
+            "a bus without a data bit rate carries classical frames only"
+        )
 
 
 def closest(name: str, candidates: Iterable[str], n: int = 3) -> list[str]:

@@ -22,7 +22,7 @@ import cantools
 
 from stack import Frame, Received
 
-from .ecu import NO_NODE, SKIP_KINDS, Ecu, _pgn, node_names, senderless, unsupported_reason
+from .ecu import NO_NODE, SKIP_KINDS, Ecu, j1939_pgn, node_names, senderless, unsupported_reason
 from .errors import UnknownNameError, load_database
 from .interaction import message_timing
 
@@ -55,16 +55,18 @@ class BusRecord:
 
     def as_json(self) -> dict[str, Any]:
         """The record as the JSON object `canstack restbus --json` prints: t (s), sender,
-        name, id (int), extended, data (hex), signals (choice values as names)."""
-        return {
-            "t": self.time / 1e9,
-            "sender": self.sender,
-            "name": self.name,
-            "id": self.frame.can_id,
-            "extended": self.frame.extended,
-            "data": self.frame.data.hex(),
-            "signals": {k: json_value(v) for k, v in self.signals.items()},
-        }
+        name, id (int), extended, for a CAN FD frame fd (true) and brs, data (hex), signals
+        (choice values as names). A classical frame has no fd key (false, as the JSONL frame
+        reader of `stack.phy.waveform` takes it)."""
+        f = self.frame
+        obj: dict[str, Any] = {"t": self.time / 1e9, "sender": self.sender, "name": self.name, "id": f.can_id}
+        obj["extended"] = f.extended
+        if f.fd:
+            obj["fd"] = True
+            obj["brs"] = f.brs
+        obj["data"] = f.data.hex()
+        obj["signals"] = {k: json_value(v) for k, v in self.signals.items()}
+        return obj
 
 
 class RestBus:
@@ -75,7 +77,8 @@ class RestBus:
     ``records`` keeps every `BusRecord` in ``self.records`` (callbacks from `on_record` run
     either way); ``default_cycle_ms`` sends every message the DBC gives neither send type nor
     cycle time with that period, and the messages no node sends (no sender, or ``Vector__XXX``
-    only) from a simulated node ``Vector__XXX``.
+    only) from a simulated node ``Vector__XXX``; ``node_options`` are given to ``bus.node`` for
+    every node made (``{"fd": "fd"}``: FD-enabled controllers on a python-can FD bus).
     """
 
     def __init__(
@@ -90,6 +93,7 @@ class RestBus:
         records: bool = True,
         start: bool = True,
         default_cycle_ms: int | None = None,
+        node_options: Mapping[str, Any] | None = None,
     ) -> None:
         if not isinstance(db, cantools.database.can.Database):
             db = load_database(db)
@@ -109,8 +113,8 @@ class RestBus:
             chosen.append(NO_NODE)
         self.dut = dut
         self.bus = bus
-        #: messages of the database that no node can send or decode on a CAN 2.0 bus:
-        #: name -> kind (one of dbc.ecu.SKIP_KINDS: CAN FD, longer than 8 bytes, container)
+        #: messages of the database that are no CAN frame: name -> kind (one of
+        #: dbc.ecu.SKIP_KINDS: classical and longer than 8 bytes, FD and longer than 64, container)
         self.skipped: dict[str, str] = {}
         for m in db.messages:
             why = unsupported_reason(m)
@@ -118,7 +122,8 @@ class RestBus:
                 self.skipped[m.name] = why[0]
         self.ecus: dict[str, Ecu] = {}
         for n in chosen:
-            self.ecus[n] = Ecu(db, n, bus.node(n), checks=checks, start=False, default_cycle_ms=default_cycle_ms)
+            node = bus.node(n, **(node_options or {}))
+            self.ecus[n] = Ecu(db, n, node, checks=checks, start=False, default_cycle_ms=default_cycle_ms)
         self.keep = records
         self.records: list[BusRecord] = []
         self._callbacks: list[Callable[[BusRecord], Any]] = []
@@ -129,7 +134,7 @@ class RestBus:
             key = (m.frame_id, bool(m.is_extended_frame))
             self._messages[key] = m  # as cantools and the Ecu: the last one of a repeated identifier
             if m.protocol == "j1939" and m.is_extended_frame:
-                self._by_pgn.setdefault(_pgn(m.frame_id), m)
+                self._by_pgn.setdefault(j1939_pgn(m.frame_id), m)
             sim = [s for s in m.senders if s in self.ecus]
             if NO_NODE in self.ecus and senderless(m):
                 self._sender_of[m.name] = NO_NODE
@@ -141,7 +146,7 @@ class RestBus:
                 self._sender_of[m.name] = m.senders[0]
         self.monitor = None
         if monitor:
-            self.monitor = bus.node(MONITOR_NAME)
+            self.monitor = bus.node(MONITOR_NAME, **(node_options or {}))
             self.monitor.subscribe(self._on_frame)
         if start:
             self.start()
@@ -182,13 +187,16 @@ class RestBus:
 
     def skipped_summary(self) -> str | None:
         """One sentence saying how many of the database's messages were skipped and why
-        (``"331 of 331 messages skipped: 331 CAN FD"``); None when none was."""
+        (``"1 of 3 messages skipped: 1 longer than 8 bytes"``); None when none was."""
         if not self.skipped:
             return None
         counts = [(k, sum(1 for v in self.skipped.values() if v == k)) for k in SKIP_KINDS]
         why = ", ".join(f"{n} {k}" for k, n in counts if n)
         total = len(self.db.messages)
-        return f"{len(self.skipped)} of {total} message{'s' if total != 1 else ''} skipped: {why} (a CAN 2.0 bus carries classical frames of at most 8 bytes)"
+        return (
+            f"{len(self.skipped)} of {total} message{'s' if total != 1 else ''} skipped: {why} "
+            "(a classical frame carries at most 8 bytes, a CAN FD frame 64)"
+        )
 
     def start(self) -> None:
         """Start every simulated ECU's interaction layer."""
@@ -217,7 +225,7 @@ class RestBus:
         None if the database does not know it."""
         m = self._messages.get((frame.can_id, frame.extended))
         if m is None and frame.extended and self._by_pgn:
-            m = self._by_pgn.get(_pgn(frame.can_id))
+            m = self._by_pgn.get(j1939_pgn(frame.can_id))
         return m
 
     def _on_frame(self, ev: Received) -> None:
@@ -225,8 +233,8 @@ class RestBus:
         m = self.lookup(f)
         signals: Mapping[str, Any] = {}
         if m is not None and not f.remote:
-            try:
-                signals = m.decode(f.data, decode_choices=True, scaling=True)
+            try:  # without the padding after the DBC's length (a CAN FD frame's)
+                signals = m.decode(f.data[: m.length], decode_choices=True, scaling=True)
             except Exception:
                 signals = {}
         if m is None:

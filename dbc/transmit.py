@@ -17,17 +17,74 @@ from typing import Any
 import cantools
 
 from stack import Frame, QueueFull
+from stack.wire.frame import FD_LENGTHS, pad_to_fd_length
 
-from .interaction import MessageTiming, signal_timing
+from .interaction import MessageTiming, attribute, signal_timing
 from .multiplex import multiplexer_names, page_of, pages, select_defined_page
 
-__all__ = ["TxMessage", "SignalLimits", "initial_values", "frame_id_of"]
+__all__ = [
+    "TxMessage",
+    "SignalLimits",
+    "initial_values",
+    "frame_id_of",
+    "fd_format",
+    "frame_of_payload",
+    "BRS_ATTRIBUTE",
+    "DEFAULT_BRS",
+    "FD_PADDING",
+]
+
+#: The message attribute Vector's CANdb++ gives CAN FD messages for bit rate switching: an ENUM
+#: "0","1" (cantools writes the same definition when it saves an FD database).
+BRS_ATTRIBUTE = "CANFD_BRS"
+
+#: Bit rate switching of a CAN FD message whose DBC does not say (no ``CANFD_BRS`` attribute and
+#: no default for it): on, the default of CANdb++'s ``CANFD_BRS`` definition ("1").
+DEFAULT_BRS = True
+
+#: The byte that pads a CAN FD payload the DBC gives a length between two CAN FD lengths (10
+#: bytes go out as 12): ISO 11898-1 leaves the value open; AUTOSAR's CanIf padding default is 0.
+FD_PADDING = 0x00
+
+_TRUE_WORDS = {"1", "true", "yes", "on"}
+_FALSE_WORDS = {"0", "false", "no", "off"}
 
 
 def frame_id_of(message: Any) -> tuple[int, bool]:
     """(identifier, extended) of a cantools message as it goes on the wire: the DBC's frame
     id, 29-bit when the DBC marks the message extended (J1939 messages included)."""
     return message.frame_id, bool(message.is_extended_frame)
+
+
+def fd_format(db: Any, message: Any) -> tuple[bool, bool]:
+    """(fd, brs) of a cantools message: ``fd`` as cantools reads it (``Message.is_fd``, from the
+    DBC's ``VFrameFormat`` StandardCAN_FD or ExtendedCAN_FD); ``brs`` from the message's
+    ``CANFD_BRS`` attribute ("1"/"0", or its ``BA_DEF_DEF_`` default), `DEFAULT_BRS` when the DBC
+    has neither; always False for a classical message (BRS exists in CAN FD frames only)."""
+    if not message.is_fd:
+        return False, False
+    value = attribute(db, message, BRS_ATTRIBUTE)
+    word = str(value).strip().lower() if value is not None else ""
+    if word in _TRUE_WORDS:
+        return True, True
+    if word in _FALSE_WORDS:
+        return True, False
+    return True, DEFAULT_BRS
+
+
+def frame_of_payload(message: Any, data: bytes, brs: bool) -> Frame:
+    """The frame carrying a message's encoded payload: a classical frame, or for a CAN FD message
+    an FD frame whose data is the payload padded with `FD_PADDING` to the next CAN FD length
+    (the DLC's size: a 10-byte message goes out in a 12-byte frame, DLC 9)."""
+    can_id, extended = frame_id_of(message)
+    if not message.is_fd:
+        return Frame(can_id, data, extended=extended)
+    if len(data) not in _FD_LENGTH_SET:
+        data = pad_to_fd_length(data, FD_PADDING)
+    return Frame(can_id, data, extended=extended, fd=True, brs=brs)
+
+
+_FD_LENGTH_SET = frozenset(FD_LENGTHS)
 
 
 def initial_values(db: cantools.database.can.Database, message: Any) -> dict[str, Any]:
@@ -84,6 +141,7 @@ class TxMessage:
         self.timing = timing
         self.can_id, self.extended = frame_id_of(message)
         self.length = message.length
+        self.fd, self.brs = fd_format(db, message)
         self.values = initial_values(db, message)
         self.signals = {s.name: s for s in message.signals}
         self.sig_timing = {s.name: signal_timing(db, s) for s in message.signals}
@@ -133,7 +191,7 @@ class TxMessage:
         data = self.encode(values, strict=False)
         for h in self.data_hooks:
             data = h.tx_data(data)
-        f = Frame(self.can_id, data, extended=self.extended)
+        f = frame_of_payload(self.message, data, self.brs)
         if not self.hooks:
             self.frame = f
         return f
@@ -155,7 +213,7 @@ class TxMessage:
         data = self.encode(vals, strict=False)
         for h in self.data_hooks:
             data = copy.copy(h).tx_data(data)
-        return Frame(self.can_id, data, extended=self.extended)
+        return frame_of_payload(self.message, data, self.brs)
 
     def next_page(self) -> None:
         """Select the page of the next transmission (rotation): the multiplexers' values of

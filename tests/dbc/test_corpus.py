@@ -205,7 +205,8 @@ def test_restbus_runs_every_loadable_file(corpus):
     for path, db in ok:
         nodes = [n.name for n in db.nodes] + [s for m in db.messages for s in m.senders]
         expected = set(nodes) - {"Vector__XXX"}
-        bus = SimBus(500_000)
+        # a database with CAN FD messages needs an FD bus (its ECUs are refused on a classical one)
+        bus = SimBus(500_000, data_bitrate=2_000_000 if any(m.is_fd for m in db.messages) else None)
         rb = RestBus(db, bus)
         assert sorted(rb.ecus) == sorted(expected), path.name
         bus.run(until=100 * MS)
@@ -213,15 +214,16 @@ def test_restbus_runs_every_loadable_file(corpus):
         for rec in rb.records:
             m = by_name[rec.name]
             assert rec.sender in m.senders, (path.name, rec.name, rec.sender)
-            assert rec.signals == m.decode(rec.frame.data), (path.name, rec.name)
+            assert rec.frame.fd == m.is_fd, (path.name, rec.name)
+            assert rec.signals == m.decode(rec.frame.data[: m.length]), (path.name, rec.name)
         # every periodic message (a cantools cycle time of at most 100 ms, a periodic send type or
-        # none, no start delay; CAN 2.0, not FD) of a simulated node goes out in the first 100 ms
+        # none, no start delay; a CAN frame: classical up to 8 bytes, FD up to 64) of a simulated
+        # node goes out in the first 100 ms
         periodic = {
             m.name
             for m in db.messages
             if set(m.senders) & expected
-            and m.length <= 8
-            and not m.is_fd
+            and m.length <= (64 if m.is_fd else 8)
             and not m.is_container
             and m.cycle_time
             and m.cycle_time <= 100

@@ -1,6 +1,6 @@
-"""`canstack restbus` says which database messages a CAN 2.0 bus cannot carry (CAN FD, longer
-than 8 bytes, containers), refuses a database with nothing left to simulate, prints its lines
-on stdout as `demo` does, and stops cleanly on Ctrl-C."""
+"""`canstack restbus` refuses a CAN FD message on a bus without FD by name, runs it on an FD bus
+(--data-bitrate), says which messages are no CAN frame (classical and longer than 8 bytes,
+containers), prints its lines on stdout as `demo` does, and stops cleanly on Ctrl-C."""
 
 from __future__ import annotations
 
@@ -16,12 +16,10 @@ import pytest
 import dbc.cli as restbus_cli
 import stack.cli as cli
 
-SHARED = Path(os.environ.get("CANSTACK_SHARED") or Path(__file__).resolve().parents[3] / "shared")
 DATA = Path(__file__).resolve().parent / "data"
-FD_ONLY = str(DATA / "fd_only.dbc")  # RadarObjects (12 bytes, FD), RadarStatus (8 bytes, FD)
+FD_ONLY = str(DATA / "fd_only.dbc")  # RadarObjects (12 bytes, FD, 10 ms), RadarStatus (8 bytes, FD, 100 ms)
 MIXED = str(DATA / "mixed.dbc")  # RadarObjects (FD), RadarStatus (classical, 100 ms), BodyLong (12 bytes, classical)
 SAMPLE = str(Path(__file__).resolve().parents[2] / "dbc" / "databases" / "powertrain_body.dbc")
-FORD = SHARED / "corpus" / "dbc" / "opendbc" / "ford_lincoln_base_pt.dbc"
 
 
 def run(capsys, *argv):
@@ -30,40 +28,44 @@ def run(capsys, *argv):
     return code, out, err
 
 
-def test_database_of_fd_messages_only_is_refused_with_the_reason(capsys):
+def test_fd_message_on_a_bus_without_fd_is_refused_by_name(capsys):
     code, out, err = run(capsys, "restbus", FD_ONLY, "--duration", "1")
     assert code == 2 and out == "" and err.count("\n") == 1
     assert err == (
-        f"canstack: error: {FD_ONLY}: nothing to simulate: 2 of 2 messages skipped: 2 CAN FD "
-        "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n"
+        f"canstack: error: {FD_ONLY}: message RadarObjects is a CAN FD frame and the bus carries classical "
+        "frames only: give --data-bitrate D (e.g. 2000000) for a CAN FD bus\n"
     )
+
+
+def test_database_of_fd_messages_runs_on_an_fd_bus(capsys):
+    code, out, err = run(capsys, "restbus", FD_ONLY, "--duration", "1", "--data-bitrate", "2000000")
+    assert code == 0 and err == ""
+    assert re.search(r"Radar +RadarObjects +100 +10\.00", out) and re.search(r"Radar +RadarStatus +10 +100\.00", out)
+    assert "simulated: Radar, Fusion; 110 frames on the bus in 1 s\n" in out
 
 
 @pytest.mark.parametrize("json_mode", [False, True])
-def test_skipped_messages_are_counted_by_reason(capsys, json_mode):
-    code, out, err = run(capsys, "restbus", MIXED, "--duration", "1", *(["--json"] if json_mode else []))
+def test_classical_messages_longer_than_8_bytes_are_still_skipped(capsys, json_mode):
+    code, out, err = run(
+        capsys, "restbus", MIXED, "--duration", "1", "--data-bitrate", "2000000", *(["--json"] if json_mode else [])
+    )
     assert code == 0
     assert err == (
-        f"canstack: warning: {MIXED}: 2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes "
-        "(a CAN 2.0 bus carries classical frames of at most 8 bytes)\n"
+        f"canstack: warning: {MIXED}: 1 of 3 messages skipped: 1 longer than 8 bytes "
+        "(a classical frame carries at most 8 bytes, a CAN FD frame 64)\n"
     )
     if json_mode:
         rows = [json.loads(line) for line in out.splitlines()]
-        assert {r["name"] for r in rows} == {"RadarStatus"} and len(rows) == 10  # 100 ms for 1 s
+        assert {r["name"] for r in rows} == {"RadarStatus", "RadarObjects"} and len(rows) == 110
+        objects = [r for r in rows if r["name"] == "RadarObjects"]
+        # FD frames carry fd and brs (no CANFD_BRS in the DBC: on), classical ones no fd key
+        assert all(r["fd"] is True and r["brs"] is True and len(r["data"]) == 24 for r in objects)
+        assert all("fd" not in r for r in rows if r["name"] == "RadarStatus")
     else:
         assert re.search(r"Radar +RadarStatus +10 +100\.00", out)
-        # the text summary says it too
         assert (
-            "simulated: Radar, Fusion, Body; 10 frames on the bus in 1 s; "
-            "2 of 3 messages skipped: 1 CAN FD, 1 longer than 8 bytes\n"
+            "simulated: Radar, Fusion, Body; 110 frames on the bus in 1 s; 1 of 3 messages skipped: 1 longer than 8 bytes\n"
         ) in out
-
-
-@pytest.mark.skipif(not FORD.is_file(), reason="../shared/corpus not present")
-def test_opendbc_ford_every_message_is_fd(capsys):
-    code, out, err = run(capsys, "restbus", str(FORD), "--duration", "1")
-    assert code == 2 and err.count("\n") == 1
-    assert "nothing to simulate: 331 of 331 messages skipped: 331 CAN FD" in err
 
 
 def test_text_lines_on_stdout_json_info_on_stderr(capsys, tmp_path):
