@@ -8,11 +8,17 @@ its identifier, length and period; ``GenMsgStartDelayTime`` becomes the offset. 
 the period unless the message has the ``CanstackDeadline`` attribute (ms). Every node queues by
 priority, the controller model the response-time analysis assumes.
 
-What a CAN 2.0 scenario cannot hold is left out, each with a comment line in the file and a line
-on stderr: CAN FD frames and messages longer than 8 bytes (the scenario format carries classical
-frames only), containers, and messages sent only on request or spontaneously (no period). A
-message with several senders is given to the first (one sender per identifier on a bus). The bit
-rate is ``--bitrate``, else the database's ``Baudrate`` attribute, else 500 kbit/s.
+CAN FD messages (cantools' ``Message.is_fd``) become FD messages of the scenario: ``fd = true``,
+``brs`` from the DBC's ``CANFD_BRS`` (`dbc.transmit.fd_format`) and ``length`` in bytes, the DBC's
+length padded to the next CAN FD length as the ECUs send it; classical messages keep ``dlc``. A
+database with FD messages makes the bus a CAN FD bus: ``[bus] data_bitrate`` is ``--data-bitrate``,
+else `DEFAULT_DATA_BITRATE` with a note.
+
+What a scenario cannot hold is left out, each with a comment line in the file and a line on
+stderr: classical messages longer than 8 bytes, containers, and messages sent only on request or
+spontaneously (no period). A message with several senders is given to the first (one sender per
+identifier on a bus). The bit rate is ``--bitrate``, else the database's ``Baudrate`` attribute,
+else 500 kbit/s.
 
 ``canstack scenario from-dbc`` (`dbc.scenario_cli`) reads the text back with the pipeline's own
 reader before it writes it, so a file it writes is one ``canstack experiment`` runs.
@@ -24,13 +30,21 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from stack.wire.frame import FD_LENGTHS
+
 from .ecu import NO_NODE, senderless, unsupported_reason
 from .errors import DbcError
 from .interaction import attribute, message_timing
+from .transmit import fd_format
 
-__all__ = ["ScenarioText", "scenario_from_dbc", "DEFAULT_BITRATE"]
+__all__ = ["ScenarioText", "scenario_from_dbc", "DEFAULT_BITRATE", "DEFAULT_DATA_BITRATE"]
 
 DEFAULT_BITRATE = 500_000
+
+#: ``[bus] data_bitrate`` of a scenario from a database with CAN FD messages when no
+#: ``--data-bitrate`` is given: 2 Mbit/s, the rate ISO 11898-2:2016 transceivers are first
+#: specified for.
+DEFAULT_DATA_BITRATE = 2_000_000
 
 
 @dataclass
@@ -65,17 +79,20 @@ def scenario_from_dbc(
     duration: float = 1.0,
     seed: int = 0,
     default_cycle_ms: int | None = None,
+    data_bitrate: int | None = None,
 ) -> ScenarioText:
     """The scenario of a cantools database (see the module docstring); ``default_cycle_ms`` is
     the period of the messages the DBC gives neither send type nor cycle time (as
-    ``canstack restbus --default-cycle``). `DbcError` when no message is sent periodically."""
+    ``canstack restbus --default-cycle``), ``data_bitrate`` the CAN FD data phase's bit/s (None:
+    `DEFAULT_DATA_BITRATE` when the database has FD messages, else a classical bus). `DbcError`
+    when no message is sent periodically, or the data bit rate is below the bit rate."""
     nodes: dict[str, list[str]] = {}
     notes: list[str] = []
-    count = defaulted = 0
+    count = defaulted = fd_count = 0
     for m in db.messages:
         why = unsupported_reason(m)
         if why is not None:
-            notes.append(f"{m.name}: left out: {why[1]} (the scenario format carries CAN 2.0 frames)")
+            notes.append(f"{m.name}: left out: {why[1]}")
             continue
         t = message_timing(db, m)
         if t.on_request_only and default_cycle_ms is not None:
@@ -99,7 +116,15 @@ def scenario_from_dbc(
         ]
         if m.is_extended_frame:
             lines.append("extended = true")
-        lines += [f"dlc = {m.length}", f"period_ms = {_number(period)}"]
+        fd, brs = fd_format(db, m)
+        if fd:
+            fd_count += 1
+            length = next(n for n in FD_LENGTHS if n >= m.length)
+            padded = f"  # {m.length} bytes in the DBC, padded" if length != m.length else ""
+            lines += ["fd = true", f"brs = {'true' if brs else 'false'}", f"length = {length}{padded}"]
+        else:
+            lines.append(f"dlc = {m.length}")
+        lines.append(f"period_ms = {_number(period)}")
         if t.start_delay:
             lines.append(f"offset_ms = {_number(t.start_delay)}  # GenMsgStartDelayTime")
         deadline = attribute(db, m, "CanstackDeadline")
@@ -123,18 +148,28 @@ def scenario_from_dbc(
             f"{defaulted} message{'s' if defaulted != 1 else ''} without send type or cycle time in the DBC: "
             f"every {default_cycle_ms} ms (--default-cycle)",
         )
+    nominal = _bitrate(db, bitrate)
+    bus = ["", "[bus]", f"bitrate = {nominal}"]
+    if fd_count or data_bitrate is not None:
+        if data_bitrate is None:
+            data_bitrate = DEFAULT_DATA_BITRATE
+            notes.insert(
+                0,
+                f"{fd_count} CAN FD message{'s' if fd_count != 1 else ''}: a CAN FD bus with a data phase at "
+                f"{data_bitrate} bit/s (give --data-bitrate for another)",
+            )
+        if data_bitrate < nominal:
+            raise DbcError(
+                f"data bit rate {data_bitrate} is below the bit rate {nominal}: a CAN FD data phase is at least as "
+                "fast as the arbitration phase"
+            )
+        bus.append(f"data_bitrate = {data_bitrate}")
     head = [
         f"# A scenario from the network description {source}, written by canstack scenario from-dbc:",
         "# one node per sending ECU, one message per cyclic message; deadlines are the periods.",
     ]
     head += [f"# {n}" for n in notes]
-    body = [
-        "",
-        "[bus]",
-        f"bitrate = {_bitrate(db, bitrate)}",
-        f"duration = {_number(duration)}",
-        f"seed = {seed}",
-    ]
+    body = [*bus, f"duration = {_number(duration)}", f"seed = {seed}"]
     for name, msgs in nodes.items():
         body += ["", "[[nodes]]", f"name = {json.dumps(name)}", 'queue = "priority"']
         for text in msgs:

@@ -7,7 +7,7 @@ import argparse
 import sys
 from typing import Any
 
-from stack.cli import parse_bitrate
+from stack.cli import parse_bitrate, parse_data_bitrate
 
 from .cli import positive_ms
 from .errors import load_database
@@ -24,11 +24,18 @@ def register_from_dbc(tools: Any) -> None:
         help="write a scenario from a DBC: one node per sender, one message per cyclic message",
         description="Write the scenario of a network description: one node per sending ECU, one message per "
         "cyclic or cyclic-if-active message with its identifier, length and period (deadline = period unless "
-        "the DBC's CanstackDeadline says otherwise). Messages a CAN 2.0 scenario cannot hold are left out with a "
-        "note.",
+        "the DBC's CanstackDeadline says otherwise); CAN FD messages as FD messages (fd, brs, length) on a CAN FD "
+        "bus. Messages a scenario cannot hold are left out with a note.",
     )
     p.add_argument("dbc", metavar="DBC", help="the database (DBC, or anything cantools loads)")
     p.add_argument("--bitrate", type=parse_bitrate, default=None, help="bit/s (default: the DBC's Baudrate, or 500000)")
+    p.add_argument(
+        "--data-bitrate",
+        type=parse_data_bitrate,
+        default=None,
+        metavar="D",
+        help="[bus] data_bitrate, the CAN FD data phase's bit/s (default: 2000000 when the DBC has CAN FD messages)",
+    )
     p.add_argument("--duration", type=_duration, default=1.0, metavar="S", help="simulated seconds (default 1)")
     p.add_argument(
         "--default-cycle",
@@ -58,7 +65,12 @@ def _from_dbc(args: argparse.Namespace) -> int:
     db = load_database(args.dbc)
     validate_database(db, args.dbc)
     sc = scenario_from_dbc(
-        db, args.dbc, bitrate=args.bitrate, duration=args.duration, default_cycle_ms=args.default_cycle
+        db,
+        args.dbc,
+        bitrate=args.bitrate,
+        duration=args.duration,
+        default_cycle_ms=args.default_cycle,
+        data_bitrate=args.data_bitrate,
     )
     _check_readable(sc.text, args.out or "<stdout>")
     for note in sc.notes:
