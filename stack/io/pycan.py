@@ -4,7 +4,9 @@ Each `CanstackBus` is a node with its own software controller on a simulated bus
 real time (`stack.io.runner.RealTimeRunner`: virtual ns = wall ns since the bus started), so a
 frame arrives after its real wire time, contending frames are arbitrated bit by bit and
 acknowledged by the other nodes. The node's engine side is a `stack.io.port.Port` (in process)
-or a `stack.io.serve.RemotePort` (a served bus); this module is the python-can plugin only.
+or a `stack.io.serve.RemotePort` (a served bus); this module is the python-can plugin only:
+messages and frames are converted in `stack.io.pycan_frames`, channels read in
+`stack.io.pycan_channel`, received frames wait in a `stack.io.pycan_inbox.Inbox`.
 
 Channel forms:
 
@@ -20,22 +22,17 @@ queued frames, see `CanstackBus`); a failed one-shot transmission arrives at the
 ``recv`` as an error frame with SocketCAN's error classes; ``bus.state = can.BusState.PASSIVE``
 makes the node listen-only at run time (``ACTIVE`` undoes it).
 
-The interface is registered under the python-can entry point group ``can.interface`` by the
-installed distribution; importing this module also registers it in python-can's table, so a
-checkout that is not installed works too.
+python-can finds the interface through the ``can.interface`` entry point of the installed
+distribution (``pip install -e .`` in a checkout); importing this module changes nothing in
+python-can.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import queue
-import re
-import threading
-import time
-import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import can
 from can.broadcastmanager import (
@@ -45,11 +42,13 @@ from can.broadcastmanager import (
 )
 
 from stack.controller.confinement import BUS_OFF, PASSIVE, ErrorState
-from stack.io.discovery import local_servers
 from stack.io.errors import BusLost
 from stack.io.message import to_message
 from stack.io.port import NODE_OPTIONS, Port, check_filters
-from stack.io.runner import BUS_NAME_RE, DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
+from stack.io.pycan_channel import PrivateBusWarning, parse_channel, warn_if_served
+from stack.io.pycan_frames import InvalidFrame, error_frame_of, frame_of
+from stack.io.pycan_inbox import Inbox, config_value
+from stack.io.runner import DEFAULT_BITRATE, RealTimeRunner, acquire_runner, release_runner, running_buses
 from stack.io.serve.client import RemotePort
 from stack.wire.frame import Frame
 
@@ -59,7 +58,6 @@ __all__ = [
     "CanstackCyclicTask",
     "InvalidFrame",
     "PrivateBusWarning",
-    "register_interface",
     "running_buses",
     "frame_of",
     "error_frame_of",
@@ -67,321 +65,9 @@ __all__ = [
 
 LOG = logging.getLogger("stack.io.pycan")
 
-_BOOL_OPTIONS = ("abort", "listen_only", "one_shot", "receive_own_messages", "ignore_rx_error_frames", "fd")
-_BOOL_WORDS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
 _PASSED_TO_EVERY_INTERFACE = ("app_name", "serial", "poll_interval", "single_handle")
 
 
-class InvalidFrame(can.CanOperationError):
-    """A message python-can accepts but the bus does not carry (an FD message on a bus opened
-    without ``fd=True``, more than 8 bytes in a classical frame, an error frame)."""
-
-
-class PrivateBusWarning(UserWarning):
-    """A plain channel name opened a bus private to this process while a ``canstack serve`` runs
-    on this machine: the served bus may have been meant."""
-
-
-def register_interface() -> None:
-    """Make ``interface="canstack"`` known to python-can in this process.
-
-    The installed distribution registers it through the ``can.interface`` entry point; this adds
-    it to python-can's tables for a checkout that is not installed (idempotent).
-    """
-    import can.interfaces
-    import can.util
-
-    can.interfaces.BACKENDS.setdefault("canstack", ("stack.io.pycan", "CanstackBus"))
-    for mod in (can.interfaces, can.util, can):
-        valid = getattr(mod, "VALID_INTERFACES", None)
-        if valid is not None and "canstack" not in valid:
-            mod.VALID_INTERFACES = frozenset(valid | {"canstack"})
-
-
-# ---------------------------------------------------------------------------------- frames
-_FRAME_CACHE: dict[tuple[int, bool, bool, int, bytes, bool, bool, bool], Frame] = {}
-
-
-def frame_of(msg: can.Message, fd: bool = False) -> Frame:
-    """The frame of a message, or `InvalidFrame` naming why it is none: an FD message needs a
-    bus opened with ``fd=True`` (``fd``), as python-can's other FD-capable interfaces refuse it.
-
-    Frames are cached by content: computing a frame's stuffed bits costs ~37 us, and a node
-    usually sends the same few frames again and again (a dictionary hit is ~0.3 us).
-    """
-    if msg.is_fd and not fd:
-        raise InvalidFrame("cannot send a CAN FD message on a canstack bus opened without fd=True")
-    if msg.is_error_frame:
-        raise InvalidFrame("an error frame cannot be sent: the controller signals errors itself")
-    data = bytes(msg.data) if msg.data is not None else b""
-    if not msg.is_fd and (len(data) > 8 or msg.dlc > 8):
-        raise InvalidFrame(f"message with {max(len(data), msg.dlc)} bytes refused: a CAN 2.0 frame carries at most 8")
-    key = (
-        msg.arbitration_id,
-        bool(msg.is_extended_id),
-        bool(msg.is_remote_frame),
-        msg.dlc,
-        data,
-        bool(msg.is_fd),
-        bool(msg.bitrate_switch),
-        bool(msg.error_state_indicator),
-    )
-    f = _FRAME_CACHE.get(key)
-    if f is None:
-        try:
-            f = Frame.from_message(msg)
-        except ValueError as exc:
-            raise InvalidFrame(str(exc)) from None
-        f.bits  # noqa: B018 - computed here, on the sender's thread, not on the runner's
-        if len(_FRAME_CACHE) > 8192:
-            _FRAME_CACHE.clear()
-        _FRAME_CACHE[key] = f
-    return f
-
-
-# SocketCAN's error classes and details (linux/can/error.h), so that code written for SocketCAN
-# reads a failed one-shot transmission the same way here
-CAN_ERR_LOSTARB, CAN_ERR_PROT, CAN_ERR_ACK, CAN_ERR_BUSERROR, CAN_ERR_CNT = 0x002, 0x008, 0x020, 0x080, 0x200
-CAN_ERR_PROT_BIT, CAN_ERR_PROT_FORM, CAN_ERR_PROT_STUFF, CAN_ERR_PROT_TX = 0x01, 0x02, 0x04, 0x80
-CAN_ERR_PROT_LOC_CRC_SEQ, CAN_ERR_PROT_LOC_ACK = 0x08, 0x19
-_PROT_TYPE = {
-    "bit": CAN_ERR_PROT_BIT,
-    "form": CAN_ERR_PROT_FORM,
-    "stuff": CAN_ERR_PROT_STUFF,
-    "stuff-arbitration": CAN_ERR_PROT_STUFF,
-}
-
-
-def error_frame_of(reason: str, tec: int, rec: int, timestamp: float, channel: Any = None) -> can.Message:
-    """The error frame SocketCAN delivers for a failed transmission, from the engine's reason
-    ('arbitration lost (one-shot)', 'ack error (one-shot)', 'crc error (one-shot)', ...).
-
-    ``arbitration_id`` holds the error classes (as python-can shows a SocketCAN error frame):
-    CAN_ERR_LOSTARB (data[0] 0: bit unknown) for a lost arbitration; CAN_ERR_ACK with
-    CAN_ERR_PROT location ACK slot for a missing acknowledgement; CAN_ERR_PROT with the
-    protocol-violation type (bit, form, stuff; location CRC sequence for a CRC error) and
-    CAN_ERR_PROT_TX for other errors; always CAN_ERR_CNT with TEC in data[6] and REC in data[7].
-    """
-    data = bytearray(8)
-    kind = reason.split(" ", 1)[0].lower()
-    if reason.startswith("arbitration lost"):
-        classes = CAN_ERR_LOSTARB
-    elif kind == "ack":
-        classes = CAN_ERR_ACK | CAN_ERR_PROT | CAN_ERR_BUSERROR
-        data[2] = CAN_ERR_PROT_TX
-        data[3] = CAN_ERR_PROT_LOC_ACK
-    else:
-        classes = CAN_ERR_PROT | CAN_ERR_BUSERROR
-        data[2] = _PROT_TYPE.get(kind, 0) | CAN_ERR_PROT_TX
-        if kind == "crc":
-            data[3] = CAN_ERR_PROT_LOC_CRC_SEQ
-    data[6] = min(tec, 255)
-    data[7] = min(rec, 255)
-    return can.Message(
-        timestamp=timestamp,
-        arbitration_id=classes | CAN_ERR_CNT,
-        is_extended_id=False,
-        is_error_frame=True,
-        dlc=8,
-        data=bytes(data),
-        channel=channel,
-        check=False,
-    )
-
-
-# ---------------------------------------------------------------------------------- channels
-def _is_socket(path: str) -> bool:
-    import stat
-
-    try:
-        return stat.S_ISSOCK(os.stat(path).st_mode)
-    except OSError:
-        return False
-
-
-def _parse_channel(channel: Any) -> tuple[str, str, Any]:
-    """('local', name, None) | ('tcp', name, (host, port)) | ('unix', name, path)."""
-    if not isinstance(channel, str) or not channel:
-        raise can.CanInitializationError(
-            f"canstack channel {channel!r}: give a bus name like 'bus0', 'tcp://127.0.0.1:PORT/bus0' "
-            "or 'unix:///path/to/socket/bus0'"
-        )
-    if "://" not in channel:
-        if not BUS_NAME_RE.match(channel):
-            raise can.CanInitializationError(
-                f"canstack channel {channel!r}: a bus name is 1..64 of A-Z a-z 0-9 _ . - ; "
-                "or use tcp://HOST:PORT/NAME or unix:///PATH/NAME"
-            )
-        return "local", channel, None
-    scheme, rest = channel.split("://", 1)
-    if scheme == "tcp":
-        m = re.match(r"^(\[[^\]]+\]|[^:/]+):(\d{1,5})/([A-Za-z0-9_.\-]{1,64})$", rest)
-        if not m:
-            raise can.CanInitializationError(f"canstack channel {channel!r}: expected tcp://HOST:PORT/NAME")
-        host = m.group(1).strip("[]")
-        port = int(m.group(2))
-        if not 0 < port < 65536:
-            raise can.CanInitializationError(f"canstack channel {channel!r}: port {port} out of range")
-        return "tcp", m.group(3), (host, port)
-    if scheme == "unix":
-        if _is_socket(rest):
-            raise can.CanInitializationError(
-                f"canstack channel {channel!r}: {rest} is the socket itself; add the bus name: unix://{rest}/NAME"
-            )
-        path, _, name = rest.rpartition("/")
-        if not path.startswith("/") or not BUS_NAME_RE.match(name):
-            raise can.CanInitializationError(
-                f"canstack channel {channel!r}: expected unix:///ABSOLUTE/SOCKET/PATH/NAME"
-            )
-        return "unix", name, path
-    raise can.CanInitializationError(
-        f"canstack channel {channel!r}: unknown form {scheme + '://'!r}; use a bus name, tcp:// or unix://"
-    )
-
-
-_warned_private = False
-_warn_lock = threading.Lock()
-
-
-def _warn_if_served(name: str) -> None:
-    """Warn once per process when a plain-named (private) bus opens while a `canstack serve`
-    runs on this machine: two processes on "bus0" silently see nothing of each other."""
-    global _warned_private
-    if _warned_private:
-        return
-    servers = local_servers()
-    if not servers:
-        return
-    with _warn_lock:
-        if _warned_private:
-            return
-        _warned_private = True
-    same = [s for s in servers if s["bus"] == name] or servers
-    url = same[0]["url"]
-    warnings.warn(
-        f"canstack channel {name!r} is a bus private to this process (other processes do not see it); "
-        f"canstack serve is running on this machine: to share its bus use channel={url!r}",
-        PrivateBusWarning,
-        stacklevel=4,
-    )
-
-
-# ---------------------------------------------------------------------------------- the inbox
-class _Inbox:
-    """The python-can side of a port (a `stack.io.port.PortOwner`): received frames wait in a
-    queue for ``recv``, transmit credits in a counter, the node's state in attributes.
-
-    A credit is one frame in the controller's transmit queue: ``send`` takes one, the port's
-    ``tx_finished`` gives it back, so ``send`` waits for room as on a real controller, and
-    ``shutdown`` knows how many frames are still to go out.
-    """
-
-    def __init__(self, rx_fifo_size: int, credits: int, error_frames: bool, fd: bool = False) -> None:
-        self.rxq: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self.fd = fd  # False: FD frames on the bus are not shown (a CAN 2.0 socket of an FD controller)
-        self.rx_fifo_size = rx_fifo_size
-        self.rx_overruns = 0
-        self.error_frames = error_frames
-        self.state = ErrorState.ACTIVE
-        self.tec = 0
-        self.rec = 0
-        self.last_tx_error: str | None = None
-        self.lost_reason: str | None = None
-        self.size = credits
-        self.free = credits
-        self.cond = threading.Condition()
-
-    # PortOwner (runner or socket thread)
-    def deliver(self, t_ns: int, frame: Frame, is_rx: bool) -> None:
-        """Queue a received frame for ``recv`` (counted as an overrun when the FIFO is full)."""
-        if frame.fd and not self.fd:
-            return
-        if self.rxq.qsize() >= self.rx_fifo_size:
-            self.rx_overruns += 1
-            return
-        self.rxq.put((t_ns, frame, is_rx))
-
-    def tx_finished(self, error: str | None) -> None:
-        """Give a transmit credit back; remember why the frame was not sent, if it was not."""
-        if error is not None:
-            self.last_tx_error = error
-        with self.cond:
-            self.free += 1
-            self.cond.notify_all()
-
-    def tx_error(self, t_ns: int, reason: str, tec: int, rec: int) -> None:
-        """Queue the error frame of a failed one-shot transmission for ``recv``."""
-        self.last_tx_error = reason
-        if self.error_frames and self.rxq.qsize() < self.rx_fifo_size:
-            self.rxq.put((t_ns, None, (reason, tec, rec)))
-
-    def set_state(self, state: ErrorState, tec: int, rec: int) -> None:
-        """Mirror the node's fault-confinement state."""
-        self.state = state
-        self.tec = tec
-        self.rec = rec
-
-    def lost(self, reason: str) -> None:
-        """The bus is gone: wake ``recv``."""
-        self.lost_reason = reason
-        self.rxq.put(None)
-
-    # caller threads
-    def take(self, timeout: float | None) -> bool:
-        """Take a transmit credit, waiting up to ``timeout`` s (None: forever)."""
-        with self.cond:
-            if self.free > 0:
-                self.free -= 1
-                return True
-            if timeout is not None and timeout <= 0:
-                return False
-            if not self.cond.wait_for(lambda: self.free > 0, timeout):
-                return False
-            self.free -= 1
-            return True
-
-    def drain(self, can_drain: Callable[[], bool], timeout: float) -> int:
-        """Wait for every credit to come back, as long as frames keep going out: up to
-        ``timeout`` s for each next one, and only while ``can_drain()``. Returns the frames
-        still queued (0: all went out, or failed for reasons of their own)."""
-        last = -1
-        deadline = 0.0
-        while True:
-            # asked outside the lock: the answer comes from the runner thread, which needs the
-            # lock to give credits back
-            if not can_drain():
-                return self.size - self.free
-            with self.cond:
-                if self.free >= self.size:
-                    return 0
-                if self.free != last:  # progress: a frame completed
-                    last = self.free
-                    deadline = time.monotonic() + timeout
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return self.size - self.free
-                self.cond.wait(min(remaining, 0.05))
-                if self.free >= self.size:
-                    return 0
-
-
-def _config_value(key: str, value: Any) -> Any:
-    """python-can config files give every option as a string: read flags and counts."""
-    if not isinstance(value, str):
-        return value
-    if key in _BOOL_OPTIONS and value.lower() in _BOOL_WORDS:
-        return _BOOL_WORDS[value.lower()]
-    if key in ("mailboxes", "tx_queue_size", "rx_fifo_size") and value.strip().isdigit():
-        return int(value)
-    if key == "flush_timeout":
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
-
-
-# ---------------------------------------------------------------------------------- the bus
 class CanstackBus(can.BusABC):
     """A node with a software CAN controller on a canstack simulated bus (real time).
 
@@ -430,7 +116,7 @@ class CanstackBus(can.BusABC):
         **kwargs: Any,
     ) -> None:
         opts = {
-            k: _config_value(k, v)
+            k: config_value(k, v)
             for k, v in dict(
                 kwargs,
                 receive_own_messages=receive_own_messages,
@@ -450,14 +136,14 @@ class CanstackBus(can.BusABC):
             filters = check_filters(can_filters)
         except ValueError as exc:
             raise can.CanInitializationError(f"can_filters: {exc}") from None
-        kind, name, addr = _parse_channel(channel)
+        kind, name, addr = parse_channel(channel)
         self.channel = channel
         self.channel_info = f"canstack {channel}"
         self.receive_own_messages = bool(opts["receive_own_messages"])
         self.rx_fifo_size: int = opts["rx_fifo_size"]
         self.flush_timeout: float = opts["flush_timeout"]
         self._listen_only = bool(config.get("listen_only", False))
-        self._inbox = _Inbox(
+        self._inbox = Inbox(
             self.rx_fifo_size,
             config.get("tx_queue_size", 1024),
             error_frames=not opts["ignore_rx_error_frames"],
@@ -469,7 +155,8 @@ class CanstackBus(can.BusABC):
         self.data_bitrate: int | None = getattr(self._port, "data_bitrate", None) if fd else None
         self.node_name = self._port.node_name
         try:
-            super().__init__(channel, can_filters=filters)
+            # check_filters gave python-can's own filter dicts back, checked
+            super().__init__(channel, can_filters=cast("can.typechecking.CanFilters | None", filters))
         except BaseException:
             self._leave()
             raise
@@ -559,7 +246,7 @@ class CanstackBus(can.BusABC):
                 fd=self.fd,
                 data_bitrate=data_bitrate,
             )
-        _warn_if_served(name)
+        warn_if_served(name)
         runner = acquire_runner(name, bitrate, data_bitrate, fd=self.fd)
         try:
             port = Port(
@@ -651,8 +338,9 @@ class CanstackBus(can.BusABC):
             return None, True
         t_ns, frame, extra = item
         timestamp = self._port.timestamp(t_ns)
-        if frame is None:  # a failed one-shot transmission
-            return error_frame_of(*extra, timestamp=timestamp, channel=self.channel), True
+        if frame is None:  # a failed one-shot transmission: (reason, TEC, REC)
+            reason, tec, rec = extra
+            return error_frame_of(reason, tec, rec, timestamp=timestamp, channel=self.channel), True
         msg = to_message(frame, timestamp=timestamp, channel=self.channel)
         msg.is_rx = extra
         return msg, True
@@ -783,6 +471,3 @@ class CanstackCyclicTask(ModifiableCyclicTaskABC, RestartableCyclicTaskABC, Limi
         if self._task is not None:
             self.bus._port.stop_periodic(self._task)
             self._task = None
-
-
-register_interface()

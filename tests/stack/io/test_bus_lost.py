@@ -9,7 +9,6 @@ import time
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from stack.controller.node import Node
 from stack.io.driver import RECV_FAILURES_LOST, RETRY_NS, PyCanDriver
 from stack.io.errors import BusLost

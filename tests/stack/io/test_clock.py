@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from stack.io.clock import ClockOffset
 from stack.io.serve import BusServer
 from stack.wire.frame import Frame

@@ -215,7 +215,6 @@ def test_received_times_are_the_buses_timestamps():
     # on a canstack python-can bus every frame is stamped with its wire end time: two
     # back-to-back 8-byte frames at 500 kbit/s arrive one frame time apart (stuffed length +
     # 3 bits of intermission), whatever the reader thread's wake-ups
-    import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 
     ch = f"drvts{os.getpid()}"
     frame = Frame(0x123, bytes(8))

@@ -1,13 +1,8 @@
 """CAN FD at the python-can boundary: the `canstack` interface's ``fd``/``data_bitrate``, FD
 messages refused on a bus opened without ``fd=True`` (as python-can's udp_multicast refuses them),
 the served protocol's version 2 and its FD flags, and `PyCanDriver` sending and receiving FD
-frames on python-can's virtual bus.
+frames on python-can's virtual bus."""
 
-The cases that need the simulated bus to carry FD frames run when its engine takes a data bit
-rate (`SimBus(data_bitrate=...)`); until then a bus opened with ``fd=True`` is refused in one line
-that says so, which is tested instead."""
-
-import inspect
 import json
 import os
 import socket
@@ -16,8 +11,6 @@ import time
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
-from stack.bus.sim import SimBus
 from stack.controller.node import Node
 from stack.io.driver import PyCanDriver
 from stack.io.pycan import InvalidFrame
@@ -26,9 +19,6 @@ from stack.io.serve.protocol import Reader
 from stack.wire.frame import Frame
 
 pytestmark = pytest.mark.wallclock
-
-FD_ENGINE = "data_bitrate" in inspect.signature(SimBus).parameters
-needs_fd_engine = pytest.mark.skipif(not FD_ENGINE, reason="the simulated bus carries no CAN FD frames yet")
 
 
 def _fd_msg(n=64, **kw):
@@ -44,13 +34,6 @@ def test_an_fd_message_on_a_bus_opened_without_fd_is_refused():
             bus.send_periodic(_fd_msg(8), 0.01)
 
 
-@pytest.mark.skipif(FD_ENGINE, reason="the simulated bus carries CAN FD: fd=True is taken")
-def test_fd_true_says_in_one_line_that_the_engine_has_no_fd_yet():
-    with pytest.raises(can.CanInitializationError, match=r"carries CAN 2\.0 frames only") as exc:
-        can.Bus(interface="canstack", channel=f"fd{os.getpid()}", fd=True)
-    assert "\n" not in str(exc.value)
-
-
 def test_timing_and_data_bitrate_need_fd():
     with pytest.raises(can.CanInitializationError, match="open the bus with fd=True"):
         can.Bus(interface="canstack", channel=f"dbr{os.getpid()}", data_bitrate=2_000_000)
@@ -61,7 +44,6 @@ def test_timing_and_data_bitrate_need_fd():
         can.Bus(interface="canstack", channel=f"tim{os.getpid()}", timing=fd_timing)
 
 
-@needs_fd_engine
 def test_fd_messages_go_both_ways_in_process(drain):
     ch = f"fdbus{os.getpid()}"
     with (
@@ -85,7 +67,6 @@ def test_fd_messages_go_both_ways_in_process(drain):
         assert [(m.arbitration_id, m.is_fd) for m in drain(classic, 1, timeout=30.0)] == [(0x7, False)]
 
 
-@needs_fd_engine
 @pytest.mark.socket
 def test_fd_messages_go_both_ways_through_serve(drain):
     with (

@@ -295,7 +295,7 @@ def runtime_dir(tmp_path, monkeypatch):
     d = tmp_path / "run"
     d.mkdir()
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(d))
-    monkeypatch.setattr(pycan, "_warned_private", False)  # a fresh process, as far as the warning goes
+    monkeypatch.setattr("stack.io.pycan_channel._warned_private", False)  # a fresh process, for the warning
     return d
 
 

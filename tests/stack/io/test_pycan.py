@@ -6,6 +6,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -13,7 +14,6 @@ from pathlib import Path
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack" when the package is not installed)
 from stack.io.pycan import CanstackBus, CanstackCyclicTask, InvalidFrame, running_buses
 from stack.io.runner import get_runner
 from stack.wire.coding import INTERMISSION_BITS
@@ -480,3 +480,25 @@ def test_config_file_strings_for_flags_are_read():
             bus.send(can.Message(arbitration_id=1, is_extended_id=False))
     finally:
         bus.shutdown()
+
+
+@pytest.mark.subprocess
+def test_interface_found_through_the_entry_point_alone(tmp_path):
+    """python-can finds ``interface="canstack"`` through the installed distribution's
+    ``can.interface`` entry point alone, in a fresh process that never imported stack.io.pycan
+    (nothing patches python-can's tables at import any more), FD messages included."""
+    code = (
+        "import importlib.metadata, sys, can, can.interfaces\n"
+        "eps = {e.name: e.value for e in importlib.metadata.entry_points(group='can.interface')}\n"
+        "assert eps.get('canstack') == 'stack.io.pycan:CanstackBus', eps\n"
+        "assert 'stack.io.pycan' not in sys.modules\n"
+        "a = can.Bus(interface='canstack', channel='ep', fd=True)\n"
+        "b = can.Bus(interface='canstack', channel='ep', fd=True)\n"
+        "a.send(can.Message(arbitration_id=0x12, data=bytes(range(20)), is_fd=True, bitrate_switch=True))\n"
+        "m = b.recv(10)\n"
+        "a.shutdown(); b.shutdown()\n"
+        "print(type(a).__module__, m.is_fd, m.bitrate_switch, len(m.data))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["stack.io.pycan", "True", "True", "20"]

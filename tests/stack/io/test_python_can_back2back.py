@@ -8,14 +8,12 @@ once with::
     pip download --no-binary :all: --no-deps python-can==VERSION -d ~/.cache/canstack
 
 (or point ``CANSTACK_PYTHON_CAN_SDIST`` at it); without it these tests are skipped, saying so.
-Its CAN FD cases need a simulated bus that carries FD frames: until the engine takes a data bit
-rate they are skipped and the classical cases run with ``fd=False``.
+The buses are opened with ``fd=True``, so the CAN FD cases run too.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import inspect
 import os
 import sys
 import tarfile
@@ -26,14 +24,10 @@ from types import ModuleType
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
-from stack.bus.sim import SimBus
-
 pytestmark = pytest.mark.wallclock
 
 VERSION = can.__version__
 CACHE = Path.home() / ".cache" / "canstack"
-FD_ENGINE = "data_bitrate" in inspect.signature(SimBus).parameters
 
 
 def _sdist() -> Path | None:
@@ -81,7 +75,7 @@ if SDIST is None:
 with warnings.catch_warnings():  # its pytest.mark.timeout needs pytest-timeout, a plugin not used here
     warnings.simplefilter("ignore", pytest.PytestUnknownMarkWarning)
     b2b = _load(SDIST)
-b2b.TEST_CAN_FD = FD_ENGINE  # the buses are opened with fd=TEST_CAN_FD
+b2b.TEST_CAN_FD = True  # the buses are opened with fd=TEST_CAN_FD: the FD cases run
 
 
 class TestCanstackBackToBack(b2b.Back2BackTestCase):  # type: ignore[name-defined,misc]
@@ -92,8 +86,6 @@ class TestCanstackBackToBack(b2b.Back2BackTestCase):  # type: ignore[name-define
     TIMEOUT = 2.0  # a loaded machine is slow, not wrong: recv returns as soon as the frame is there
 
     def setUp(self) -> None:
-        if self._testMethodName.startswith("test_fd_") and not FD_ENGINE:
-            self.skipTest("the simulated bus carries no CAN FD frames yet")
         if self._testMethodName == "test_timestamp":
             self.skipTest("asserts a 2 s sleep within 250 ms: a timed assertion, not run here")
         super().setUp()

@@ -18,7 +18,6 @@ from pathlib import Path
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from stack.cli import CliError
 from stack.cli.serve import register
 from stack.io.serve import BYE, ERROR, FILTERS, HELLO, SEND, TXEND, WELCOME, BusServer, encode_message

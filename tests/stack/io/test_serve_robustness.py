@@ -14,7 +14,6 @@ from pathlib import Path
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from stack.io.serve import BusServer
 from stack.io.serve import server as server_module
 from stack.io.serve.protocol import ERROR, Reader
