@@ -27,6 +27,7 @@ from typing import Any
 import cantools
 
 from stack import Frame, NodeAPI, Received
+from stack.controller.node import FD
 
 from .checks import checks_from_attributes
 from .errors import ChoiceError, DbcError, FdNotCarriedError, SignalRangeError, UnknownNameError, load_database
@@ -220,8 +221,8 @@ class Ecu:
                 self._rx_by_id[frame_id_of(m)] = rx
                 if m.protocol == "j1939" and m.is_extended_frame:
                     self._rx_by_pgn.setdefault(j1939_pgn(m.frame_id), rx)
-        kind = getattr(node, "fd", "fd")  # a node that does not say (a test's stand-in) is not refused
-        if kind != "fd":
+        kind = getattr(node, "fd", FD)  # a node that does not say (a test's stand-in) is not refused
+        if kind != FD:
             fd_tx = next((tx for tx in self._tx.values() if tx.fd), None)
             if fd_tx is not None:
                 raise FdNotCarriedError(fd_tx.name, getattr(node, "name", "?"), kind, fd_tx.length)
@@ -550,7 +551,7 @@ class Ecu:
                 return
         if frame.remote:
             return
-        data = frame.data if len(frame.data) <= rx.length else frame.data[: rx.length]
+        data = _payload(frame.data, rx.length)
         try:
             decoded = rx.decode(data)
         except Exception as exc:  # short frame, bad multiplexer value ...
