@@ -122,3 +122,19 @@ def test_python_can_bus_without_fd_is_refused_naming_the_message(capsys):
     )
     assert code == 2 and err.count("\n") == 1
     assert "message CameraObjects is a CAN FD frame and the bus carries classical frames only: give --fd or" in err
+
+
+def test_fd_alone_runs_the_simulated_bus_at_2_mbit_data_rate(capsys):
+    code, out, err = run(capsys, "restbus", FD_ECUS, "--fd", "--duration", "0.05", "--json")
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.splitlines()]
+    status = [r for r in rows if r["name"] == "CameraStatus"]
+    objects = [r for r in rows if r["name"] == "CameraObjects"]
+    # CameraStatus: CANFD_BRS "0"; CameraObjects: the definition's default "1"
+    assert status and all(r["fd"] is True and r["brs"] is False for r in status)
+    assert len(objects) == 5 and all(r["fd"] is True and r["brs"] is True for r in objects)
+    # the same bus as --data-bitrate 2000000, frame for frame and ns for ns; another data rate
+    # changes the times of the frames with BRS
+    assert run(capsys, "restbus", FD_ECUS, "--data-bitrate", "2000000", "--duration", "0.05", "--json")[1] == out
+    slower = run(capsys, "restbus", FD_ECUS, "--data-bitrate", "1000000", "--duration", "0.05", "--json")[1]
+    assert [json.loads(line)["t"] for line in slower.splitlines()] != [r["t"] for r in rows]
