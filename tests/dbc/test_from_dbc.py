@@ -14,7 +14,7 @@ import stack.cli as cli
 from dbc import load_database
 from dbc.errors import DbcError
 from dbc.scenario import scenario_from_dbc
-from profiles.pipeline.scenario import BUS_KEYS, load_scenario
+from profiles.pipeline.scenario import load_scenario
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -29,11 +29,6 @@ FD_ECUS = Path(__file__).resolve().parent / "data" / "fd_ecus.dbc"
 
 # ISO 11898-1:2015, table 5: the data lengths a CAN FD DLC codes
 ISO_FD_LENGTHS = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
-
-#: whether the experiment pipeline's scenario reader knows the CAN FD keys (data_bitrate, fd, brs,
-#: length): they come with branch fdexp; a scenario with FD messages is read back only then
-FD_PARSER = "data_bitrate" in BUS_KEYS
-needs_fd_parser = pytest.mark.skipif(not FD_PARSER, reason="the scenario reader has no CAN FD keys yet (fdexp)")
 
 
 def run(capsys, *argv):
@@ -167,8 +162,6 @@ def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_p
     period) or is refused in one line; the two largest run as experiments."""
     written = []
     for path in CORPUS:
-        if not FD_PARSER and _has_fd(path):
-            continue
         out_file = tmp_path / f"{path.parent.name}-{path.stem}.toml"
         code, out, err = run(capsys, "scenario", "from-dbc", path, "--out", out_file, "--default-cycle", "100")
         if code == 2:
@@ -186,13 +179,6 @@ def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_p
         code, out, err = run(capsys, "experiment", out_file)
         assert code in (0, 1), err  # 1: the analysis finds a message unschedulable
         assert "RTA" in out
-
-
-def _has_fd(path: Path) -> bool:
-    try:
-        return any(m.is_fd for m in cantools.database.load_file(str(path), strict=False).messages)
-    except Exception:  # a file cantools refuses: from-dbc refuses it too, in one line
-        return False
 
 
 def _toml_messages(text: str) -> dict:
@@ -243,9 +229,10 @@ def test_ford_fd_database_gives_every_cyclic_message():
     assert all(w["fd"] is True and w["brs"] is True for w in msgs.values())  # no CANFD_BRS: on
 
 
-@needs_fd_parser
 @pytest.mark.skipif(not FORD.is_file(), reason="../shared/corpus not present")
 def test_ford_scenario_runs_as_an_experiment(capsys, tmp_path):
+    """End to end: the opendbc Ford DBC (all CAN FD) through from-dbc into canstack experiment,
+    the simulation and the response-time analysis on a 500 k / 2 M CAN FD bus."""
     out_file = tmp_path / "ford.toml"
     code, out, err = run(capsys, "scenario", "from-dbc", FORD, "--data-bitrate", "2000000", "--out", out_file)
     assert code == 0, err
