@@ -271,6 +271,25 @@ def _message_lines(messages: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+_NODE_COLUMNS = (
+    ("tx", "tx_frames"), ("rx", "rx_frames"), ("rx overruns", "rx_overruns"),
+    ("arb lost", "arbitration_lost"), ("retransmissions", "retransmissions"), ("tx failed", "tx_failed"),
+    ("TEC", "txerr"), ("REC", "rxerr"),
+)  # fmt: skip
+
+
+def _node_lines(nodes: dict[str, dict[str, Any]]) -> list[str]:
+    """The controllers' counters of the JSON's ``nodes``, one row per node: frames sent and
+    received, receive FIFO overruns, arbitrations lost, retransmissions, requests given up, and
+    the error counters (TEC, REC) at the end of the run; a counter the JSON adds is a column too."""
+    known = {key for _, key in _NODE_COLUMNS}
+    extra = sorted({k for c in nodes.values() for k in c} - known)
+    headers = ["node"] + [h for h, _ in _NODE_COLUMNS] + extra
+    keys = [key for _, key in _NODE_COLUMNS] + extra
+    rows = [[name] + ["-" if c.get(k) is None else c[k] for k in keys] for name, c in nodes.items()]
+    return table(headers, rows, left=1, widest={0: 16})
+
+
 def _rate(bitrate: int) -> str:
     return f"{bitrate / 1e6:g} Mbit/s" if bitrate >= 1_000_000 else f"{bitrate // 1000} kbit/s"
 
@@ -323,6 +342,13 @@ def format_table(result_json: dict[str, Any]) -> str:
     unsched = [m["name"] for m in r["messages"] if m["schedulable"] is False]
     if unsched:
         lines.append("analysis: not schedulable: " + ", ".join(unsched))
+    if r.get("nodes"):
+        lines.append("")
+        lines.extend(_node_lines(r["nodes"]))
+        lines.append(
+            "controllers at the end of the run: rx counts frames taken into the receive FIFO, rx overruns those "
+            "lost to a full FIFO (a profile that does not read its receptions fills it); TEC/REC the error counters"
+        )
     if r.get("driver_errors"):
         lines.append(f"driver errors: {'; '.join(r['driver_errors'])}")
     return "\n".join(lines)

@@ -183,6 +183,29 @@ def test_the_text_shows_every_figure_of_the_messages(capsys):
         assert str(m["released"]) in cells and f"{m['release_response_max_ms']:.3f}" in cells
 
 
+def test_the_text_shows_every_controller_counter_of_the_json(capsys):
+    """The JSON's ``nodes`` (each controller's counters) are a table in the text too: one row per
+    node, each counter under its column; the frames the nodes sent add up to the bus's count in
+    the first line."""
+    path = str(EXAMPLES / "body_network.toml")
+    rc, out, _ = _main(capsys, "experiment", path, "--json")
+    nodes = json.loads(out)["nodes"]
+    rc, text, _ = _main(capsys, "experiment", path)
+    lines = text.splitlines()
+    header = next(line for line in lines if line.startswith("node ") and " TEC " in line)
+    columns = {"tx": "tx_frames", "rx": "rx_frames", "rx overruns": "rx_overruns", "arb lost": "arbitration_lost",
+               "retransmissions": "retransmissions", "tx failed": "tx_failed", "TEC": "txerr", "REC": "rxerr"}  # fmt: skip
+    for name, counters in nodes.items():
+        row = next(line for line in lines if line.startswith(name + " ") and "0x" not in line)
+        for column, key in columns.items():
+            end = header.index(f" {column} " if column != "REC" else " REC") + 1 + len(column)
+            # right-aligned: the cell under a header ends where the header ends
+            assert row[:end].split()[-1] == str(counters[key]), (name, column)
+        assert len(row.split()) == 1 + len(counters), name
+    frames = int(re.search(r", (\d+) frames,", lines[0]).group(1))
+    assert sum(c["tx_frames"] for c in nodes.values()) == frames
+
+
 def test_tdma_and_master_slave_sections_in_the_text(capsys):
     rc, text, _ = _main(capsys, "experiment", str(EXAMPLES / "tdma.toml"))
     assert "2 master switches" in text and "1 late" in text
