@@ -111,8 +111,6 @@ def canopen_command(args: argparse.Namespace) -> int:
     # would log about it (no DeviceInfo section, ...) is one warning naming the file
     load_od(args.eds, args.node_id, warn=lambda w: print(f"canstack: warning: {w}", file=sys.stderr))
     app = None if args.app is None else load_app(args.app)
-    if args.interface == "canstack":
-        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     kw: dict[str, Any] = {} if args.bitrate is None else {"bitrate": args.bitrate}
     try:
         bus = can.Bus(interface=args.interface, channel=args.channel, receive_own_messages=True, **kw)

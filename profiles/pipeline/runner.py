@@ -401,8 +401,6 @@ def run_on_pycan(
             f"{scenario.source}: [[faults]] need the simulated bus (fault injection is a simulation "
             "feature); remove them to run on a python-can bus"
         )
-    if interface == "canstack":
-        import stack.io.pycan  # noqa: F401  (registers the interface when canstack is not installed)
     bus_kwargs.setdefault("bitrate", scenario.bitrate)
     if scenario.data_bitrate is not None:  # a CAN FD bus: python-can's fd=True with its data phase
         bus_kwargs.setdefault("fd", True)

@@ -461,8 +461,6 @@ def run_demo_on_bus(interface: str, channel: str, duration_s: float, **kwargs: A
     if duration_s <= 0:
         raise ValueError(f"duration {duration_s}: must be > 0 seconds")
     pace = kwargs.pop("pace_bitrate", None)
-    if interface == "canstack":
-        from stack.io import pycan  # noqa: F401  (registers the interface when not installed)
     try:
         monitor = can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, NotImplementedError) as exc:

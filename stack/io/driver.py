@@ -51,7 +51,7 @@ import can
 
 from stack.controller.confinement import BUS_OFF, BUS_OFF_LIMIT, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS
 from stack.controller.contract import Timer
-from stack.controller.node import Node
+from stack.controller.node import FD, Node
 from stack.controller.queues import QUEUED
 from stack.io.clock import clock_pair
 from stack.io.errors import BusLost
@@ -129,6 +129,9 @@ class PyCanDriver:
         # have a known length in time
         self._brs_rate = dbr
         self.data_bitrate: int | None = dbr or (rate if fd else None)
+        # python-can's fd=True says the bus carries CAN FD even when its rates are set outside the
+        # program (SocketCAN's `ip link`): the nodes `node` makes on it are FD enabled then too
+        self.carries_fd = fd or dbr is not None
         self.capabilities = frozenset(
             {"bus-time", "one-shot", "latest-start", "error-frames"} | ({"sof-estimate"} if rate else set())
         )
@@ -157,7 +160,11 @@ class PyCanDriver:
 
     # ------------------------------------------------------------------ nodes
     def node(self, name: str, *, can_bus: can.BusABC | None = None, **config: Any) -> Node:
-        """Create a `Node` (``config`` as for `Node`) on its own python-can connection."""
+        """Create a `Node` (``config`` as for `Node`) on its own python-can connection; on a bus
+        opened for CAN FD (python-can's ``fd=True``) it is FD enabled unless ``fd`` says otherwise,
+        whether or not the driver knows the bit rates."""
+        if self.carries_fd:
+            config.setdefault("fd", FD)
         return self.add(Node(name, **config), can_bus)
 
     def add(self, node: Node, can_bus: can.BusABC | None = None) -> Node:

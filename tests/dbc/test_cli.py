@@ -108,7 +108,6 @@ def test_same_restbus_on_a_python_can_bus(capsys, rerun_until):
 def test_bitrate_is_passed_to_the_python_can_bus(capsys):
     """A canstack bus already running at 250 kbit/s refuses nodes joining at another rate, so
     a restbus with --bitrate 125000 must fail and one with 250000 must run."""
-    import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 
     keeper = can.Bus(interface="canstack", channel="dbc-cli-bitrate", bitrate=250_000)
     try:

@@ -28,7 +28,6 @@ def test_udsoncan_reads_vin_and_signal_from_restbus_over_serve():
     from udsoncan.client import Client
     from udsoncan.connections import PythonIsoTpConnection
 
-    import stack.io.pycan  # noqa: F401  (registers interface="canstack")
     from stack.io.serve import BusServer
 
     server = BusServer(500_000, listen=("127.0.0.1", 0))

@@ -13,7 +13,6 @@ import canopen
 import pytest
 
 import stack.cli as cli
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from profiles.canopen.dictionary import DEFAULT_EDS
 from stack.io.serve import BusServer
 

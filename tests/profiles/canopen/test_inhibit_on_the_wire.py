@@ -17,7 +17,6 @@ import time
 import can
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from profiles.canopen import CanopenDevice
 from stack.io.driver import PyCanDriver
 from stack.io.serve import BusServer

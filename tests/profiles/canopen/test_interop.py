@@ -29,7 +29,6 @@ from pathlib import Path
 import canopen
 import pytest
 
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from profiles.canopen import CanopenDevice, CanopenMaster
 from profiles.canopen.dictionary import DEFAULT_EDS
 from stack.io.driver import PyCanDriver

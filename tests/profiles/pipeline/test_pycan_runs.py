@@ -14,7 +14,6 @@ import can
 import pytest
 
 import stack.cli as cli
-import stack.io.pycan  # noqa: F401  (registers interface="canstack")
 from profiles.pipeline.runner import run_on_pycan
 from profiles.pipeline.scenario import parse_scenario
 from stack.io.serve import BusServer

@@ -128,15 +128,16 @@ def test_the_driver_sends_and_receives_fd_frames_on_a_virtual_bus():
     assert [(e.frame.fd, e.frame.esi, e.frame.data) for e in got] == [(True, True, bytes(range(20)))]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="stack/io/driver.py: fd=True without bitrate or data_bitrate leaves data_bitrate None, so the "
-    "driver's nodes are CAN 2.0 controllers that refuse FD frames (restbus --fd works around it)",
-)
 def test_a_driver_opened_with_fd_true_alone_has_fd_nodes():
     # python-can's fd=True is the bus's word that it carries CAN FD (SocketCAN's rates are set by
     # `ip link`, not by the program): the nodes on it are FD enabled, as the driver's docs say
-    with PyCanDriver(interface="virtual", channel=f"fdalone{os.getpid()}", fd=True) as driver:
+    channel = f"fdalone{os.getpid()}"
+    with (
+        can.Bus(interface="virtual", channel=channel, fd=True) as peer,
+        PyCanDriver(interface="virtual", channel=channel, fd=True) as driver,
+    ):
         node = driver.node("a")
-        assert node.fd == "fd"
-        node.send(Frame(0x10, bytes(12), fd=True))
+        assert node.fd == "fd" and driver.node("b", fd="classic").fd == "classic"
+        node.send(Frame(0x10, bytes(range(12)), fd=True))
+        m = peer.recv(5.0)
+    assert m is not None and (m.arbitration_id, bytes(m.data), m.is_fd) == (0x10, bytes(range(12)), True)
