@@ -109,7 +109,10 @@ def _check(scenario: Scenario, tables: dict[str, Any]) -> None:
                 if d.options["eds"] is not None:
                     from profiles.canopen.dictionary import load_od
 
-                    load_od(d.options["eds"], nid, warn=lambda w, loc=loc: scenario.warnings.append(f"{loc}: eds: {w}"))
+                    def warn(w: str, loc: str = loc) -> None:
+                        scenario.warnings.append(f"{loc}: eds: {w}")
+
+                    load_od(d.options["eds"], nid, warn=warn)
             else:
                 MasterOptions.parse(d.options["canopen"])
         except ScenarioError:

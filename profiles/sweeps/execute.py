@@ -251,7 +251,7 @@ def _processes(fn: Callable[[Any], dict[str, Any]], tasks: Sequence[Task], worke
     stop = ctx.Event()
     state = ctx.Array("b", max(1, max((t.index for t in tasks), default=0) + 1), lock=False)
     losses: dict[int, int] = {}
-    todo, alone = list(tasks), []
+    todo, alone = list(tasks), list[Task]()
     while todo or alone:
         if alone:
             t = alone.pop(0)

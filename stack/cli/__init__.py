@@ -15,7 +15,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 from stack.wire.frame import id_text
 
@@ -79,7 +79,7 @@ class CliError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse would print usage + message; keep one line
+    def error(self, message: str) -> NoReturn:  # argparse would print usage + message; keep one line
         raise CliError(f"{self.prog}: {message}")
 
 

@@ -84,11 +84,13 @@ def build_fault_demo(bus: SimBus, sample_every: int | None = MS // 2) -> list[tu
     fi.stuck("ecu2", "recessive", start=400 * MS, end=410 * MS)
     samples: list[tuple[int, dict[str, tuple[int, int]]]] = []
 
-    def sample() -> None:
-        samples.append((bus.now(), {e.name: (e.tec, e.rec) for e in ecus}))
-        bus.call_later(sample_every, sample)
-
     if sample_every is not None:
+        every = sample_every
+
+        def sample() -> None:
+            samples.append((bus.now(), {e.name: (e.tec, e.rec) for e in ecus}))
+            bus.call_later(every, sample)
+
         bus.call_at(0, sample)
     return samples
 
@@ -185,8 +187,8 @@ def _demo(args: argparse.Namespace) -> int:
         # the plot's samples: every 0.5 ms, further apart on a long run (at most ~20,000)
         every = max(MS // 2, until // 20_000) if args.plot else None
         samples = build_fault_demo(bus, sample_every=every)
-        for n in bus.nodes:
-            n.listen(ErrorStateChanged, changes.append)
+        for node in bus.nodes:
+            node.listen(ErrorStateChanged, changes.append)
     else:
         build_demo(bus)
     frames: list[tuple[int, Frame]] = []

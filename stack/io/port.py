@@ -270,9 +270,8 @@ class Port:
                 t.stop()
             self._tasks.clear()
             self.runner.remove_port(self)
-            node = self.node
-            if node.bus is self.runner.sim:
-                self.runner.sim.remove(node)
+            if self.node in self.runner.sim.nodes:  # not yet detached (its bus is the runner's)
+                self.runner.sim.remove(self.node)
 
         if not wait:
             self.runner.post(leave)
