@@ -146,7 +146,7 @@ class Window:
         if w > cap:
             return None
         while True:
-            # a plain loop: ~2x the generator sum with a call per term (the analysis of an
+            # a plain loop: faster than a generator sum with a call per term (the analysis of an
             # overloaded FIFO bus evaluates it millions of times)
             nxt = base if errors is None else base + errors(w)
             for a, t, c in terms:

@@ -347,7 +347,7 @@ class ObjectStore:
             raise SdoAbort(code, f"0x{index:04X}:{sub} is {type_name(var.data_type)} ({size} bytes), got {len(data)}")
         validator = self.validators.get(index)
         limited = var.min is not None or var.max is not None
-        if validator is not None or limited:  # decoding costs ~1 us: only when someone looks
+        if validator is not None or limited:  # decoding is not free: only when someone looks
             value = var.decode_raw(data) if size is not None else data
             if limited and var.data_type in datatypes.NUMBER_TYPES and isinstance(value, (int, float)):
                 if var.max is not None and value > var.max:

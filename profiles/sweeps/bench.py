@@ -251,8 +251,8 @@ def benchmark(seconds: float = 3.0) -> dict[str, Any]:
             f"cluster): {p['dask_speedup']:.2f}x, {p['dask_speedup_after_startup']:.2f}x after start-up"
         )
     lines.append(text + " (target >= 1.7)")
-    # runs of 0.25 s simulated (about 14 ms): the machinery costs ~0.5 ms a run (the scenario's own
-    # check, parse_scenario, most of it), so shorter runs would measure the check, not a sweep
+    # runs of 0.25 s simulated: long enough that the machinery (the scenario's own check,
+    # parse_scenario, most of it) is measured beside a run, not alone
     o = sweep_overhead(runs=max(10, round(20 * min(1.0, scale))), seconds=0.25)
     lines.append(
         f"sweep machinery per run ({o['runs']} runs x {o['simulated_s']:g} s): {o['sweep_per_run_s'] * 1e3:.1f} "

@@ -18,9 +18,8 @@ pool as the default; no home-made pool or RPC):
 
 ``auto`` picks: a scheduler → dask; one worker → sequential; more → processes (DESIGN.md: the
 process pool is the default). On one machine the pool is the faster of the two: a LocalCluster
-pays about a second to start fresh interpreters and shares the cores with its scheduler
-(`python -m stack.bench`, 2 cores: 1.93x against 1.16x, 1.56x after start-up); ``dask`` gives a
-LocalCluster on request, with its dashboard.
+starts fresh interpreters and shares the cores with its scheduler (`python -m stack.bench`; the
+figures are on the benchmarks page); ``dask`` gives a LocalCluster on request, with its dashboard.
 
 Ctrl-C keeps what is done: the runs finished so far are returned with ``interrupted``; runs
 under way are abandoned (a run stopped half-way raises KeyboardInterrupt in its worker and is
@@ -368,9 +367,8 @@ def chunks(tasks: Sequence[Task], slots: int) -> list[list[Task]]:
     """The tasks cut into consecutive chunks for ``slots`` worker threads: 4 chunks a slot (so
     the last chunk to finish is a small part of the work, and work stealing can even out runs of
     different lengths), and at most 50 runs a chunk (so the progress bar moves). A Dask task
-    costs about 3 ms of scheduling on a 2-core machine — measured with 150 empty tasks — as much
-    as a fifth of a short run, hence runs in chunks; 4 a slot rather than 16 took the benchmark's
-    sweep from 1.67x to 1.73x after start-up (24 runs, 2 workers)."""
+    costs milliseconds of scheduling, a sizeable part of a short run, hence runs in chunks; 4 a
+    slot did better than 16 in the benchmark's sweep (the benchmarks page has the figures)."""
     n = len(tasks)
     count = min(n, max(4 * max(1, slots), -(-n // 50)))
     size = -(-n // count) if count else 1

@@ -469,8 +469,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         """Arbitrate and complete clean frames back to back, in one loop with local variables,
         while no timer, fault, tie, suspension or special receiver needs the general path.
 
-        Same results as `_arbitrate` + `_complete` (a test compares traces), about 1.5x faster:
-        it saves two method calls, the transmission tuple, a loop turn and the stores of the
+        Same results as `_arbitrate` + `_complete` (a test compares traces), and faster (the
+        benchmarks page has the figure): it saves two method calls, the transmission tuple, a loop turn and the stores of the
         bus's clock and counters per frame (they live in locals until user code may run). Returns the
         number of frames it completed (0: let the general path take this one).
         """
@@ -612,9 +612,8 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
                 else:
                     # Node.confirm's plain case, inlined (a plain request: not one-shot — a one-shot
                     # node is watched, which keeps this loop off — no latest start, no local clock).
-                    # Calling it costs 1 -> 1 frames 14 % and 10 nodes 35 % of the figures of
-                    # `python -m stack.bench` (callgrind, instructions a frame: 1 -> 1 24.5 k ->
-                    # 27.4 k, 10 nodes 27.7 k -> 39.7 k); test_fast_loop_matches_the_general_path_*
+                    # Calling it costs a large share of `python -m stack.bench`'s frame figures
+                    # (measured on the benchmarks page); test_fast_loop_matches_the_general_path_*
                     # guard this copy
                     req.state = SENT
                     req.t_done = end

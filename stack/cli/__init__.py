@@ -194,7 +194,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         mod.register(sub)
-    from importlib.metadata import entry_points  # ~12 ms: only when every command is listed
+    from importlib.metadata import entry_points  # slow to import: only when every command is listed
 
     for ep in sorted(entry_points(group="canstack.commands"), key=lambda e: e.name):
         ep.load()(sub)

@@ -119,7 +119,7 @@ class Driver(Protocol):
     """The bit time of the bus in ns, or None when the driver does not know the bitrate."""
     now_ns: int
     """The current bus time, ns, as `now()` gives it — an attribute a node reads without a call
-    where it pays (`Node.send`, once per frame: 2 % of `python -m stack.bench`'s 1 -> 1); read-only
+    where it pays (`Node.send`, once per frame, on the engine's hot path); read-only
     to nodes (a driver with a live clock makes it a property)."""
     capabilities: frozenset[str]
     seqs: Iterator[int]

@@ -1,7 +1,7 @@
 """Events a node reports to the layers above (h11 style: small immutable values).
 
 They are NamedTuples rather than frozen dataclasses: one is made per received frame on the hot
-path, and a NamedTuple is built about 5x faster (0.15 us against 0.8 us on the bench machine).
+path, and a NamedTuple is built several times faster (the benchmarks page has the figure).
 
 Times are integer nanoseconds on the node's clock: the driver's (virtual in simulation, wall
 clock on a python-can bus), shifted and scaled when the node has a `LocalClock`. ``sof`` is the

@@ -60,7 +60,7 @@ FD_KINDS = (FD, TOLERANT, CLASSIC)
 the decoder of its kind)."""
 
 _EVERY_CAPABILITY = frozenset(CAPABILITIES)
-_new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
+_new_tuple = tuple.__new__  # an event without its Python-level __new__: one call fewer per frame
 _sender = itemgetter(2)  # of a (time, frame, sender) reception
 
 
@@ -321,7 +321,7 @@ class Node(Receiver):
         if bus is None or self._listen_only or self.state is BUS_OFF:
             self._refuse()
         if frame.fd and self._fd != FD and (self._fd is not None or not getattr(bus, "data_bitrate", None)):
-            self._refuse_fd(frame)  # (`fd`, spelt out: a property call per FD frame costs 2 % of the FD bench)
+            self._refuse_fd(frame)  # (`fd`, spelt out: no property call per FD frame on the hot path)
         if one_shot is None and not_after is None and not self._one_shot:
             req = TxRequest(self, frame, next(bus.seqs), bus.now_ns)
         else:

@@ -58,8 +58,8 @@ class RequestState(str, Enum):
         return self.value
 
 
-# module constants: the engine compares states per frame, and a global is ~10x cheaper than an
-# Enum member lookup
+# module constants: the engine compares states per frame, and a global is cheaper than an Enum
+# member lookup (a descriptor call)
 QUEUED = RequestState.QUEUED
 SENT = RequestState.SENT
 FAILED = RequestState.FAILED
@@ -103,7 +103,7 @@ class TxRequest:
     )
 
     # a plain request: the node's mode, no latest start; `SpecialRequest` holds its own (a request
-    # is made per frame sent: three fewer stores here are 6 % of `python -m stack.bench`'s 1 -> 1)
+    # is made per frame sent, so three fewer stores here show in `python -m stack.bench`'s 1 -> 1)
     not_after: int | None = None
     expiry: Any = None  # the driver's timer that withdraws it at not_after
     special = False  # a SpecialRequest: the simulated bus's fast loop reads it (no isinstance call)
@@ -205,7 +205,7 @@ class PriorityQueue(TxQueue):
     """Lowest arbitration key first; FIFO among equal keys.
 
     Kept as a FIFO per arbitration key plus a heap of the keys that have one: queueing and
-    sending a frame of a key already waiting is O(1) deque work, ~3x cheaper than a heap of
+    sending a frame of a key already waiting is O(1) deque work, cheaper than a heap of
     (key, seq, request) tuples (a sender queues many frames of few identifiers). Requests
     taken out from the middle (aborted) stay until they reach the front and are skipped there.
     """

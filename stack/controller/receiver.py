@@ -17,7 +17,7 @@ from stack.wire.frame import Frame
 
 __all__ = ["Receiver", "Subscription"]
 
-_new_tuple = tuple.__new__  # an event without its Python-level __new__: 2x cheaper per frame
+_new_tuple = tuple.__new__  # an event without its Python-level __new__: one call fewer per frame
 _sender = itemgetter(2)  # of a (time, frame, sender) reception
 
 

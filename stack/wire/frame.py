@@ -137,8 +137,8 @@ class Frame:
     ``bits`` (the `FrameBits` on the wire) is computed on first use and kept in the slot
     ``encoded``; ``nbits`` is their number SOF..EOF, 0 until then. The engine's hot path reads
     ``frame.nbits or frame.wire_bits`` and ``frame.encoded or frame.bits``: a plain slot read once the
-    frame is encoded (a property, or a ``__getattr__`` on the class, costs 3x a slot read on every
-    attribute access, measured on CPython 3.11).
+    frame is encoded (a property, or a ``__getattr__`` on the class, would cost a call on every
+    attribute access).
     """
 
     __slots__ = ("can_id", "extended", "remote", "dlc", "data", "key", "fd", "brs", "esi", "encoded", "nbits")
@@ -199,7 +199,7 @@ class Frame:
                 raise ValueError(f"DLC {dlc!r} out of range: must be 0..15")
             if not remote and len(payload) != data_length(dlc):
                 raise ValueError(f"DLC {dlc} means {data_length(dlc)} data bytes, but {len(payload)} were given")
-        # the slots' own setters: 40 % cheaper than object.__setattr__ (Frame is on the hot path)
+        # the slots' own setters: cheaper than object.__setattr__ (Frame is on the hot path)
         s_id, s_ext, s_rtr, s_dlc, s_data, s_key, s_fd, s_brs, s_esi, s_enc, s_nbits = _SETTERS
         s_id(self, can_id)
         s_ext(self, bool(extended))

@@ -388,7 +388,8 @@ def encode_rx(t_ns: int, frame: Frame, own: bool) -> bytes:
 
 class RxDecoder:
     """Decodes RX payloads to (t_ns, frame, is_rx); frames are cached by content, since a bus
-    carries the same few frames again and again (building one costs ~10x a dictionary hit)."""
+    carries the same few frames again and again (building one costs far more than a dictionary
+    hit)."""
 
     def __init__(self) -> None:
         self._cache: dict[bytes, Frame] = {}
