@@ -1,6 +1,6 @@
 """The architecture, checked: the import-linter contracts of pyproject.toml (the layers, and the
 sans-IO core without python-can), no import cycles between modules, and no module importing
-another module's private name."""
+another module's private name or reading a private attribute of another module's object."""
 
 from __future__ import annotations
 
@@ -231,6 +231,96 @@ def test_no_module_imports_a_private_name_of_another():
                     if a.name.startswith("_") and not a.name.startswith("__"):
                         bad.append(f"{m}: from {node.module} import {a.name}")
     assert bad == []
+
+
+# underscored names that are public API: the NamedTuple methods (underscored so as not to clash
+# with fields) and argparse's subparsers type, which has no public name (annotations use it)
+PUBLIC_UNDERSCORED = {"_replace", "_asdict", "_fields", "_field_defaults", "_make"}
+ALLOWED_FOREIGN_READS = {"argparse._SubParsersAction"}
+
+
+def _own_private_names(tree: ast.Module) -> set[str]:
+    """The private names a module defines for its own objects: methods and class attributes,
+    ``self._x`` / ``cls._x`` assignments, class-body annotations and ``__slots__`` entries."""
+    own: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            own.add(node.name)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                own.add(node.attr)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            own.update(t.id for t in targets if isinstance(t, ast.Name))
+            if any(isinstance(t, ast.Name) and t.id == "__slots__" for t in targets) and node.value is not None:
+                own.update(c.value for c in ast.walk(node.value) if isinstance(c, ast.Constant) and isinstance(c.value, str))
+    return {n for n in own if n.startswith("_") and not n.startswith("__")}
+
+
+def _foreign_private_reads(path: Path, rel: str) -> list[str]:
+    """``obj._name`` (read or set) where ``obj`` is not ``self``, ``cls`` or ``super()`` and the
+    module does not define ``_name`` for objects of its own: another module's object's private
+    attribute."""
+    tree = ast.parse(path.read_text())
+    own = _own_private_names(tree)
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Attribute):
+            continue
+        name, base = node.attr, node.value
+        if not name.startswith("_") or name.startswith("__") or name in own or name in PUBLIC_UNDERSCORED:
+            continue
+        if isinstance(base, ast.Name) and base.id in ("self", "cls"):
+            continue
+        if isinstance(base, ast.Call) and isinstance(base.func, ast.Name) and base.func.id == "super":
+            continue
+        if ast.unparse(node) in ALLOWED_FOREIGN_READS:
+            continue
+        found.append(f"{rel}:{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_no_module_reads_a_private_attribute_of_another_modules_object():
+    """What one module needs of another's objects is public (the fault injector drives the
+    simulated bus through `SimBus.attach_faults`, ``idle_at``, ``arbitration_due``, ...)."""
+    found = [f for m, p in _modules().items() for f in _foreign_private_reads(p, m)]
+    assert found == []
+
+
+def test_the_private_read_check_tells_foreign_objects_from_own(tmp_path):
+    src = tmp_path / "m.py"
+    src.write_text(
+        textwrap.dedent(
+            """
+            import argparse
+            from other import Bus
+
+            class Mine:
+                __slots__ = ("_slot",)
+                _flag = False
+
+                def __init__(self, bus: Bus) -> None:
+                    self._state = 0
+                    self.bus = bus
+                    bus._faults = self  # set on a foreign object: as bad as reading it
+
+                def clone(self) -> "Mine":
+                    new = Mine(self.bus)
+                    new._state = self._state  # its own class's attribute: allowed
+                    return new
+
+                def _helper(self, other: "Mine", sub: argparse._SubParsersAction) -> int:
+                    super()._hook()
+                    point = other._replace(x=1)
+                    return other._slot + other._flag + self.bus._tx + self.bus.node._queue
+            """
+        )
+    )
+    assert sorted(_foreign_private_reads(src, "m")) == [
+        "m:12: bus._faults",
+        "m:22: self.bus._tx",
+        "m:22: self.bus.node._queue",
+    ]
 
 
 def test_the_engine_objects_keep_every_field_of_theirs_in_a_slot():

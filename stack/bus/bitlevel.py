@@ -142,6 +142,12 @@ class BitLevelAttempts:
         """Counters of a node in the middle of a bit-level attempt, at a state boundary."""
         node.set_counters(tec, rec, self.now_ns)
 
+    def disturbance(self, now: int, stuck: StuckFaults, deaf: Iterable[Node] = ()) -> None:
+        """Replay an attempt that no node transmits: a stuck-dominant fault starting on an idle
+        bus, which every node reads as a start of frame (``stuck`` and ``deaf`` as in
+        `stack.bus.attempt.simulate_attempt`)."""
+        self._bitlevel(now, (), stuck=stuck, deaf=deaf)
+
     def _complete_bitlevel(self, txs: tuple[TxRequest, ...], start: int, end: int, idle: int, res: Any) -> None:
         """Apply a bit-level attempt: deliveries to the receivers that accepted the frame,
         transmitter outcomes, counter changes (rules 1-8) and the resulting states (9-12)."""

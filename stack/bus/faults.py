@@ -179,10 +179,8 @@ class FaultInjector:
     """Faults for one `SimBus`; create it once per bus (``FaultInjector(bus)``)."""
 
     def __init__(self, bus: SimBus) -> None:
-        if bus._faults is not None:
-            raise ValueError(f"bus {bus.name!r} already has a fault injector")
+        bus.attach_faults(self)
         self.bus = bus
-        bus._faults = self
         self.rng = bus.rng
         self.flips: list[FlipRule] = []
         self._ber_global: float = 0.0
@@ -364,6 +362,13 @@ class FaultInjector:
             n: self._bits_after(now, at, data_phase) for n, at in self._leaves if at <= now + horizon and n.connected
         }
 
+    def unacknowledging(self, now: int) -> set[Node]:
+        """The nodes that cannot drive the ACK slot at ``now`` and from then on: the deaf ones, and
+        transmitters stuck recessive for good (a fault with no end that has started)."""
+        out = set(self._deaf)
+        out.update(s.node for s in self._stuck if s.level == 1 and s.end is None and s.start <= now)
+        return out
+
     def attempt(self, bus: SimBus, now: int, txs: Sequence[TxRequest]) -> dict[str, Any] | None:
         """The faults of one attempt, or None for a clean one (consulted by the engine)."""
         frame = sent_frame(txs[0].frame, txs[0].node.state is PASSIVE)  # the bits on the wire
@@ -424,18 +429,18 @@ class FaultInjector:
         no frame starts then, which would carry it too), it starts an attempt of its own."""
         bus = self.bus
         now = bus.now()
-        if bus._tx is not None:
-            bus.call_at(max(bus._tx_end + bus._ifs_ns, now + 1), self._disturb, ())
+        if bus.transmitting:
+            bus.call_at(max(bus.idle_at, now + 1), self._disturb, ())
             return
         stuck = self._stuck_now(now)
         if not any(spec[0] == 0 for spec in stuck.values()):
             return
-        if now < bus._idle_at:
-            bus.call_at(bus._idle_at, self._disturb, ())  # in the intermission
+        if now < bus.idle_at:
+            bus.call_at(bus.idle_at, self._disturb, ())  # in the intermission
             return
-        if any(bus._valid(e[2]) and e[2].node.ready_at <= now for e in bus._contenders):
+        if bus.arbitration_due(now):
             return  # arbitration starts now and carries the fault
-        bus._bitlevel(now, (), stuck=stuck, deaf=[n for n in self._deaf if n.on_bus])
+        bus.disturbance(now, stuck, deaf=[n for n in self._deaf if n.on_bus])
 
 
 def _add_flip(flips: dict[int, Any], pos: int, nodes: frozenset[Node] | None) -> None:

@@ -261,6 +261,35 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             f"no node named {name!r} on bus {self.name!r}: {', '.join(n.name for n in self.nodes) or 'none'}"
         )
 
+    # -- what a fault injector (stack.bus.faults) works with ------------------------------------
+    @property
+    def faults(self) -> Any:
+        """The `stack.bus.faults.FaultInjector` consulted on every attempt, or None."""
+        return self._faults
+
+    def attach_faults(self, injector: Any) -> None:
+        """Consult ``injector`` on every attempt from now on (``FaultInjector(bus)`` calls this;
+        one a bus): its ``attempt(bus, now, txs)`` says what goes wrong in an attempt, its
+        ``unacknowledging(now)`` which nodes cannot drive the ACK slot."""
+        if self._faults is not None:
+            raise ValueError(f"bus {self.name!r} already has a fault injector")
+        self._faults = injector
+
+    @property
+    def transmitting(self) -> bool:
+        """True while an attempt is on the wire (until its completion has run)."""
+        return self._tx is not None
+
+    @property
+    def idle_at(self) -> int:
+        """When the bus is idle, ns: the end of the intermission after the attempt on the wire, or
+        after the last one (in the past when the bus has been idle since)."""
+        return self._tx_end + self._ifs_ns if self._tx is not None else self._idle_at
+
+    def arbitration_due(self, now: int) -> bool:
+        """True when a node offers a frame it may start at ``now``: an arbitration starts then."""
+        return any(self._valid(e[2]) and e[2].node.ready_at <= now for e in self._contenders)
+
     def disconnect(self, node: Node) -> None:
         """Take a node off the wire: it neither receives, acknowledges nor transmits."""
         self.sync(node)
@@ -692,11 +721,7 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
         pending = [n for n in self.nodes if n.on_bus and n.head is not None]
         if not pending:
             return False
-        deaf: set[Node] = set()
-        if self._faults is not None:
-            deaf |= self._faults._deaf
-            # a transmitter stuck recessive for good cannot drive the ACK slot either
-            deaf |= {s.node for s in self._faults._stuck if s.level == 1 and s.end is None and s.start <= self.now_ns}
+        deaf: set[Node] = self._faults.unacknowledging(self.now_ns) if self._faults is not None else set()
         ackers = [n for n in self.nodes if n.on_bus and not n.listen_only and n not in deaf]
         if self.data_bitrate is None:  # (run() asks each time: kept as cheap as before FD)
             return all(not any(a is not p for a in ackers) for p in pending)

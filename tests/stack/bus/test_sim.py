@@ -511,3 +511,15 @@ def test_fd_attempts_with_can_2_nodes_match_the_bit_level_replay_on_random_netwo
     computed = _random_fd_network(seed)
     monkeypatch.setattr(SimBus, "fast_fd_attempts", False)
     assert computed == _random_fd_network(seed)
+
+
+def test_the_bus_tells_a_fault_injector_when_it_is_busy_idle_or_about_to_arbitrate():
+    bus = SimBus(250_000)
+    a, b = bus.node("a"), bus.node("b")
+    a.send(Frame(0x0C1, bytes.fromhex("4001087500000000")))  # 118 bits on the wire
+    assert not bus.transmitting and bus.arbitration_due(0)  # offered at 0: arbitration starts then
+    bus.run(until=100 * 4000)
+    assert bus.transmitting and not bus.arbitration_due(bus.now())
+    assert bus.idle_at == (118 + 3) * 4000  # the end of the frame's intermission (3 bits)
+    bus.run()
+    assert not bus.transmitting and bus.idle_at == (118 + 3) * 4000 and not bus.arbitration_due(bus.now())
