@@ -253,7 +253,9 @@ def _own_private_names(tree: ast.Module) -> set[str]:
             targets = node.targets if isinstance(node, ast.Assign) else [node.target]
             own.update(t.id for t in targets if isinstance(t, ast.Name))
             if any(isinstance(t, ast.Name) and t.id == "__slots__" for t in targets) and node.value is not None:
-                own.update(c.value for c in ast.walk(node.value) if isinstance(c, ast.Constant) and isinstance(c.value, str))
+                own.update(
+                    c.value for c in ast.walk(node.value) if isinstance(c, ast.Constant) and isinstance(c.value, str)
+                )
     return {n for n in own if n.startswith("_") and not n.startswith("__")}
 
 

@@ -177,14 +177,21 @@ SAMPLE_POINT_HELP = "sample point, %% of the bit (a fraction 0 < x < 1 is read a
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The parser with every available subcommand registered, or only ``command``'s module
-    when it names one of stack's own subcommands."""
+    """The parser with every available subcommand registered, or only ``command``'s when it
+    names one of stack's own subcommands or a ``canstack.commands`` entry point."""
     parser = _Parser(prog="canstack", description="canstack: a CAN data-link engine and protocol stack")
     parser.add_argument("--version", action="store_true", help="print canstack's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     if command in SUBCOMMANDS:
         importlib.import_module(SUBCOMMANDS[command]).register(sub)
+        return parser
+    from importlib.metadata import entry_points  # slow to import: only for a plugin's command
+
+    plugins = sorted(entry_points(group="canstack.commands"), key=lambda e: e.name)
+    named = [ep for ep in plugins if ep.name == command]
+    if named:  # the others' modules (DBC, CANopen, sweeps) would cost every command start-up time
+        named[0].load()(sub)
         return parser
     for name in SUBCOMMAND_MODULES:
         try:
@@ -194,9 +201,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         mod.register(sub)
-    from importlib.metadata import entry_points  # slow to import: only when every command is listed
-
-    for ep in sorted(entry_points(group="canstack.commands"), key=lambda e: e.name):
+    for ep in plugins:
         ep.load()(sub)
     return parser
 

@@ -106,3 +106,22 @@ def test_demo_waveform_decodes_back_to_the_trace(tmp_path, capsys):
     assert n == len(bus.trace) == len(frames) and frames == [r.frame for r in bus.trace]
     lead = 11 * 2000  # the waveform starts with 11 idle bits
     assert [round(r.t * 1e9) - lead for r in recs] == [r.start for r in bus.trace]
+
+
+@pytest.mark.subprocess
+def test_a_plugin_command_loads_its_own_module_only():
+    """`canstack experiment` registers the experiment command and imports neither the DBC nor the
+    CANopen command modules (their imports cost every command start-up time); a name that is
+    no command still lists every command."""
+    script = (
+        "import sys; from stack.cli import CliError, build_parser; p = build_parser('experiment');"
+        "print(p.parse_args(['experiment', 'x.toml']).scenario);"
+        "print([m for m in ('dbc.cli', 'profiles.canopen.cli', 'profiles.sweeps.cli') if m in sys.modules])\n"
+        "try:\n    p.parse_args(['restbus', 'x.dbc'])\nexcept CliError as exc:\n    print(exc)"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    scenario, loaded, restbus = out.stdout.splitlines()
+    assert scenario == "x.toml" and loaded == "[]" and "invalid choice: 'restbus'" in restbus
+    out = run_cli("restbuss")
+    assert out.returncode == 2 and "invalid choice: 'restbuss'" in out.stderr
+    assert "'restbus'" in out.stderr and "'canopen'" in out.stderr and "'demo'" in out.stderr
