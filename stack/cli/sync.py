@@ -1,5 +1,5 @@
 """`canstack sync`: resynchronisation and bus-length simulations on the command line
-(`stack.phy.sync`)."""
+(`stack.phy.sync`, `stack.phy.propagation`)."""
 
 from __future__ import annotations
 
@@ -13,16 +13,15 @@ from stack.cli import CliError, format_id, parse_sample_point
 from stack.cli.bittiming import add_timing_arguments, limits_from_args
 from stack.phy.bittiming import BusDelays, Solution, format_hz, solve
 from stack.phy.bittiming_fd import solve_fd
-from stack.phy.sync import (
+from stack.phy.propagation import (
     BUS_LENGTH_FRAMES,
     DEFAULT_PHASES,
     ack_exchange,
     arbitration_exchange,
     max_bus_length_simulated,
-    max_drift,
     one_way_delay_ns,
-    worst_case_frames,
 )
+from stack.phy.sync import max_drift, worst_case_frames
 from stack.phy.tdc import TDC_FRAMES, max_loop_delay, transmit_fd
 
 __all__ = ["register"]

@@ -217,7 +217,7 @@ def test_cli_sync_errors(capsys: pytest.CaptureFixture[str], argv: list[str], ne
 # Two nodes on a bus with propagation delay: ACK round trip, arbitration, max bus length
 
 from stack.phy.bittiming import BusDelays  # noqa: E402
-from stack.phy.sync import (  # noqa: E402
+from stack.phy.propagation import (  # noqa: E402
     BUS_LENGTH_FRAMES,
     DEFAULT_PHASES,
     ack_exchange,
