@@ -93,7 +93,8 @@ def recompute_counters(bus, names):
     return tec, rec
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+# a second seed takes the same paths through other random traffic: with the long campaigns
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.campaign)])
 def test_campaign_no_silent_loss_and_counters_agree(seed):
     bus, nodes, requests, failed = campaign(2500, 1e-4, seed)
     assert bus.error_frames > 20  # errors really happened, global and local
