@@ -5,6 +5,7 @@ another module's private name or reading a private attribute of another module's
 from __future__ import annotations
 
 import ast
+import functools
 import shutil
 import subprocess
 import sys
@@ -115,13 +116,19 @@ def test_the_sans_io_core_runs_a_simulation_where_python_can_cannot_be_imported(
     assert modules == "['can']"  # only the blocked entry: nothing of python-can was loaded
 
 
+@functools.cache
+def _parsed(path: Path) -> ast.Module:
+    """A module's syntax tree, parsed once for every check here (read only)."""
+    return ast.parse(path.read_text())
+
+
 def _runtime_imports(path: Path, module: str, modules: Collection[str]) -> set[str]:
     """Modules of ``modules`` this file imports when it runs, at module level or inside a function
     (a cycle through a lazy import is still a knot); imports in ``if TYPE_CHECKING:`` blocks, which
     only annotations use, are left out. ``from pkg import sub`` of a submodule ``sub`` is an import
     of ``pkg.sub`` (its package's ``__init__`` runs first for any submodule, which is no edge);
     ``from pkg import name`` of anything else is an import of ``pkg``."""
-    tree = ast.parse(path.read_text())
+    tree = _parsed(path)
     out: set[str] = set()
     skip: set[int] = set()
     for node in ast.walk(tree):
@@ -224,7 +231,7 @@ def test_the_cycle_check_sees_two_way_imports_and_leaves_annotations_out(tmp_pat
 def test_no_module_imports_a_private_name_of_another():
     bad = []
     for m, p in _modules().items():
-        tree = ast.parse(p.read_text())
+        tree = _parsed(p)
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in PACKAGES:
                 for a in node.names:
@@ -263,7 +270,7 @@ def _foreign_private_reads(path: Path, rel: str) -> list[str]:
     """``obj._name`` (read or set) where ``obj`` is not ``self``, ``cls`` or ``super()`` and the
     module does not define ``_name`` for objects of its own: another module's object's private
     attribute."""
-    tree = ast.parse(path.read_text())
+    tree = _parsed(path)
     own = _own_private_names(tree)
     found = []
     for node in ast.walk(tree):

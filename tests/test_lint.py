@@ -77,6 +77,8 @@ def _comments_and_docstrings(path: Path) -> Iterator[tuple[int, str]]:
 
 
 def _figures(path: Path, rel: str) -> list[str]:
+    if not _FIGURE.search(" ".join(path.read_text().split())):
+        return []  # nowhere in the file, so not in its comments either (tokenizing costs more)
     found = []
     for line, text in _comments_and_docstrings(path):
         for m in _FIGURE.finditer(" ".join(text.split())):
