@@ -61,8 +61,8 @@ _FIGURE = re.compile(
     r"|\d[\d.,]*\s*%\s+of\b[^;]{0,40}?\bbench",
     re.IGNORECASE,
 )
-# figures in files whose owners are moving them to the benchmarks page (the rows are there)
-_FIGURES_BEING_MOVED = {("stack/io/pycan.py", "costs ~37 us"), ("dbc/checks.py", "costs ~10x")}
+# a figure in a file whose owner is moving it to the benchmarks page (the row is there)
+_FIGURES_BEING_MOVED = {("dbc/checks.py", "costs ~10x")}
 
 
 def _comments_and_docstrings(path: Path) -> Iterator[tuple[int, str]]:
