@@ -62,7 +62,7 @@ _FIGURE = re.compile(
     re.IGNORECASE,
 )
 # a figure in a file whose owner is moving it to the benchmarks page (the row is there)
-_FIGURES_BEING_MOVED = {("dbc/checks.py", "costs ~10x")}
+_FIGURES_BEING_MOVED: set[tuple[str, str]] = set()
 
 
 def _comments_and_docstrings(path: Path) -> Iterator[tuple[int, str]]:
