@@ -19,6 +19,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
+from matplotlib.transforms import Bbox
 
 from profiles.pipeline import plots
 from profiles.pipeline.recording import MAX_BINS
@@ -159,7 +160,7 @@ def test_timeline_identifiers_never_overflow_a_narrow_frame(body, figures, tmp_p
 
 def _covered(fig: Figure) -> list[str]:
     """What of each axes' data a legend's box covers: the vertices of its lines (segments
-    sampled), line collections and bars."""
+    sampled), line collections and bars, as far as they are drawn (inside their axes)."""
     renderer = _renderer(fig)
     legends = [lg for ax in fig.axes for lg in [ax.get_legend()] if lg is not None] + list(fig.legends)
     hits = []
@@ -171,7 +172,7 @@ def _covered(fig: Figure) -> list[str]:
                 for (xa, ya), (xb, yb) in zip(pts, pts[1:] if len(pts) > 1 else pts):
                     for k in range(21):
                         x, y = xa + (xb - xa) * k / 20, ya + (yb - ya) * k / 20
-                        if box.contains(x, y):
+                        if box.contains(x, y) and ax.bbox.contains(x, y):  # drawn: clipped to the axes
                             hits.append(f"line {ln.get_label()!r}")
                             break
             for c in ax.collections:
@@ -183,7 +184,8 @@ def _covered(fig: Figure) -> list[str]:
                         ):
                             hits.append("vertical bar")
             for p in ax.patches:
-                if p.get_visible() and p.get_window_extent(renderer).overlaps(box) and p is not ax.patch:
+                drawn = Bbox.intersection(p.get_window_extent(renderer), ax.bbox)  # clipped to the axes
+                if p.get_visible() and drawn is not None and drawn.overlaps(box) and p is not ax.patch:
                     hits.append(f"patch {type(p).__name__}")
     return hits
 
@@ -264,6 +266,12 @@ def test_profiles_plot_marks_a_zero_on_its_log_axis(figures, tmp_path):
     # and the mark is drawn inside the axes
     renderer = _renderer(ax.figure)
     assert ax.get_window_extent(renderer).overlaps(marks[0].get_window_extent(renderer))
+    # its legend, below the axes, covers neither the bars nor the message names
+    fig = ax.figure
+    assert _covered(fig) == []
+    box = ax.get_legend().get_window_extent(renderer)
+    for t in ax.get_xticklabels():
+        assert not t.get_window_extent(renderer).overlaps(box), t.get_text()
 
 
 def test_sweep_plot_keeps_a_zero_off_the_log_axis(figures, tmp_path):
