@@ -261,8 +261,9 @@ def response_cdf(result: Result, path: str | Path) -> Path:
 
 def bus_load(result: Result, path: str | Path) -> Path:
     """The bus load over time in bins of ``[plot] bin_ms`` (frames and error frames with their
-    intermission, as `SimBus.bus_load` counts them), widened on a long run so that there are at
-    most `profiles.pipeline.recording.MAX_BINS` bins (the axis label says so)."""
+    intermission, as `SimBus.bus_load` counts them), widened on a long run to a 1-2-5 width
+    (`profiles.pipeline.recording.readable_bin_ns`) so that there are at most
+    `profiles.pipeline.recording.MAX_BINS` bins (the title says so)."""
     plt = pyplot()
     load = result.load
     if load is None:  # a result made without plot=True: from the trace it kept
