@@ -211,8 +211,8 @@ def _identifier_latency(result: Result, path: str | Path) -> Path:
 
 def response_cdf(result: Result, path: str | Path) -> Path:
     """Per message, the cumulative distribution of its response times (every value kept, or the
-    sketch's quantiles) with the analysis' bound (`rta_ms`) and the deadline as vertical lines:
-    small multiples, four to a row."""
+    sketch's quantiles) with the analysis' bound (`rta_ms`) and the deadline as vertical lines
+    (their values in the title): small multiples, four to a row, one legend above them all."""
     plt = pyplot()
     rows = [m for m in result.messages if m["response_ms"] and m["name"] in result.tracks]
     if not rows:
@@ -223,6 +223,7 @@ def response_cdf(result: Result, path: str | Path) -> Path:
     cols = min(4, len(rows))
     nrows = -(-len(rows) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(3.2 * cols, 2.4 * nrows), squeeze=False)
+    legend: dict[str, Any] = {}
     for ax, m in zip(axes.flat, rows):
         st = result.tracks[m["name"]].stats
         if st.exact:
@@ -235,29 +236,34 @@ def response_cdf(result: Result, path: str | Path) -> Path:
             ys = qs
             how = "sketch, ±0.5 %"
         ax.step(xs, ys, where="post", color="tab:blue", linewidth=1.2)
+        marks = []
         if m["rta_ms"] is not None:
-            ax.axvline(m["rta_ms"], color="red", linewidth=1.2, label=f"bound {m['rta_ms']:.3g}")
+            ax.axvline(m["rta_ms"], color="red", linewidth=1.2, label="analysis bound")
+            marks.append(f"bound {m['rta_ms']:.3g}")
         if m["deadline_ms"] is not None:
-            ax.axvline(
-                m["deadline_ms"], color="grey", linestyle="dashed", linewidth=1, label=f"deadline {m['deadline_ms']:g}"
-            )
-        ax.set_title(f"{m['name']} ({how})", fontsize=8)
+            ax.axvline(m["deadline_ms"], color="grey", linestyle="dashed", linewidth=1, label="deadline")
+            marks.append(f"D {m['deadline_ms']:g}")
+        ax.set_title(f"{m['name']} ({how})" + (f"\n{', '.join(marks)} ms" if marks else ""), fontsize=8)
         ax.set_ylim(0, 1.02)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=6, loc="lower right")
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, h)
     for ax in list(axes.flat)[len(rows) :]:
         ax.set_axis_off()
     fig.supxlabel("response time, queued -> end of EOF (ms)", fontsize=9)
     fig.supylabel("fraction of instances", fontsize=9)
+    fig.tight_layout()
+    if legend:  # one legend above the plots: inside one, a line at its right edge runs under it
+        fig.legend(legend.values(), legend.keys(), loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=8)
     return _save(fig, path)
 
 
 def bus_load(result: Result, path: str | Path) -> Path:
     """The bus load over time in bins of ``[plot] bin_ms`` (frames and error frames with their
-    intermission, as `SimBus.bus_load` counts them), widened on a long run so that there are at
-    most `profiles.pipeline.recording.MAX_BINS` bins (the axis label says so)."""
+    intermission, as `SimBus.bus_load` counts them), widened on a long run to a 1-2-5 width
+    (`profiles.pipeline.recording.readable_bin_ns`) so that there are at most
+    `profiles.pipeline.recording.MAX_BINS` bins (the title says so)."""
     plt = pyplot()
     load = result.load
     if load is None:  # a result made without plot=True: from the trace it kept

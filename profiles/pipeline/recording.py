@@ -24,7 +24,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from profiles.base import Track
     from stack import TraceRecord
 
-__all__ = ["ReceptionCounter", "PlotRecords", "SampleWriter", "SAMPLE_COLUMNS", "MAX_BINS", "plot_window"]
+__all__ = [
+    "ReceptionCounter",
+    "PlotRecords",
+    "SampleWriter",
+    "SAMPLE_COLUMNS",
+    "MAX_BINS",
+    "plot_window",
+    "readable_bin_ns",
+]
 
 SAMPLE_COLUMNS = ("message", "node", "outcome", "nominal_ns", "queued_ns", "sof_ns", "eof_ns", "response_ns", "missed")
 """The columns of a ``--samples`` file (`profiles.base.Instance`; times in bus ns)."""
@@ -32,6 +40,18 @@ SAMPLE_COLUMNS = ("message", "node", "outcome", "nominal_ns", "queued_ns", "sof_
 MAX_BINS = 500
 """Most bus-load bins a plot draws: a finer ``[plot] bin_ms`` over a long run is widened (bins
 narrower than a few pixels make a grey band, and each costs memory)."""
+
+
+def readable_bin_ns(at_least_ns: int) -> int:
+    """The narrowest bin of 1, 2 or 5 times a power of ten nanoseconds that is at least
+    ``at_least_ns`` wide: a widened bus-load bin reads as 2 ms or 50 ms, never as 2.468 ms."""
+    step = 1
+    while True:
+        for m in (1, 2, 5):
+            if m * step >= at_least_ns:
+                return m * step
+        step *= 10
+
 
 TIMELINE_MARGIN_NS = 1_000_000_000
 """Trace kept on each side of the timeline's window: a profile's layer (a TDMA cycle) may start
@@ -75,14 +95,15 @@ def plot_window(plot: dict[str, Any], end_ns: int) -> tuple[int, int]:
 class PlotRecords:
     """The trace records of the timeline's window, and the busy time of each bus-load bin (frames
     and error frames with their intermission, as `stack.SimBus.bus_load` counts them), kept as
-    the bus runs. ``bin_ns`` is ``[plot] bin_ms``, widened so that the run has at most
-    `MAX_BINS` bins (``widened`` then says so)."""
+    the bus runs. ``bin_ns`` is ``[plot] bin_ms``, widened to a readable width
+    (`readable_bin_ns`) so that the run has at most `MAX_BINS` bins (``widened`` then says so)."""
 
     def __init__(self, window: tuple[int, int], bin_ns: int, end_ns: int, bitrate: int) -> None:
         self.window = window
         self.records: list[Any] = []
         self.requested_bin_ns = bin_ns
-        self.bin_ns = max(bin_ns, math.ceil(end_ns / MAX_BINS))
+        fewest = math.ceil(end_ns / MAX_BINS)
+        self.bin_ns = bin_ns if bin_ns >= fewest else readable_bin_ns(fewest)
         self.widened = self.bin_ns != bin_ns
         self.end_ns = end_ns
         self.busy = [0] * max(1, -(-end_ns // self.bin_ns))
