@@ -15,6 +15,7 @@ is one line on stderr and exit status 2 before any run. Single runs that fail ar
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import math
@@ -528,9 +529,9 @@ def _profiles(args: argparse.Namespace) -> int:
         )
         if args.duration is None:  # enough instances for a jitter: ten of the longest period, at least 1 s
             longest = max(m.period_ns for m in mset.messages) / 1e9
-            mset = type(mset)(mset.bitrate, mset.messages, min(60.0, max(1.0, 10 * longest)), mset.seed)
-    if args.duration is not None:
-        mset = type(mset)(mset.bitrate, mset.messages, args.duration, mset.seed)
+            mset = dataclasses.replace(mset, duration_s=min(60.0, max(1.0, 10 * longest)))
+    if args.duration is not None:  # the set as it was (the data bit rate of an FD scenario too)
+        mset = dataclasses.replace(mset, duration_s=args.duration)
     study = profiles_study(
         mset,
         workers=args.workers,
@@ -550,6 +551,7 @@ def _profiles(args: argparse.Namespace) -> int:
                 {
                     "study": "profiles",
                     "bitrate": mset.bitrate,
+                    "data_bitrate": mset.data_bitrate,
                     "duration": mset.duration_s,
                     "messages": [
                         {
@@ -557,6 +559,8 @@ def _profiles(args: argparse.Namespace) -> int:
                             "node": m.node,
                             "id": m.can_id,
                             "dlc": m.dlc,
+                            "fd": m.fd,
+                            "brs": m.brs,
                             "period_ms": m.period_ns / 1e6,
                             "deadline_ms": m.deadline_ns / 1e6,
                         }

@@ -393,3 +393,25 @@ def test_sweep_log_x_reaches_the_written_figure(tmp_path, capsys, monkeypatch, v
     assert code == 0, err
     assert seen == [scale]
     assert (tmp_path / "p" / "bus_load.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_study_profiles_of_an_fd_scenario_keeps_its_data_bit_rate_and_fd_messages(capsys):
+    """`study profiles --scenario` on a CAN FD scenario with --duration: the set keeps the file's
+    data bit rate and each message its fd/brs (the JSON says so); CSMA runs it, and the
+    profiles that send classical frames only are listed as skipped with the reason."""
+    path = ROOT / "examples" / "fd_packed.toml"
+    raw = tomllib.loads(path.read_text())
+    # ISO 11898-1:2015's DLC of each FD length above 8 bytes
+    fd_dlc = {12: 9, 16: 10, 20: 11, 24: 12, 32: 13, 48: 14, 64: 15}
+    declared = {
+        m["name"]: (m.get("fd", False), m.get("brs", False), fd_dlc[m["length"]])
+        for n in raw["nodes"]
+        for m in n.get("messages", [])
+    }
+    code, stdout, err = run(capsys, "study", "profiles", "--scenario", str(path), "--duration", "0.2", "--json")
+    assert code == 0, err
+    data = json.loads(stdout)
+    assert data["data_bitrate"] == raw["bus"]["data_bitrate"] and data["duration"] == 0.2
+    assert {m["name"]: (m["fd"], m["brs"], m["dlc"]) for m in data["messages"]} == declared
+    assert [r["profile"] for r in data["rows"]] == ["csma"]
+    assert "classical CAN frames only" in data["skipped"]["master/slave"]
