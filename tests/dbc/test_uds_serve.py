@@ -90,11 +90,12 @@ def test_udsoncan_reads_vin_and_signal_from_restbus_over_serve():
         assert kinds[first : first + 4] == [(0x7E8, 1), (0x7E0, 3), (0x7E8, 2), (0x7E8, 2)]
         fc, cf1, cf2 = seen[first + 1], seen[first + 2], seen[first + 3]
         assert fc.data[1:3] == bytes((2, STMIN_MS))
-        # bus timestamps mark the end of each frame. The sender times STmin from handing CF1 over,
-        # and CF1 may then wait for the bus (another frame, the server's pace), so the end-to-end
-        # gap is certain to be STmin, not STmin plus CF2's own 216 us (108 bits at 500 kbit/s):
-        # a sender that ignored STmin would put CF2 about 216 us after CF1
-        assert cf2.timestamp - cf1.timestamp >= STMIN_MS / 1000
+        # bus timestamps mark the end of each frame. The sender (can-isotp) times STmin from
+        # handing CF1 over, and CF1 may then wait for the bus or the server's pace, which
+        # shortens the gap seen between the ends by that wait (4.75 ms seen on a loaded machine).
+        # A sender that ignored STmin would put CF2 about 216 us (108 bits at 500 kbit/s) after
+        # CF1; the STmin shows as a gap of most of 5 ms
+        assert cf2.timestamp - cf1.timestamp >= 0.8 * STMIN_MS / 1000
     finally:
         for bus in (tester, watcher):
             if bus is not None:
