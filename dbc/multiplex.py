@@ -54,18 +54,20 @@ def select_defined_page(message: Any, values: dict[str, Any]) -> None:
             _fix_tree(message, tree, values)
 
 
+def _raw_selector(sig: Any, value: Any) -> int | None:
+    """The raw value a multiplexer's physical value or choice name selects (None: none)."""
+    try:
+        if isinstance(value, str):
+            return int(sig.conversion.choice_to_number(value))
+        return round(sig.conversion.scaled_to_raw(value))
+    except Exception:
+        return None
+
+
 def _fix_tree(message: Any, tree: dict[str, Any], values: dict[str, Any]) -> None:
     for mux_name, branches in tree.items():
         sig = message.get_signal_by_name(mux_name)
-        raw = values.get(mux_name)
-        try:
-            rawnum = (
-                sig.conversion.choice_to_number(raw)
-                if isinstance(raw, str)
-                else round(sig.conversion.scaled_to_raw(raw))
-            )
-        except Exception:
-            rawnum = None
+        rawnum = _raw_selector(sig, values.get(mux_name))
         if rawnum not in branches:
             rawnum = min(branches)
             values[mux_name] = sig.conversion.raw_to_scaled(rawnum, False)
@@ -86,15 +88,8 @@ def page_of(message: Any, values: dict[str, Any]) -> dict[str, int]:
 
 def _page_of_tree(message: Any, tree: dict[str, Any], values: dict[str, Any], out: dict[str, int]) -> None:
     for mux_name, branches in tree.items():
-        sig = message.get_signal_by_name(mux_name)
-        raw = values.get(mux_name)
-        try:
-            rawnum = (
-                sig.conversion.choice_to_number(raw)
-                if isinstance(raw, str)
-                else round(sig.conversion.scaled_to_raw(raw))
-            )
-        except Exception:
+        rawnum = _raw_selector(message.get_signal_by_name(mux_name), values.get(mux_name))
+        if rawnum is None:
             continue
         out[mux_name] = rawnum
         for sub in branches.get(rawnum, ()):
