@@ -18,7 +18,7 @@ from stack.cli import CliError
 __all__ = ["register", "examples", "example_path", "scenario_path", "describe", "PACKAGE"]
 
 PACKAGE = "canstack_examples"
-"""The package the examples are installed as (setup.py maps ``examples/`` to it)."""
+"""The package the examples are installed as (pyproject.toml maps ``examples/`` to it)."""
 
 SUFFIXES = (".toml", ".py", ".md", ".jsonl", ".vcd", ".csv")
 """What ``canstack examples`` lists and copies: scenarios, scripts, notes and the data they read."""
