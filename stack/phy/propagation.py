@@ -21,6 +21,7 @@ from typing import Any
 import can
 
 from stack.phy.bittiming import BusDelays, Solution, max_bus_length
+from stack.phy.boundary import last_working
 from stack.phy.receiver import SyncReceiver
 from stack.wire.coding import Field
 from stack.wire.decoder import DecodedFrame
@@ -506,12 +507,5 @@ def max_bus_length_simulated(
     at_zero = failure(0.0)
     if at_zero is not None:
         return BusLengthResult(math.nan, formula, sample_point, quantum, 0.0, at_zero, solution, delays)
-    lo = 0.0
-    while hi - lo > resolution_m:
-        mid = (lo + hi) / 2
-        f = failure(mid)
-        if f is None:
-            lo = mid
-        else:
-            hi, bad = mid, f
+    lo, hi, bad = last_working(failure, 0.0, hi, bad, resolution_m)
     return BusLengthResult(lo, formula, sample_point, quantum, hi, bad, solution, delays)

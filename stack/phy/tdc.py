@@ -30,6 +30,7 @@ from typing import Any
 
 import can
 
+from stack.phy.boundary import last_working
 from stack.phy.receiver import SyncReceiver
 from stack.wire.coding import Field
 from stack.wire.decoder import DecodedFrame
@@ -240,14 +241,8 @@ def max_loop_delay(
     bad = failure(hi)
     if bad is None:
         return hi, None
-    lo = 0.0
-    if failure(lo) is not None:
-        return math.nan, failure(lo)
-    while hi - lo > resolution_ns:
-        mid = (lo + hi) / 2
-        f = failure(mid)
-        if f is None:
-            lo = mid
-        else:
-            hi, bad = mid, f
+    at_zero = failure(0.0)
+    if at_zero is not None:
+        return math.nan, at_zero
+    lo, _, bad = last_working(failure, 0.0, hi, bad, resolution_ns)
     return lo, bad
