@@ -388,6 +388,38 @@ def _no_timing_for_bus(
     )
 
 
+def _search(
+    clock: int,
+    bitrate: int,
+    sample_point: float | None,
+    limits: str | ControllerLimits,
+    sjw: int | None,
+    delays: BusDelays | None,
+    min_tolerance: float | None,
+    legacy: bool,
+    every_split: bool,
+    rules: TimingRules,
+) -> tuple[list[_Candidate], Solution]:
+    """`_candidates` and the kernel's pick; `BitTimingError` naming the rule when none passes."""
+    cands, best, rejected = _candidates(
+        clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, every_split=every_split, rules=rules
+    )
+    if best is None:
+        raise _no_timing_for_bus(
+            clock,
+            bitrate,
+            delays,
+            _no_timing(clock, bitrate, rejected),
+            sample_point=sample_point,
+            limits=limits,
+            sjw=sjw,
+            min_tolerance=min_tolerance,
+            legacy=legacy,
+            rules=rules,
+        )
+    return cands, best
+
+
 def solve(
     clock: int,
     bitrate: int,
@@ -408,23 +440,7 @@ def solve(
     ``rules``: `CLASSICAL` (8..25 tq, SJW 1..4), or for the phases of CAN FD `FD_NOMINAL` and
     `FD_DATA` (the controller's ranges, as the kernel). Raises `BitTimingError` naming the rule
     when no timing passes."""
-    _, best, rejected = _candidates(
-        clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, rules=rules
-    )
-    if best is None:
-        raise _no_timing_for_bus(
-            clock,
-            bitrate,
-            delays,
-            _no_timing(clock, bitrate, rejected),
-            sample_point=sample_point,
-            limits=limits,
-            sjw=sjw,
-            min_tolerance=min_tolerance,
-            legacy=legacy,
-            rules=rules,
-        )
-    return best
+    return _search(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, False, rules)[1]
 
 
 def all_timings(
@@ -442,22 +458,7 @@ def all_timings(
     split of TSEG1/TSEG2 within the controller's limits with the sample point from 50 % up to the
     requested one that passes every rule, ranked as the kernel ranks them: `solve`'s pick
     first, then by bitrate error, sample point error and longer bit time."""
-    cands, best, rejected = _candidates(
-        clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, every_split=True, rules=rules
-    )
-    if best is None:
-        raise _no_timing_for_bus(
-            clock,
-            bitrate,
-            delays,
-            _no_timing(clock, bitrate, rejected),
-            sample_point=sample_point,
-            limits=limits,
-            sjw=sjw,
-            min_tolerance=min_tolerance,
-            legacy=legacy,
-            rules=rules,
-        )
+    cands, best = _search(clock, bitrate, sample_point, limits, sjw, delays, min_tolerance, legacy, True, rules)
     seen: set[tuple[int, int, int]] = set()
     ranked: list[Solution] = []
     for c in sorted(
