@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from profiles.schema import ScenarioError
+from stack.io.progress import stop_when
 
 __all__ = [
     "Execution",
@@ -181,7 +182,10 @@ def _pool_call(fn: Callable[[Any], dict[str, Any]], task: Task) -> dict[str, Any
     if _STATE is not None:
         _STATE[task.index] = _RUNNING
     try:
-        return _guarded(fn, task)
+        if _STOP is None:
+            return _guarded(fn, task)
+        with stop_when(_STOP.is_set):  # a stop that comes before the run takes SIGINT
+            return _guarded(fn, task)
     finally:
         if _STATE is not None:
             _STATE[task.index] = _DONE

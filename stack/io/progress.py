@@ -1,7 +1,7 @@
 """A simulation run in slices of simulated time, with a progress bar on a terminal and Ctrl-C
 that stops it between slices (the summary so far stays consistent), and a wall-clock time limit
 per run: what the commands, the experiment pipeline and the sweeps share to run long simulations
-(`run_sliced`, `show_progress`, `time_limit`).
+(`run_sliced`, `show_progress`, `time_limit`, `stop_when`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-__all__ = ["run_sliced", "show_progress", "TimeLimitExceeded", "GRACE_S", "time_limit"]
+__all__ = ["run_sliced", "show_progress", "TimeLimitExceeded", "GRACE_S", "time_limit", "stop_when"]
 
 
 def show_progress(requested: bool | None) -> bool:
@@ -35,6 +35,7 @@ class TimeLimitExceeded(RuntimeError):
 
 
 _TIME_LIMIT: contextvars.ContextVar[float | None] = contextvars.ContextVar("run_time_limit", default=None)
+_STOP_WHEN: contextvars.ContextVar[Callable[[], bool] | None] = contextvars.ContextVar("run_stop_when", default=None)
 
 
 @contextlib.contextmanager
@@ -108,6 +109,19 @@ class _Interrupt:
             signal.signal(signal.SIGINT, self._old)
 
 
+@contextlib.contextmanager
+def stop_when(requested: Callable[[], bool]) -> Iterator[None]:
+    """Inside the block, every `run_sliced` also stops at the end of a slice once ``requested()``
+    is true, as it does on Ctrl-C. A sweep's pool worker passes the sweep's stop flag: the SIGINT
+    it is sent to stop its run is lost when it comes before the run has installed its handler
+    (while the scenario is being built, the worker ignores SIGINT), the flag is not."""
+    token = _STOP_WHEN.set(requested)
+    try:
+        yield
+    finally:
+        _STOP_WHEN.reset(token)
+
+
 def _slices(start: int, until: int, step: int) -> Iterator[int]:
     t = start
     while t < until:
@@ -129,11 +143,12 @@ def run_sliced(
     A progress bar (tqdm, in simulated seconds, with the time left) is drawn on stderr when
     `show_progress` says so; on a terminal it appears only for runs longer than 2 s of wall
     clock. Ctrl-C (and SIGTERM, which `stack.cli.main` turns into it) stops the run at the end of
-    the current slice, or where it is when that does not come within `GRACE_S`: returns False
-    then, True when the run reached ``until_ns``. ``time_limit`` (wall-clock seconds) raises
+    the current slice, or where it is when that does not come within `GRACE_S`, and so does the
+    enclosing `stop_when` flag at the end of a slice: returns False then, True when the run reached ``until_ns``. ``time_limit`` (wall-clock seconds) raises
     `TimeLimitExceeded` when the run takes longer (default: the enclosing `time_limit` block's)."""
     if time_limit is None:
         time_limit = _TIME_LIMIT.get()
+    external = _STOP_WHEN.get()
     show = show_progress(progress)
     step = max(1_000_000, min(100_000_000, (until_ns - bus.now()) // 200 or 1))
     bar = None
@@ -160,7 +175,7 @@ def run_sliced(
                         now = round(t / 1e9, 3)
                         bar.update(now - done)
                         done = now
-                    if stop.requested:
+                    if stop.requested or (external is not None and external()):
                         return False
                     if deadline is not None and time.monotonic() > deadline:
                         raise TimeLimitExceeded

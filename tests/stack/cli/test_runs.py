@@ -23,7 +23,7 @@ import pytest
 import stack.cli.demo as demo
 from stack.bus.sim import SimBus
 from stack.cli import build_parser, main
-from stack.io.progress import TimeLimitExceeded, run_sliced, time_limit
+from stack.io.progress import TimeLimitExceeded, run_sliced, stop_when, time_limit
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -132,6 +132,20 @@ def test_a_sliced_run_is_the_same_run():
     assert run_sliced(sliced, 300_000_000, progress=False)
     assert sliced.now() == whole.now() and _digest(sliced) == _digest(whole)
     assert sliced.summary() == whole.summary()
+
+
+def test_a_stop_flag_stops_the_run_at_the_end_of_the_slice_it_was_raised_in():
+    # a sweep's pool worker passes its stop flag: a stop that comes before the run installed its
+    # Ctrl-C handler (SIGINT is ignored then) must still end the run, at a slice's end
+    bus = SimBus(500_000, seed=3)
+    demo.build_demo(bus)
+    raised = []
+    bus.call_at(250_000_000, lambda: raised.append(True))
+    with stop_when(lambda: bool(raised)):
+        assert run_sliced(bus, 20_000_000_000, progress=False) is False
+    # slices of 100 ms of bus time for a 20 s run: the one that holds 0.25 s ends at 0.3 s
+    assert bus.now() == 300_000_000
+    assert run_sliced(bus, 400_000_000, progress=False)  # outside the block the flag counts no more
 
 
 # ---------------------------------------------------------------------------------------------
