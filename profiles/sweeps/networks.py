@@ -165,11 +165,13 @@ class Network:
         )
         lines = [f"{self.label or 'network'}: {self.bitrate} bit/s, {frames}{errors}"]
         for n in self.nodes:
-            queue = n.queue
             if n.queue == "mailbox":
-                queue += f" x{n.mailboxes}" + (" with abort" if n.abort else " without abort")
+                count = n.mailboxes or 1
+                queue = f"{count} mailbox{'es' if count > 1 else ''} {'with' if n.abort else 'without'} abort"
+            else:
+                queue = f"{'FIFO' if n.queue == 'fifo' else n.queue} queue"
             clock = f", drift {n.drift_ppm:+g} ppm from offset {n.offset_ns} ns" if n.drift_ppm else ""
-            lines.append(f"  node {n.name}: {queue} queue{clock}")
+            lines.append(f"  node {n.name}: {queue}{clock}")
             for m in self.messages:
                 if m.node == n.name:
                     ident = f"0x{m.can_id:08X} (29-bit)" if m.extended else f"0x{m.can_id:03X}"
