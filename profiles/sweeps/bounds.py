@@ -412,15 +412,17 @@ def bounds_plot(study: BoundsStudy, path: str | Path) -> Path:
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("fraction of messages at or below")
-    axes[0].legend(fontsize=8, loc="upper center", bbox_to_anchor=(1.05, -0.16), ncol=4)
     s = study.settings
     fig.suptitle(
         f"worst measured time over its bound, per message: {len(study.rows) - len(study.failed)} random networks "
         f"(seed {s['seed']}), released {', '.join(s['patterns'])}",
         fontsize=10,
     )
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    # one legend for both panels, below them: inside, it would cover the curves near 1
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncol=4)
     p = Path(path)
-    fig.tight_layout()
     fig.savefig(p, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return p
