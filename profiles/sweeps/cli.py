@@ -5,6 +5,7 @@
                    [--scheduler tcp://HOST:8786] [--out results.csv|.parquet] [--json] [--plot DIR]
     canstack study schedulability [--sets N] [--utilisation 0.1:1:0.1] [--workers N] [--plot DIR] …
     canstack study profiles [--scenario FILE.toml | --messages N --utilisation U] [--plot DIR] …
+    canstack study bounds [--networks N] [--seed S] [--queues …] [--plot FILE] …  (`profiles.sweeps.bounds_cli`)
 
 Everything that can be wrong with the command line — a malformed --vary, a key the scenario does
 not have, a bad range, an output the installed libraries cannot write, --scheduler without dask —
@@ -629,10 +630,11 @@ def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) ->
 
 
 def register_study(sub: Any) -> None:
-    """Add the `study` subcommand (`study schedulability`, `study profiles`)."""
+    """Add the `study` subcommand (`study schedulability`, `study profiles`, `study bounds`)."""
     p = sub.add_parser(
         "study",
-        help="the classic studies: schedulability against utilisation; profiles side by side",
+        help="the classic studies: schedulability against utilisation; profiles side by side; the analysis' "
+        "bounds against simulation",
         description="Built-in studies over many runs.",
     )
     studies = p.add_subparsers(dest="study", metavar="STUDY", parser_class=type(p))
@@ -676,6 +678,9 @@ def register_study(sub: Any) -> None:
     _set_options(q, messages=8, per_node=2)
     _common(q)
     q.set_defaults(func=_profiles)
+    from profiles.sweeps.bounds_cli import register_bounds
+
+    register_bounds(studies)
 
 
 def register(sub: Any) -> None:

@@ -1,0 +1,264 @@
+"""`canstack study bounds`: the analysis' bounds against the simulated bus on random networks
+(`profiles.sweeps.bounds`), registered by `profiles.sweeps.cli.register_study`.
+
+    canstack study bounds [--networks N] [--seed S] [--utilisation U] [--nodes N] [--per-node N]
+                          [--queues priority=1,fifo=1,mailbox=2] [--patterns all] [--workers N]
+                          [--json] [--out FILE.csv] [--plot FILE.png]
+
+Bad arguments are one line and exit status 2 before any run. Exit status 3 when a measured time
+exceeds its bound or a deadline miss was not predicted (each printed on stderr with the network
+that shows it), 1 when a network could not be run, 130 after Ctrl-C (the networks done are
+reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from stack.cli import CliError, count_type, plural, seconds_type
+from stack.cli.runs import check_output, check_plot_output, writing
+
+__all__ = ["register_bounds", "DEFECT", "MESSAGE_COLUMNS"]
+
+#: exit status when the simulation exceeded a bound (or missed a deadline the analysis did not predict)
+DEFECT = 3
+
+#: the columns of ``--out``: one row per message
+MESSAGE_COLUMNS = (
+    "network",
+    "message",
+    "node",
+    "method",
+    "bound_ns",
+    "queued_ns",
+    "queued_ratio",
+    "queued_pattern",
+    "response_ns",
+    "nominal_ns",
+    "nominal_ratio",
+    "nominal_pattern",
+    "deadline_ns",
+    "schedulable",
+    "sent",
+    "misses",
+)
+
+#: the most nodes and messages a node: every message needs its own 11-bit identifier
+MAX_NODES, MAX_PER_NODE = 32, 64
+
+
+def _library(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """A library parser as an argparse type: its ValueError becomes argparse's one-line error."""
+
+    def typed(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return typed
+
+
+def _at_most(what: str, most: int) -> Callable[[str], int]:
+    base = count_type(what)
+
+    def parse(text: str) -> int:
+        v = base(text)
+        if v > most:
+            raise argparse.ArgumentTypeError(f"{text}: {what} is at most {most:,}")
+        return v
+
+    return parse
+
+
+def _max_utilisation(text: str) -> float:
+    try:
+        f = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a utilisation (a fraction, 0.5 for 50 %)") from None
+    if not (math.isfinite(f) and 0.01 <= f <= 1.5):
+        raise argparse.ArgumentTypeError(f"{text!r}: the utilisation is from 0.01 to 1.5 (a fraction: 0.5 is 50 %)")
+    return f
+
+
+def _seed(text: str) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+
+
+def _check_out(path: str) -> None:
+    """``--out``: a writable .csv, or .parquet with pyarrow installed (the sweeps' own rule)."""
+    check_output(path, "--out")
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise CliError(f"--out {path!r}: write .csv or .parquet")
+    if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
+        raise CliError(
+            f"--out {path!r}: Parquet needs pyarrow, which is not installed: pip install 'canstack[parquet]'"
+        )
+
+
+def _bounds(args: argparse.Namespace) -> int:
+    from profiles.sweeps.bounds import bounds_json, bounds_plot, bounds_study, bounds_table, defect_text
+    from profiles.sweeps.execute import choose_engine
+    from profiles.sweeps.sweep import write_table
+
+    if args.out:
+        _check_out(args.out)
+    if args.plot:
+        check_plot_output(args.plot)
+    choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
+    study = bounds_study(
+        args.networks,
+        seed=args.seed,
+        max_util=args.utilisation,
+        per_node=args.per_node,
+        nodes=args.nodes,
+        queues=args.queues,
+        patterns=args.patterns,
+        drift=args.drift,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        engine=args.engine,
+        progress=args.progress,
+        time_limit=args.time_limit,
+    )
+    if args.out:
+        writing(args.out, "--out", lambda: write_table(study.messages, MESSAGE_COLUMNS, args.out))
+    print(json.dumps(bounds_json(study)) if args.json else bounds_table(study))
+    for r in study.failed[:5]:
+        print(f"canstack: network {r['network']} (seed {r['seed']}) failed: {r['error']}", file=sys.stderr)
+    if args.plot and study.messages:
+        print(f"plot: {writing(args.plot, '--plot', lambda: bounds_plot(study, args.plot))}", file=sys.stderr)
+    done = len(study.rows)
+    parts = [
+        f"{done} of {plural(study.total, 'network')} done" if study.interrupted else plural(done, "network"),
+        f"{len(study.failed)} failed" if study.failed else "",
+        f"{study.engine}, {study.wall_s:.1f} s",
+        f"written to {args.out}" if args.out else "",
+    ]
+    print(("interrupted: " if study.interrupted else "") + "; ".join(p for p in parts if p), file=sys.stderr)
+    defects = study.defects
+    if defects:
+        print(
+            f"canstack: DEFECT: the simulation broke the analysis {plural(len(defects), 'time')} — a bound the "
+            "simulated bus exceeds is a defect of the analysis (or of the simulation); report it with what follows",
+            file=sys.stderr,
+        )
+        for d in defects:
+            print(defect_text(d), file=sys.stderr)
+    if study.interrupted:
+        return 130
+    if defects:
+        return DEFECT
+    return 1 if study.failed else 0
+
+
+def register_bounds(studies: Any) -> None:
+    """Add `study bounds` to the `study` subcommands."""
+    from profiles.sweeps.bounds import parse_patterns
+    from profiles.sweeps.networks import DEFAULT_QUEUES, parse_queue_mix, queue_mix_text
+    from profiles.sweeps.releases import PATTERNS
+    from profiles.sweeps.sweep import MAX_RUNS
+
+    b = studies.add_parser(
+        "bounds",
+        help="how tight the response-time analysis' bounds are on random networks (priority, FIFO and mailbox "
+        "nodes, jitter up to the period, drift), and that the simulation never exceeds them",
+        description="Random networks (seeded), each analysed (profiles.analysis.rta) and simulated in every release "
+        "pattern (" + "; ".join(f"{k}: {v}" for k, v in PATTERNS.items()) + "). Per analysis method (davis2007 for "
+        "priority queues, fifo, mailbox): messages, how many exceeded their bound (must be 0), and the measured "
+        "worst time over its bound, from queuing (bound_ns) and from the nominal release (response_ns): max, "
+        "median, 10th percentile. Exit status 3 when the simulation exceeds a bound.",
+    )
+    b.add_argument(
+        "--networks",
+        type=_at_most("networks", MAX_RUNS),
+        default=100,
+        help="random networks (default 100; network i is the same whatever N)",
+    )
+    b.add_argument("--seed", type=_seed, default=1, help="the study seed (default 1)")
+    b.add_argument(
+        "--utilisation",
+        type=_max_utilisation,
+        default=0.85,
+        metavar="U",
+        help="the largest bus utilisation drawn (worst-case frames; default 0.85): each network's is uniform in "
+        "[min(0.15, U/2), U]",
+    )
+    b.add_argument(
+        "--nodes",
+        type=_at_most("nodes a network", MAX_NODES),
+        default=5,
+        help=f"nodes a network, at most (default 5: each network has 2..5; at most {MAX_NODES})",
+    )
+    b.add_argument(
+        "--per-node",
+        type=_at_most("messages a node", MAX_PER_NODE),
+        default=4,
+        help=f"messages a node, at most (default 4; at most {MAX_PER_NODE})",
+    )
+    b.add_argument(
+        "--queues",
+        type=_library(parse_queue_mix),
+        default=DEFAULT_QUEUES,
+        metavar="KIND[=W],…",
+        help=f"the node queue kinds drawn, with weights (default {queue_mix_text(DEFAULT_QUEUES)}; e.g. fifo for "
+        "FIFO nodes only)",
+    )
+    b.add_argument(
+        "--patterns",
+        type=_library(parse_patterns),
+        default=tuple(PATTERNS),
+        metavar="P,…",
+        help=f"release patterns each network is simulated in (default all: {', '.join(PATTERNS)})",
+    )
+    b.add_argument(
+        "--drift",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="half the nodes' clocks drift, up to ±5 %% (default on)",
+    )
+    b.add_argument(
+        "--workers",
+        type=count_type("the number of worker processes"),
+        default=1,
+        help="run on N processes (default 1: in this process)",
+    )
+    b.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on a Dask cluster (the dask extra)")
+    b.add_argument(
+        "--engine",
+        choices=("auto", "sequential", "processes", "dask"),
+        default="auto",
+        help="where the runs go (default auto)",
+    )
+    b.add_argument("--json", action="store_true", help="print one JSON object instead of the text table")
+    b.add_argument("--out", help="write one row per message here: .csv, or .parquet (the parquet extra)")
+    b.add_argument(
+        "--plot",
+        metavar="FILE",
+        help="draw the distribution of measured/bound per method into FILE (.png, .svg, .pdf; the plot extra)",
+    )
+    b.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
+    b.add_argument(
+        "--time-limit",
+        type=seconds_type(1e6),
+        default=900.0,
+        metavar="S",
+        help="stop a network's simulation after S seconds of wall clock and record it as failed (default 900)",
+    )
+    b.set_defaults(func=_bounds)
