@@ -297,9 +297,12 @@ def _pool_round(
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_init, initargs=(stop, state))
     broken: list[Task] = []
     interrupted = False
+    futs: dict[Any, Task] = {}
+    seen: set[Any] = set()
     try:
         futs = {pool.submit(_pool_call, fn, t): t for t in tasks}
         for fut in futures_completed(futs):
+            seen.add(fut)
             t = futs[fut]
             exc = fut.exception()
             if isinstance(exc, KeyboardInterrupt):
@@ -321,6 +324,14 @@ def _pool_round(
         _stop_workers()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+    if interrupted:
+        # a run that ended before the stop reached it is done, though the loop above had not
+        # taken its row yet when the interrupt came (a stopped run raised KeyboardInterrupt)
+        for fut, t in futs.items():
+            if fut not in seen and fut.done() and not fut.cancelled() and fut.exception() is None:
+                done = fut.result()
+                if done is not None:
+                    out.add(t.index, done)
     return sorted(broken, key=lambda t: t.index), interrupted
 
 
