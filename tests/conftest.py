@@ -14,6 +14,9 @@
 - Fixtures: ``wait_until`` (poll a condition with a deadline instead of sleeping a fixed time) and
   ``interruptible_python`` (a Python child that takes Ctrl-C even when the suite runs with SIGINT
   ignored, as a background job does).
+- Compiled modules are cached even where PYTHONDONTWRITEBYTECODE is set (as in many containers),
+  outside the checkout: without the cache every worker, and every ``canstack`` the tests start,
+  compiles the whole package and rewrites every test module again.
 """
 
 from __future__ import annotations
@@ -23,12 +26,37 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Generator
+from pathlib import Path
 from typing import Any, TypeVar
 
-import pytest
-from hypothesis import settings
+
+def _cache_bytecode() -> None:
+    """Where bytecode is not to be written (PYTHONDONTWRITEBYTECODE), cache it in a per-user
+    directory outside the checkout instead, for this process and every process it starts (xdist
+    workers, the ``canstack`` commands under test). A directory another user owns is not used."""
+    if not sys.dont_write_bytecode or sys.pycache_prefix:
+        return
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    prefix = Path(tempfile.gettempdir()) / f"canstack-tests-pycache-{uid}"
+    try:
+        prefix.mkdir(mode=0o700, exist_ok=True)
+        if hasattr(os, "getuid") and prefix.stat().st_uid != uid:
+            return
+    except OSError:
+        return
+    sys.pycache_prefix = str(prefix)
+    sys.dont_write_bytecode = False
+    os.environ["PYTHONPYCACHEPREFIX"] = str(prefix)
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+
+_cache_bytecode()
+
+import pytest  # noqa: E402  (below the cache: hypothesis and the tests import through it)
+from hypothesis import settings  # noqa: E402
 
 settings.register_profile("canstack", deadline=None, derandomize=bool(os.environ.get("CI")))
 settings.load_profile("canstack")
