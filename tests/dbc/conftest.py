@@ -50,3 +50,25 @@ def corpus_databases() -> _Corpus:
     """The corpus read once for the whole folder (parsing it is the dearest part of its tests):
     the tests share the databases, read them and never change them."""
     return _Corpus(sorted(CORPUS.glob("*/*.dbc")) if CORPUS.is_dir() else [])
+
+
+@pytest.fixture
+def read_once(monkeypatch, corpus_databases):
+    """`canstack scenario from-dbc` and `canstack restbus` read a corpus file with `load_database`
+    (strict), as `corpus_databases` read it once for tests/dbc: the commands are handed that
+    reading (the Database, or the DbcLoadError raised again) instead of parsing the file once
+    more. Any other call (a file outside the corpus, strict=False) goes to the real function."""
+    from dbc import cli, scenario_cli
+    from dbc.errors import DbcLoadError, load_database
+
+    def read_before(path, *, strict=True):
+        got = corpus_databases.get(Path(path)) if strict else None
+        if got is None:
+            return load_database(path, strict=strict)
+        if isinstance(got, DbcLoadError):
+            raise got
+        return got
+
+    for module in (scenario_cli, cli):
+        assert module.load_database is load_database  # what the commands call is what is read here
+        monkeypatch.setattr(module, "load_database", read_before)

@@ -11,8 +11,8 @@ import cantools
 import pytest
 
 import stack.cli as cli
-from dbc import load_database, scenario_cli
-from dbc.errors import DbcError, DbcLoadError
+from dbc import load_database
+from dbc.errors import DbcError
 from dbc.scenario import scenario_from_dbc
 from profiles.pipeline.scenario import load_scenario
 
@@ -154,25 +154,6 @@ def test_nothing_periodic_offers_default_cycle(capsys, tmp_path):
     dbc.write_text('VERSION ""\nBS_:\nBU_: A B\nBO_ 100 M: 1 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" B\n')
     code, out, err = run(capsys, "scenario", "from-dbc", dbc)
     assert code == 2 and "quiet.dbc" in err and "--default-cycle" in err and len(err.strip().splitlines()) == 1
-
-
-@pytest.fixture
-def read_once(monkeypatch, corpus_databases):
-    """`canstack scenario from-dbc` reads a corpus file with `load_database` (strict), as the
-    session's `corpus_databases` read it once for tests/dbc: the command is handed that reading
-    (the Database, or the DbcLoadError raised again) instead of parsing the file once more. Any
-    other call (a file outside the corpus, strict=False) goes to the real function."""
-    real = scenario_cli.load_database
-
-    def read_before(path, *, strict=True):
-        got = corpus_databases.get(Path(path)) if strict else None
-        if got is None:
-            return real(path, strict=strict)
-        if isinstance(got, DbcLoadError):
-            raise got
-        return got
-
-    monkeypatch.setattr(scenario_cli, "load_database", read_before)
 
 
 @pytest.mark.skipif(not CORPUS, reason="../shared/corpus/dbc is absent")
