@@ -87,6 +87,20 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, message):
     assert message.replace("BAD.toml", str(bad)) in err.replace(str(EXAMPLES) + "/", ""), err
 
 
+@pytest.mark.subprocess
+def test_bad_input_from_a_shell_is_one_line_and_exit_2(tmp_path):
+    """The contract above as a shell sees it: the process's status and all of its output, whatever
+    else a fresh interpreter might print on stderr (a warning, a log line)."""
+    bad = tmp_path / "BAD.toml"
+    bad.write_text(
+        '[bus]\nbitrate = 500000\nduration = 1.0\n[[nodes]]\nname = "a"\n'
+        '[[nodes.messages]]\nname = "m"\nid = 1\ndlc = 12\nperiod_ms = 10\n'
+    )
+    out = canstack("experiment", str(bad))
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.strip().splitlines() == [out.stderr.strip()] and "dlc: 12 is outside 0..8" in out.stderr
+
+
 def _main(capsys, *argv):
     from stack.cli import main
 
