@@ -56,19 +56,13 @@ def _random_value(sig, rng: random.Random, ecu: Ecu, message: str):
     return conv.raw_to_scaled(round((lo - conv.offset) / conv.scale), False)
 
 
-def _loaded():
-    ok, rejected = [], []
-    for f in FILES:
-        try:
-            ok.append((f, load_database(f)))
-        except DbcLoadError as exc:
-            rejected.append((f, exc))
-    return ok, rejected
-
-
 @pytest.fixture(scope="module")
-def corpus():
-    return _loaded()
+def corpus(corpus_databases):
+    """(loaded, rejected): each a list of (path, Database or DbcLoadError) in file order."""
+    assert list(corpus_databases) == FILES
+    ok = [(f, db) for f, db in corpus_databases.items() if not isinstance(db, DbcLoadError)]
+    rejected = [(f, exc) for f, exc in corpus_databases.items() if isinstance(exc, DbcLoadError)]
+    return ok, rejected
 
 
 def test_rejected_files_are_reported_with_reason(corpus):

@@ -43,10 +43,10 @@ def start_delay_ms(m) -> int:
 
 
 @needs_ford
-def test_ford_cyclic_messages_are_simulated_on_an_fd_bus(capsys):
+def test_ford_cyclic_messages_are_simulated_on_an_fd_bus(capsys, corpus_databases, read_once):
     code, out, err = run(capsys, "restbus", str(FORD), "--duration", "0.5", "--data-bitrate", "2000000", "--json")
     assert code == 0 and err == ""
-    db = cantools.database.load_file(str(FORD))
+    db = corpus_databases[FORD]  # cantools' reading of the file (strict, as cantools loads by default)
     assert all(m.is_fd for m in db.messages)  # the reason this DBC ran nothing before
     rows = [json.loads(line) for line in out.splitlines()]
     counts: dict[str, int] = {}
@@ -68,13 +68,13 @@ def test_ford_cyclic_messages_are_simulated_on_an_fd_bus(capsys):
 
 
 @needs_ford
-def test_ford_without_a_data_bitrate_is_refused_naming_a_message(capsys):
+def test_ford_without_a_data_bitrate_is_refused_naming_a_message(capsys, corpus_databases, read_once):
     code, out, err = run(capsys, "restbus", str(FORD), "--duration", "1")
     assert code == 2 and out == "" and err.count("\n") == 1
     m = re.search(
         r"message (\w+) is a CAN FD frame and the bus carries classical frames only: give --data-bitrate", err
     )
-    assert m and cantools.database.load_file(str(FORD)).get_message_by_name(m.group(1)).is_fd
+    assert m and corpus_databases[FORD].get_message_by_name(m.group(1)).is_fd
 
 
 def test_data_bitrate_below_the_nominal_rate_is_refused(capsys):

@@ -157,9 +157,10 @@ def test_nothing_periodic_offers_default_cycle(capsys, tmp_path):
 
 
 @pytest.mark.skipif(not CORPUS, reason="../shared/corpus/dbc is absent")
-def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_path):
+def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_path, corpus_databases, read_once):
     """Each corpus DBC either becomes a scenario whose messages are cantools' (identifier, length,
     period) or is refused in one line; the two largest run as experiments."""
+    assert list(corpus_databases) == CORPUS
     written = []
     for path in CORPUS:
         out_file = tmp_path / f"{path.parent.name}-{path.stem}.toml"
@@ -168,9 +169,9 @@ def test_every_corpus_database_gives_a_scenario_the_pipeline_reads(capsys, tmp_p
             assert len(err.strip().splitlines()) == 1 and str(path) in err, err
             continue
         assert code == 0, err
-        db = cantools.database.load_file(str(path), strict=False)
         got = _read(out_file)
-        assert {k: v[:4] for k, v in got.items()} == _expected(db, 100), path
+        # cantools' own reading of the file (the Database its parser made, nothing of canstack's)
+        assert {k: v[:4] for k, v in got.items()} == _expected(corpus_databases[path], 100), path
         written.append((len(got), out_file))
     assert len(written) >= 40
     for _, out_file in sorted(written, key=lambda w: -w[0])[:2]:  # the two largest networks
@@ -219,9 +220,9 @@ def test_classical_database_has_no_data_bitrate_unless_asked():
 
 
 @pytest.mark.skipif(not FORD.is_file(), reason="../shared/corpus not present")
-def test_ford_fd_database_gives_every_cyclic_message():
-    db = cantools.database.load_file(str(FORD))
-    sc = scenario_from_dbc(load_database(FORD), "ford.dbc", data_bitrate=4_000_000)
+def test_ford_fd_database_gives_every_cyclic_message(corpus_databases):
+    db = corpus_databases[FORD]  # cantools' reading of the file (strict, as cantools loads by default)
+    sc = scenario_from_dbc(db, "ford.dbc", data_bitrate=4_000_000)
     raw, msgs = _toml_messages(sc.text)
     assert raw["bus"] == {"bitrate": 500_000, "data_bitrate": 4_000_000, "duration": 1, "seed": 0}
     want = _expected(db)
@@ -230,7 +231,7 @@ def test_ford_fd_database_gives_every_cyclic_message():
 
 
 @pytest.mark.skipif(not FORD.is_file(), reason="../shared/corpus not present")
-def test_ford_scenario_runs_as_an_experiment(capsys, tmp_path):
+def test_ford_scenario_runs_as_an_experiment(capsys, tmp_path, read_once):
     """End to end: the opendbc Ford DBC (all CAN FD) through from-dbc into canstack experiment,
     the simulation and the response-time analysis on a 500 k / 2 M CAN FD bus."""
     out_file = tmp_path / "ford.toml"

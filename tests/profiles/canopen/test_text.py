@@ -69,9 +69,10 @@ def scenario(tmp_path_factory):
     return path
 
 
-def test_every_canopen_figure_of_the_json_is_in_the_text(capsys, scenario):
-    data = json.loads(_run(capsys, scenario, "--json"))["canopen"]
-    text = _run(capsys, scenario)
+def test_every_canopen_figure_of_the_json_is_in_the_text(capsys, scenario, tmp_path):
+    # one run: the table on stdout, the JSON object (the one --json prints) written by --out
+    text = _run(capsys, scenario, "--out", str(tmp_path / "r.json"))
+    data = json.loads((tmp_path / "r.json").read_text())["canopen"]
     blocks = _blocks(text)
     devices = [f for f in data.values() if f["profile"] == "canopen"]
     masters = [f for f in data.values() if f["profile"] == "canopen-master"]

@@ -303,17 +303,17 @@ def test_a_poll_request_may_not_reuse_another_messages_identifier():
     ) in refused(mutate)
 
 
-@pytest.mark.subprocess
-def test_on_the_command_line_a_bad_entry_is_one_line_with_exit_2(tmp_path):
-    from tests.profiles.pipeline.test_experiment_cli import canstack
+def test_on_the_command_line_a_bad_entry_is_one_line_with_exit_2(tmp_path, capsys):
+    from stack.cli import main
 
     bad = tmp_path / "bad.toml"
     bad.write_text(
         '[bus]\nbitrate = 500000\nduration = 0.1\n[[nodes]]\nname = "m"\nprofile = "master"\n'
         'cycle_ms = 5\ntimeout_ms = 1\n[[nodes.poll]]\nslave = "x"\n'
     )
-    out = canstack("experiment", str(bad))
-    assert out.returncode == 2 and out.stdout == ""
-    assert out.stderr.strip() == (
+    rc = main(["experiment", str(bad)])
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ""
+    assert err.strip() == (
         f"canstack: error: {bad}: [[nodes]] #1 'm' > [[nodes.poll]] #1: slave: 'x' is not a node of this scenario"
     )
