@@ -256,7 +256,7 @@ def response_cdf(result: Result, path: str | Path) -> Path:
     fig.tight_layout()
     if legend:  # one legend above the plots: inside one, a line at its right edge runs under it
         fig.legend(legend.values(), legend.keys(), loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=8)
-    return _save(fig, path)
+    return _save(fig, path, laid_out=True)
 
 
 def bus_load(result: Result, path: str | Path) -> Path:
@@ -326,9 +326,10 @@ def _legend_beside(ax: Any) -> None:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
 
 
-def _save(fig: Any, path: str | Path) -> Path:
+def _save(fig: Any, path: str | Path, *, laid_out: bool = False) -> Path:
     p = Path(path)
-    fig.tight_layout()
+    if not laid_out:  # a figure laid out already (its legend placed after) is not laid out again
+        fig.tight_layout()
     fig.savefig(p, dpi=110, bbox_inches="tight")  # a legend beside the axes stays in the image
     pyplot().close(fig)
     return p
