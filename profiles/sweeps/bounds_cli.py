@@ -179,7 +179,7 @@ def register_bounds(studies: Any) -> None:
         "bounds",
         help="how tight the response-time analysis' bounds are on random networks (priority, FIFO and mailbox "
         "nodes, jitter up to the period, drift), and that the simulation never exceeds them",
-        description="Random networks (seeded), each analysed (profiles.analysis.rta) and simulated in every release "
+        description="Random networks (seeded; classical CAN, or CAN FD with --fd), each analysed (profiles.analysis.rta) and simulated in every release "
         "pattern (" + "; ".join(f"{k}: {v}" for k, v in PATTERNS.items()) + "). Per analysis method (davis2007 for "
         "priority queues, fifo, mailbox): messages, how many exceeded their bound (must be 0), and the measured "
         "worst time over its bound, from queuing (bound_ns) and from the nominal release (response_ns): max, "
