@@ -465,7 +465,8 @@ def bounds_plot(study: BoundsStudy, path: str | Path) -> Path:
     axes[0].set_ylabel("fraction of messages at or below")
     s = study.settings
     fig.suptitle(
-        f"worst measured time over its bound, per message: {len(study.rows) - len(study.failed)} random networks "
+        f"worst measured time over its bound, per message: {len(study.rows) - len(study.failed)} random "
+        f"{'CAN FD (' + s['fd'] + ') ' if s.get('fd') else ''}networks "
         f"(seed {s['seed']}), released {', '.join(s['patterns'])}",
         fontsize=10,
     )
