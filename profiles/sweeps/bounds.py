@@ -4,7 +4,8 @@ that the simulated bus never exceeds them.
 Each of N random networks (`profiles.sweeps.networks.random_network`, network i drawn from a
 seed derived from the study seed and i, so that it is the same network whatever N) is analysed
 by `profiles.analysis.rta.analyse` and simulated once in each release pattern
-(`profiles.sweeps.releases.PATTERNS`). Per message, the worst measured time over the patterns is
+(`profiles.sweeps.releases.PATTERNS`); with ``fd`` the networks are CAN FD ones
+(`profiles.sweeps.networks.FD_NETWORKS`). Per message, the worst measured time over the patterns is
 set against the analysis:
 
 - from queuing to the end of EOF against ``bound_ns`` (queuing to the end of the frame's
@@ -15,7 +16,9 @@ set against the analysis:
 
 A measured time above its bound, or a miss the analysis did not predict, is a *defect* (of the
 analysis, or of the simulation): the study keeps the network, the pattern and the simulation seed
-that show it, so that `measure` on them shows it again. The tightness per analysis method
+that show it, so that `measure` on them shows it again. An error frame on a network without an
+error model is neither: the run left what the analysis assumes (`ModelAssumptionError`), and the
+network is reported as failed. The tightness per analysis method
 (``davis2007`` for priority queues, ``fifo``, ``mailbox``: `profiles.analysis.rta` says which
 bounds are quoted from Davis et al. 2007 and which are derived there) is summarised as the
 maximum, median and 10th percentile of measured/bound over the messages with a bound.
@@ -32,9 +35,10 @@ from typing import Any
 
 from profiles.analysis.rta import analyse
 from profiles.sweeps.execute import execute
-from profiles.sweeps.networks import DEFAULT_QUEUES, Network, queue_mix_text, random_network
-from profiles.sweeps.releases import PATTERNS, simulate
+from profiles.sweeps.networks import DATA_RATIOS, DEFAULT_QUEUES, FD_NETWORKS, Network, queue_mix_text, random_network
+from profiles.sweeps.releases import PATTERNS, ModelAssumptionError, run_network
 from profiles.sweeps.sweep import MAX_RUNS, run_seed
+from stack.controller.node import TOLERANT
 
 __all__ = [
     "METHODS",
@@ -44,6 +48,7 @@ __all__ = [
     "bounds_run",
     "bounds_study",
     "summarise",
+    "frames",
     "bounds_table",
     "bounds_json",
     "defect_text",
@@ -82,8 +87,9 @@ def measure(
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Analyse ``net``, simulate it in each of ``patterns`` (the simulation seed of pattern p is
     `run_seed`(``seed``, p)), and return (one row per message, the defects found); see the module
-    docstring. ``network`` numbers the rows and defects."""
-    res = analyse(net.specs(), net.bitrate, queues=net.queues(), errors=net.errors)
+    docstring. ``network`` numbers the rows and defects. `ModelAssumptionError` when a run without
+    an error model saw an error frame."""
+    res = analyse(net.specs(), net.bitrate, queues=net.queues(), errors=net.errors, data_bitrate=net.data_bitrate)
     worst: dict[str, dict[str, Any]] = {
         m.name: {"queued_ns": 0, "queued_pattern": None, "nominal_ns": 0, "nominal_pattern": None, "sent": 0}
         for m in net.messages
@@ -91,7 +97,13 @@ def measure(
     misses: dict[str, list[tuple[str, int, int]]] = {m.name: [] for m in net.messages}
     seeds = {p: run_seed(seed, (("pattern", p),)) for p in patterns}
     for p in patterns:
-        for name, got in simulate(net, p, seeds[p]).items():
+        run = run_network(net, p, seeds[p])
+        if net.errors is None and run.error_frames:
+            raise ModelAssumptionError(
+                f"{net.label or 'network'}: {run.error_frames} error frames in pattern {p} (simulation seed "
+                f"{seeds[p]}) on a bus without an error model: the analysis assumes none"
+            )
+        for name, got in run.measured.items():
             w = worst[name]
             if got.queued > w["queued_ns"] or w["queued_pattern"] is None:
                 w["queued_ns"], w["queued_pattern"] = got.queued, p
@@ -119,6 +131,7 @@ def measure(
             }
         )
 
+    controller = {n.name: n.fd for n in net.nodes}
     for m in net.messages:
         r, w = res[m.name], worst[m.name]
         total_misses = sum(k for _, _, k in misses[m.name])
@@ -126,6 +139,10 @@ def measure(
             "network": network,
             "message": m.name,
             "node": m.node,
+            "controller": controller[m.node] or ("fd" if net.data_bitrate else "classic"),
+            "fd": m.fd,
+            "brs": m.brs,
+            "bytes": len(m.data),
             "method": r.method,
             "bound_ns": r.bound_ns,
             "response_ns": r.response_ns,
@@ -158,6 +175,7 @@ class BoundsTask:
     queues: tuple[tuple[str, int], ...]
     patterns: tuple[str, ...]
     drift: bool = True
+    fd: str | None = None
 
     def head(self) -> dict[str, Any]:
         """run, network, seed."""
@@ -172,13 +190,14 @@ class BoundsTask:
             per_node=self.per_node,
             nodes=self.nodes,
             queues=self.queues,
+            fd=self.fd,
         )
         net.label = f"network {self.index} (seed {self.seed})"
         return net
 
 
 def bounds_run(task: BoundsTask) -> dict[str, Any]:
-    """One network: its row holds the bit rate, node and message counts, the per-message rows
+    """One network: its row holds the bit rates, node and message counts, the per-message rows
     (``messages``) and the defects found (``defects``; see `measure`)."""
     net = task.network()
     rows, defects = measure(net, task.patterns, task.seed, network=task.index)
@@ -186,7 +205,9 @@ def bounds_run(task: BoundsTask) -> dict[str, Any]:
     row.update(
         {
             "bitrate": net.bitrate,
+            "data_bitrate": net.data_bitrate,
             "nodes": len(net.nodes),
+            "tolerant_nodes": sum(1 for n in net.nodes if n.fd == TOLERANT),
             "message_count": len(rows),
             "messages": rows,
             "defects": defects,
@@ -232,18 +253,22 @@ def bounds_study(
     queues: Sequence[tuple[str, int]] = DEFAULT_QUEUES,
     patterns: Sequence[str] = tuple(PATTERNS),
     drift: bool = True,
+    fd: str | None = None,
     workers: int = 1,
     scheduler: str | None = None,
     engine: str = "auto",
     progress: bool | None = None,
     time_limit: float | None = None,
 ) -> BoundsStudy:
-    """The bounds study (see the module docstring) over ``networks`` random networks; ValueError
-    for settings out of range (before any run)."""
+    """The bounds study (see the module docstring) over ``networks`` random networks (CAN FD ones
+    of the kind ``fd`` names, `FD_NETWORKS`; classical when None); ValueError for settings out of
+    range (before any run)."""
     if not 1 <= networks <= MAX_RUNS:
         raise ValueError(f"--networks {networks}: from 1 to {MAX_RUNS:,}")
     if not patterns or any(p not in PATTERNS for p in patterns):
         raise ValueError(f"patterns {patterns!r}: one or more of {', '.join(PATTERNS)}")
+    if fd is not None and fd not in FD_NETWORKS:
+        raise ValueError(f"fd {fd!r}: one of {', '.join(FD_NETWORKS)} (None: classical networks)")
     tasks = [
         BoundsTask(
             i,
@@ -254,6 +279,7 @@ def bounds_study(
             tuple(queues),
             tuple(patterns),
             drift,
+            fd,
         )
         for i in range(networks)
     ]
@@ -277,6 +303,7 @@ def bounds_study(
         "queues": queue_mix_text(queues),
         "patterns": list(patterns),
         "drift": drift,
+        "fd": fd,
     }
     return BoundsStudy(ex.rows, len(tasks), ex.interrupted, ex.engine, ex.wall_s, settings)
 
@@ -323,6 +350,18 @@ def summarise(messages: Sequence[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def frames(study: BoundsStudy) -> dict[str, int]:
+    """What the study's networks carried: messages sent as classical frames, as CAN FD frames,
+    FD with BRS, and the tolerant classical nodes (ISO 11898-1:2015's protocol exception)."""
+    msgs = study.messages
+    return {
+        "classical": sum(1 for m in msgs if not m["fd"]),
+        "fd": sum(1 for m in msgs if m["fd"]),
+        "brs": sum(1 for m in msgs if m["brs"]),
+        "tolerant_nodes": sum(r["tolerant_nodes"] for r in study.rows if not r.get("error")),
+    }
+
+
 def bounds_json(study: BoundsStudy) -> dict[str, Any]:
     """The study as JSON data: settings, the summary per method, the defects, how the runs went
     (nothing that depends on the wall clock: the same seed gives the same object)."""
@@ -330,6 +369,7 @@ def bounds_json(study: BoundsStudy) -> dict[str, Any]:
         "study": "bounds",
         "settings": study.settings,
         "messages": len(study.messages),
+        "frames": frames(study),
         "methods": summarise(study.messages),
         "defects": study.defects,
         "networks": study.total,
@@ -353,6 +393,7 @@ def bounds_table(study: BoundsStudy) -> str:
     lines = [
         f"{len(study.rows) - len(study.failed)} networks, {len(msgs)} messages (seed {s['seed']}, utilisation up to "
         f"{s['max_utilisation']:g}, queues {s['queues']})",
+        *([_fd_line(study)] if s.get("fd") else []),
         f"each simulated with releases {', '.join(s['patterns'])}",
         f"{'':>38}{'measured / bound_ns':^23}  {'measured / response_ns':^22}",
         f"{'method':<10}{'messages':>9}{'unbounded':>10}{'exceeded':>9}"
@@ -371,6 +412,16 @@ def bounds_table(study: BoundsStudy) -> str:
     else:
         lines.append(f"simulated deadline misses: {a['missed']} messages, each one the analysis deems unschedulable")
     return "\n".join(lines)
+
+
+def _fd_line(study: BoundsStudy) -> str:
+    f = frames(study)
+    ratios = f"{DATA_RATIOS[0]}..{DATA_RATIOS[-1]}"
+    return (
+        f"CAN FD, {study.settings['fd']}: data phase {ratios} times the nominal bit rate; {f['fd']} FD frames "
+        f"({f['brs']} with BRS), {f['classical']} classical; {f['tolerant_nodes']} tolerant node"
+        + ("" if f["tolerant_nodes"] == 1 else "s")
+    )
 
 
 def defect_text(d: dict[str, Any]) -> str:
@@ -414,7 +465,8 @@ def bounds_plot(study: BoundsStudy, path: str | Path) -> Path:
     axes[0].set_ylabel("fraction of messages at or below")
     s = study.settings
     fig.suptitle(
-        f"worst measured time over its bound, per message: {len(study.rows) - len(study.failed)} random networks "
+        f"worst measured time over its bound, per message: {len(study.rows) - len(study.failed)} random "
+        f"{'CAN FD (' + s['fd'] + ') ' if s.get('fd') else ''}networks "
         f"(seed {s['seed']}), released {', '.join(s['patterns'])}",
         fontsize=10,
     )

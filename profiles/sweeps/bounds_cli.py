@@ -2,8 +2,8 @@
 (`profiles.sweeps.bounds`), registered by `profiles.sweeps.cli.register_study`.
 
     canstack study bounds [--networks N] [--seed S] [--utilisation U] [--nodes N] [--per-node N]
-                          [--queues priority=1,fifo=1,mailbox=2] [--patterns all] [--workers N]
-                          [--json] [--out FILE.csv] [--plot FILE.png]
+                          [--queues priority=1,fifo=1,mailbox=2] [--patterns all] [--fd [mixed|all]]
+                          [--workers N] [--json] [--out FILE.csv] [--plot FILE.png]
 
 Bad arguments are one line and exit status 2 before any run. Exit status 3 when a measured time
 exceeds its bound or a deadline miss was not predicted (each printed on stderr with the network
@@ -35,6 +35,10 @@ MESSAGE_COLUMNS = (
     "network",
     "message",
     "node",
+    "controller",
+    "fd",
+    "brs",
+    "bytes",
     "method",
     "bound_ns",
     "queued_ns",
@@ -126,6 +130,7 @@ def _bounds(args: argparse.Namespace) -> int:
         queues=args.queues,
         patterns=args.patterns,
         drift=args.drift,
+        fd=args.fd,
         workers=args.workers,
         scheduler=args.scheduler,
         engine=args.engine,
@@ -166,7 +171,7 @@ def _bounds(args: argparse.Namespace) -> int:
 def register_bounds(studies: Any) -> None:
     """Add `study bounds` to the `study` subcommands."""
     from profiles.sweeps.bounds import parse_patterns
-    from profiles.sweeps.networks import DEFAULT_QUEUES, parse_queue_mix, queue_mix_text
+    from profiles.sweeps.networks import DATA_RATIOS, DEFAULT_QUEUES, FD_NETWORKS, parse_queue_mix, queue_mix_text
     from profiles.sweeps.releases import PATTERNS
     from profiles.sweeps.sweep import MAX_RUNS
 
@@ -174,7 +179,7 @@ def register_bounds(studies: Any) -> None:
         "bounds",
         help="how tight the response-time analysis' bounds are on random networks (priority, FIFO and mailbox "
         "nodes, jitter up to the period, drift), and that the simulation never exceeds them",
-        description="Random networks (seeded), each analysed (profiles.analysis.rta) and simulated in every release "
+        description="Random networks (seeded; classical CAN, or CAN FD with --fd), each analysed (profiles.analysis.rta) and simulated in every release "
         "pattern (" + "; ".join(f"{k}: {v}" for k, v in PATTERNS.items()) + "). Per analysis method (davis2007 for "
         "priority queues, fifo, mailbox): messages, how many exceeded their bound (must be 0), and the measured "
         "worst time over its bound, from queuing (bound_ns) and from the nominal release (response_ns): max, "
@@ -227,6 +232,19 @@ def register_bounds(studies: Any) -> None:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="half the nodes' clocks drift, up to ±5 %% (default on)",
+    )
+    b.add_argument(
+        "--fd",
+        nargs="?",
+        const="mixed",
+        choices=tuple(FD_NETWORKS),
+        default=None,
+        metavar="mixed|all",
+        help="CAN FD networks: a data bit rate of "
+        + ", ".join(map(str, DATA_RATIOS))
+        + " times the nominal, FD frames of 0..64 bytes with and without BRS; "
+        + "; ".join(f"{k}: {v}" for k, v in FD_NETWORKS.items())
+        + " (--fd alone: mixed; default classical CAN)",
     )
     b.add_argument(
         "--workers",

@@ -1,8 +1,11 @@
 """Random CAN networks on which the response-time analysis is checked against the simulated bus.
 
-A `Network` is what both sides need: the bit rate, the nodes with their transmit queue policy
-(priority, FIFO, mailboxes with or without abort) and clock drift, and the messages with their
-payload, period, release jitter and deadline. `Network.specs` and `Network.queues` give the
+A `Network` is what both sides need: the bit rate (and, for CAN FD, the data bit rate), the
+nodes with their transmit queue policy (priority, FIFO, mailboxes with or without abort), clock
+drift and, on a CAN FD bus, what their controller is (`stack.Node`'s ``fd``: ``fd``, or
+``tolerant`` — classical, with ISO 11898-1:2015's protocol exception), and the messages with
+their payload, format (classical or FD, with or without BRS), period, release jitter and
+deadline. `Network.specs` and `Network.queues` give the
 analysis (`profiles.analysis.rta.analyse`) its inputs; `profiles.sweeps.releases` runs the same
 network on `stack.SimBus`.
 
@@ -20,6 +23,18 @@ machine:
 - release jitter uniform in [0, T], a quarter of the messages exactly T;
 - exact frame lengths for the analysis (the real stuffed frame) half the time, else eq. 1's
   worst case.
+
+With ``fd`` (`FD_NETWORKS`) the network is a CAN FD bus (ISO 11898-1:2015), drawn with the same
+steps and these more (a classical network draws none of them, so a seed gives the same classical
+network as before FD was added):
+
+- a data bit rate of 1, 2, 4, 5 or 8 times the nominal (`DATA_RATIOS`);
+- ``mixed``: 30 % of the nodes ``tolerant`` (they send classical frames, and integrate on FD
+  frames), and 30 % of the messages of FD-enabled nodes classical; ``all``: every node
+  FD-enabled, every message FD;
+- an FD message has BRS 60 % of the time (when the data bit rate is above the nominal) and one
+  of the FD lengths, 0..64 bytes; its share of the utilisation is its worst-case frame at both
+  rates (`profiles.analysis.model.frame_worst`).
 """
 
 from __future__ import annotations
@@ -29,9 +44,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from profiles.analysis.model import frame_worst
 from profiles.analysis.rta import ErrorModel, MessageSpec, NodeQueue, frame_bits_worst
 from profiles.sweeps.random_sets import uunifast
 from stack import Frame
+from stack.controller.node import FD, TOLERANT
+from stack.wire.coding import duration_ns
+from stack.wire.frame import FD_LENGTHS
 
 __all__ = [
     "NetNode",
@@ -42,6 +61,8 @@ __all__ = [
     "queue_mix_text",
     "QUEUE_KINDS",
     "DEFAULT_QUEUES",
+    "FD_NETWORKS",
+    "DATA_RATIOS",
     "MS",
 ]
 
@@ -51,6 +72,16 @@ DEFAULT_QUEUES: tuple[tuple[str, int], ...] = (("priority", 1), ("fifo", 1), ("m
 """The default mix of node queue kinds, by weight: mailbox nodes (with and without abort, one
 to three mailboxes) are the most varied, so they are drawn twice as often."""
 
+FD_NETWORKS = {
+    "mixed": "CAN FD and classical frames: some nodes tolerant classical controllers, some messages of "
+    "FD-enabled nodes classical",
+    "all": "every node FD-enabled, every message a CAN FD frame",
+}
+"""The kinds of CAN FD network `random_network` draws (its ``fd``), and what each is."""
+
+DATA_RATIOS = (1, 2, 4, 5, 8)
+"""The data bit rate of a CAN FD network, in multiples of its nominal bit rate."""
+
 #: the drifts a drifting node draws from (ppm, either sign)
 DRIFTS_PPM = (50.0, 2_000.0, 20_000.0, 50_000.0)
 #: the longest period drawn: a nearly idle message would otherwise make the simulation long
@@ -59,7 +90,8 @@ MAX_PERIOD_NS = 40 * MS
 
 @dataclass
 class NetNode:
-    """A node: its queue policy (`profiles.analysis.rta.NodeQueue`'s words) and its clock."""
+    """A node: its queue policy (`profiles.analysis.rta.NodeQueue`'s words), its clock, and what
+    its controller is towards CAN FD (`stack.Node`'s ``fd``; None: as the bus says)."""
 
     name: str
     queue: str = "priority"
@@ -67,11 +99,13 @@ class NetNode:
     abort: bool = False
     drift_ppm: float = 0.0
     offset_ns: int = 0
+    fd: str | None = None
 
 
 @dataclass
 class NetMsg:
-    """A periodic message: identifier, payload, period, release jitter and deadline (ns)."""
+    """A periodic message: identifier, payload, period, release jitter and deadline (ns); ``fd``
+    sends it as a CAN FD frame, ``brs`` with its data phase at the bus's data bit rate."""
 
     name: str
     node: str
@@ -81,81 +115,104 @@ class NetMsg:
     period_ns: int
     jitter_ns: int
     deadline_ns: int
+    fd: bool = False
+    brs: bool = False
 
     @property
     def frame(self) -> Frame:
         """The data frame each instance sends."""
+        if self.fd:
+            return Frame(self.can_id, self.data, extended=self.extended, fd=True, brs=self.brs)
         return Frame(self.can_id, self.data, extended=self.extended)
+
+    @property
+    def kind(self) -> str:
+        """``classical``, ``FD`` or ``FD with BRS``."""
+        return "FD with BRS" if self.brs else "FD" if self.fd else "classical"
 
 
 @dataclass
 class Network:
     """A bus, its nodes and messages; ``exact`` gives the analysis the real frame lengths,
-    ``errors`` an error model both the analysis and the simulation keep."""
+    ``errors`` an error model both the analysis and the simulation keep; ``data_bitrate`` makes
+    it a CAN FD bus (`stack.SimBus`'s, and the analysis' ``data_bitrate``)."""
 
     bitrate: int
     nodes: list[NetNode]
     messages: list[NetMsg]
     exact: bool = False
     errors: ErrorModel | None = None
+    data_bitrate: int | None = None
     label: str = field(default="", compare=False)
 
     def specs(self) -> list[MessageSpec]:
-        """The messages as the analysis takes them (drift from their node)."""
+        """The messages as the analysis takes them (drift from their node; for an exact FD frame
+        with BRS, also how many of its bits go at the data rate)."""
         drift = {n.name: n.drift_ppm for n in self.nodes}
-        return [
-            MessageSpec(
-                m.name,
-                m.can_id,
-                m.extended,
-                len(m.data),
-                m.period_ns,
-                m.deadline_ns,
-                m.jitter_ns,
-                m.frame.wire_bits + 3 if self.exact else None,
-                node=m.node,
-                drift_ppm=drift[m.node],
+        out = []
+        for m in self.messages:
+            f = m.frame
+            out.append(
+                MessageSpec(
+                    m.name,
+                    m.can_id,
+                    m.extended,
+                    f.dlc,
+                    m.period_ns,
+                    m.deadline_ns,
+                    m.jitter_ns,
+                    f.wire_bits + 3 if self.exact else None,
+                    node=m.node,
+                    drift_ppm=drift[m.node],
+                    fd=m.fd,
+                    brs=m.brs,
+                    data_bits=f.bits.data_bits if self.exact and m.brs else None,
+                )
             )
-            for m in self.messages
-        ]
+        return out
 
     def queues(self) -> dict[str, NodeQueue]:
         """Each node's queue policy, by node name."""
         return {n.name: NodeQueue(n.queue, n.mailboxes, n.abort) for n in self.nodes}
 
     def as_dict(self) -> dict[str, Any]:
-        """The network as plain data (JSON): enough to build it again."""
-        return {
-            "bitrate": self.bitrate,
-            "exact": self.exact,
-            "errors": None
-            if self.errors is None
-            else {"t_error_ns": self.errors.t_error_ns, "burst": self.errors.burst},
-            "nodes": [
-                {
-                    "name": n.name,
-                    "queue": n.queue,
-                    "mailboxes": n.mailboxes,
-                    "abort": n.abort,
-                    "drift_ppm": n.drift_ppm,
-                    "offset_ns": n.offset_ns,
-                }
-                for n in self.nodes
-            ],
-            "messages": [
-                {
-                    "name": m.name,
-                    "node": m.node,
-                    "id": m.can_id,
-                    "extended": m.extended,
-                    "data": m.data.hex(),
-                    "period_ns": m.period_ns,
-                    "jitter_ns": m.jitter_ns,
-                    "deadline_ns": m.deadline_ns,
-                }
-                for m in self.messages
-            ],
-        }
+        """The network as plain data (JSON): enough to build it again. A CAN FD network also has
+        ``data_bitrate``, each node its ``fd`` and each message its ``fd`` and ``brs``."""
+        fd = self.data_bitrate is not None
+        out: dict[str, Any] = {"bitrate": self.bitrate}
+        if fd:
+            out["data_bitrate"] = self.data_bitrate
+        out["exact"] = self.exact
+        out["errors"] = (
+            None if self.errors is None else {"t_error_ns": self.errors.t_error_ns, "burst": self.errors.burst}
+        )
+        out["nodes"] = [
+            {
+                "name": n.name,
+                "queue": n.queue,
+                "mailboxes": n.mailboxes,
+                "abort": n.abort,
+                "drift_ppm": n.drift_ppm,
+                "offset_ns": n.offset_ns,
+                **({"fd": n.fd or FD} if fd else {}),
+            }
+            for n in self.nodes
+        ]
+        out["messages"] = [
+            {
+                "name": m.name,
+                "node": m.node,
+                "id": m.can_id,
+                "extended": m.extended,
+                "data": m.data.hex(),
+                "period_ns": m.period_ns,
+                "jitter_ns": m.jitter_ns,
+                "deadline_ns": m.deadline_ns,
+                **({"fd": m.fd, "brs": m.brs} if fd else {}),
+            }
+            for m in self.messages
+        ]
+        return out
 
     def describe(self) -> str:
         """The network in lines a person can read and rebuild it from."""
@@ -163,7 +220,9 @@ class Network:
         errors = (
             "" if self.errors is None else f", errors: {self.errors.burst} in any {self.errors.t_error_ns / MS:g} ms"
         )
-        lines = [f"{self.label or 'network'}: {self.bitrate} bit/s, {frames}{errors}"]
+        fd = self.data_bitrate is not None
+        rates = f"{self.bitrate} bit/s" + (f", CAN FD data phase {self.data_bitrate} bit/s" if fd else "")
+        lines = [f"{self.label or 'network'}: {rates}, {frames}{errors}"]
         for n in self.nodes:
             if n.queue == "mailbox":
                 count = n.mailboxes or 1
@@ -171,12 +230,14 @@ class Network:
             else:
                 queue = f"{'FIFO' if n.queue == 'fifo' else n.queue} queue"
             clock = f", drift {n.drift_ppm:+g} ppm from offset {n.offset_ns} ns" if n.drift_ppm else ""
-            lines.append(f"  node {n.name}: {queue}{clock}")
+            controller = f", {n.fd or FD} controller" if fd else ""
+            lines.append(f"  node {n.name}: {queue}{controller}{clock}")
             for m in self.messages:
                 if m.node == n.name:
                     ident = f"0x{m.can_id:08X} (29-bit)" if m.extended else f"0x{m.can_id:03X}"
+                    kind = f"{m.kind} ({len(m.data)} bytes), " if fd else ""
                     lines.append(
-                        f"    {m.name}: id {ident}, data {m.data.hex() or '(none)'}, T {m.period_ns} ns, "
+                        f"    {m.name}: id {ident}, {kind}data {m.data.hex() or '(none)'}, T {m.period_ns} ns, "
                         f"J {m.jitter_ns} ns, D {m.deadline_ns} ns"
                     )
         return "\n".join(lines)
@@ -218,9 +279,12 @@ def random_network(
     per_node: int = 4,
     nodes: int = 5,
     queues: Sequence[tuple[str, int]] = DEFAULT_QUEUES,
+    fd: str | None = None,
 ) -> Network:
-    """A random network drawn from ``rng`` (see the module docstring for the distribution).
-    ValueError for counts below 1, a utilisation not above 0, or an empty or unknown queue mix."""
+    """A random network drawn from ``rng`` (see the module docstring for the distribution): a
+    CAN FD one of the kind ``fd`` names (`FD_NETWORKS`), classical when None. ValueError for
+    counts below 1, a utilisation not above 0, an empty or unknown queue mix, or an unknown
+    ``fd``."""
     if nodes < 1 or per_node < 1:
         raise ValueError(f"nodes {nodes} and per_node {per_node} must be >= 1")
     if not max_util > 0:
@@ -228,7 +292,13 @@ def random_network(
     kinds = [k for k, w in queues for _ in range(w)]
     if not kinds or any(k not in QUEUE_KINDS for k in kinds):
         raise ValueError(f"queues {queues!r}: kinds of {', '.join(QUEUE_KINDS)} with weights >= 1")
+    if fd is not None and fd not in FD_NETWORKS:
+        raise ValueError(f"fd {fd!r}: a CAN FD network is one of {', '.join(FD_NETWORKS)} (None: classical)")
+    mixed = fd == "mixed"
+    # every draw of the FD features sits behind `fd`: a classical network takes the same draws
+    # from rng as before they existed, so a seed keeps its network
     bitrate = rng.choice([125_000, 250_000, 500_000, 1_000_000])
+    data_bitrate = bitrate * rng.choice(DATA_RATIOS) if fd else None
     node_list = []
     for i in range(rng.randint(min(2, nodes), nodes)):
         kind = rng.choice(kinds)
@@ -239,6 +309,8 @@ def random_network(
         if drift and rng.random() < 0.5:
             n.drift_ppm = rng.choice([1.0, -1.0]) * rng.choice(DRIFTS_PPM)
             n.offset_ns = rng.randint(0, 10**6)
+        if fd:
+            n.fd = TOLERANT if mixed and rng.random() < 0.3 else FD
         node_list.append(n)
     counts = [rng.randint(1, per_node) for _ in node_list]
     total = sum(counts)
@@ -250,11 +322,18 @@ def random_network(
     for node, count in zip(node_list, counts):
         for _ in range(count):
             extended = rng.random() < 0.2
-            data = bytes(rng.randrange(256) for _ in range(rng.randint(0, 8)))
-            c = frame_bits_worst(len(data), extended) * tau
+            is_fd = node.fd == FD and (not mixed or rng.random() < 0.7)
+            brs = is_fd and data_bitrate is not None and data_bitrate > bitrate and rng.random() < 0.6
+            length = rng.choice(FD_LENGTHS) if is_fd else rng.randint(0, 8)
+            data = bytes(rng.randrange(256) for _ in range(length))
+            if is_fd:
+                nominal_bits, data_bits = frame_worst(Frame(0, data, fd=True).dlc, extended, fd=True, brs=brs)
+                c = duration_ns(nominal_bits, data_bits, bitrate, data_bitrate)
+            else:
+                c = frame_bits_worst(length, extended) * tau
             period = max(2 * c, min(MAX_PERIOD_NS, int(c / max(u[k], 1e-3))))
             jitter = period if rng.random() < 0.25 else rng.randint(0, period)
             can_id = (ids[k] << 18) if extended else ids[k]
-            msgs.append(NetMsg(f"m{k}", node.name, can_id, extended, data, period, jitter, period))
+            msgs.append(NetMsg(f"m{k}", node.name, can_id, extended, data, period, jitter, period, is_fd, brs))
             k += 1
-    return Network(bitrate, node_list, msgs, exact=rng.random() < 0.5)
+    return Network(bitrate, node_list, msgs, exact=rng.random() < 0.5, data_bitrate=data_bitrate)

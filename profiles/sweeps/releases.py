@@ -1,14 +1,19 @@
 """A `profiles.sweeps.networks.Network` on the simulated bus, released in a chosen pattern, and
 what every instance measured — the quantities the response-time analysis bounds.
 
+A network with a data bit rate runs on a CAN FD bus (`stack.SimBus`'s ``data_bitrate``), each
+node with its ``fd`` (FD-enabled, or a tolerant classical controller) and the silent receiver
+that acknowledges every frame FD-enabled. Bit times below (the blocker's head start, an error's
+place) are nominal bits.
+
 Release patterns (`PATTERNS`). Each message's instances are nominally released every T on its
 node's clock (which may drift) and queued up to J later:
 
 - ``random`` — the first nominal release uniform in [0, T], each queuing delay uniform in [0, J];
 - ``critical`` — Davis et al. 2007's critical instant: every message's first instance queued at
   the same bus instant with its full jitter J (nominal release J earlier), the later ones on
-  time, and the longest frame (or ``blocker``) queued one bit earlier so that it is on the wire
-  then;
+  time, and the longest frame in time (or ``blocker``) queued one bit earlier so that it is on
+  the wire then;
 - ``alternate`` — random first release, the queuing delay alternating J, 0, J, 0, …: a late
   instance followed at once by an early one;
 - ``extremes`` — random first release, each queuing delay J or 0 at random (a pattern of 64
@@ -21,6 +26,10 @@ worst time from its nominal release to the end of EOF — what ``response_ns`` b
 instances ending more than D after their nominal release (the analysis' reference for
 ``schedulable``). An instance still pending when the run ends counts with the time it has waited
 so far: a bound it has already passed is broken whether or not it is ever sent.
+
+The bus also counts its error frames (`Run.error_frames`): without an error model there must be
+none — the analysis assumes an error-free bus, and a tolerant node integrates on FD frames
+rather than destroy them — which `run_network`'s caller checks.
 
 Errors (`TimedErrors`), when the network has an error model: errors are placed by time, the
 first burst at ``first_error_ns`` (random in [0, 2 ms] by default), so that no window of
@@ -46,6 +55,8 @@ __all__ = [
     "TimedErrors",
     "Release",
     "ModelAssumptionError",
+    "Run",
+    "run_network",
     "simulate",
     "simulation_duration",
 ]
@@ -80,11 +91,22 @@ class Measured:
     misses: int = 0
 
 
+@dataclass
+class Run:
+    """One simulation of a network: each message's `Measured`, by name, and the error frames
+    the bus saw (each error the error model injected makes one)."""
+
+    measured: dict[str, Measured]
+    error_frames: int
+
+
 class TimedErrors(FaultInjector):
     """Errors by time: the first attempt starting at or after each scheduled instant, and the
     ``burst`` − 1 attempts after it, have their CRC delimiter flipped (a bit error for the
     transmitter, a form error for the receivers); the next burst starts ``t_error_ns`` after the
-    last error of the previous one, so no window of T_error holds more than ``burst`` errors."""
+    last error of the previous one, so no window of T_error holds more than ``burst`` errors.
+    An error's time counts every bit before it as a nominal bit: on a CAN FD bus it is late by
+    what the data phase saves, and the next burst comes later still, within the model."""
 
     def __init__(self, bus: SimBus, t_error_ns: int, burst: int, first_ns: int) -> None:
         super().__init__(bus)
@@ -169,22 +191,35 @@ def simulate(
     blocker: str | None = None,
     first_error_ns: int | None = None,
 ) -> dict[str, Measured]:
-    """Run ``net`` on `stack.SimBus` with releases in ``pattern`` (`PATTERNS`) for
-    ``duration_ns`` (default `simulation_duration`) and measure every instance (see the module
-    docstring). In the critical pattern, ``blocker`` (default: the longest frame) is queued one bit
-    before the others. The same arguments give the same measurements. Ctrl-C raises
-    KeyboardInterrupt; a wall-clock limit (`stack.io.progress.time_limit`) raises there too."""
+    """`run_network`'s measurements alone."""
+    return run_network(net, pattern, seed, duration_ns, blocker, first_error_ns).measured
+
+
+def run_network(
+    net: Network,
+    pattern: str,
+    seed: int,
+    duration_ns: int | None = None,
+    blocker: str | None = None,
+    first_error_ns: int | None = None,
+) -> Run:
+    """Run ``net`` on `stack.SimBus` (a CAN FD bus when it has a data bit rate) with releases in
+    ``pattern`` (`PATTERNS`) for ``duration_ns`` (default `simulation_duration`) and measure every
+    instance (see the module docstring). In the critical pattern, ``blocker`` (default: the
+    longest frame in time) is queued one nominal bit before the others. The same arguments give
+    the same measurements. Ctrl-C raises KeyboardInterrupt; a wall-clock limit
+    (`stack.io.progress.time_limit`) raises there too."""
     if pattern not in PATTERNS:
         raise ValueError(f"release pattern {pattern!r}: one of {', '.join(PATTERNS)}")
     if duration_ns is None:
         duration_ns = simulation_duration(net)
     rng = random.Random(seed)
-    bus = SimBus(net.bitrate, seed=seed, record=False)
+    bus = SimBus(net.bitrate, data_bitrate=net.data_bitrate, seed=seed, record=False)
     nodes: dict[str, Node] = {}
     for n in net.nodes:
         clock = LocalClock(n.offset_ns, n.drift_ppm) if n.drift_ppm else None
-        nodes[n.name] = bus.node(n.name, queue=n.queue, mailboxes=n.mailboxes, abort=n.abort, clock=clock)
-    bus.node("ack")  # a silent receiver: every frame is acknowledged
+        nodes[n.name] = bus.node(n.name, queue=n.queue, mailboxes=n.mailboxes, abort=n.abort, clock=clock, fd=n.fd)
+    bus.node("ack")  # a silent receiver (FD-enabled on an FD bus): every frame is acknowledged
     injector = None
     if net.errors is not None:
         first = rng.randint(0, 2 * MS) if first_error_ns is None else first_error_ns
@@ -192,7 +227,9 @@ def simulate(
     log: dict[str, list[tuple[Any, int]]] = {m.name: [] for m in net.messages}
     tau = 10**9 // net.bitrate
     if blocker is None:
-        blocker = max(net.messages, key=lambda m: (m.frame.wire_bits, m.can_id)).name
+        blocker = max(
+            net.messages, key=lambda m: (m.frame.bits.duration_ns(net.bitrate, net.data_bitrate), m.can_id)
+        ).name
 
     for m in net.messages:
         node = nodes[m.node]
@@ -228,7 +265,7 @@ def simulate(
                 raise ModelAssumptionError(f"{m.name}: a request ended {req.state.name}, neither sent nor pending")
             r.queued = max(r.queued, q)
             r.nominal = max(r.nominal, n)
-    return out
+    return Run(out, bus.error_frames)
 
 
 def _check_assumptions(net: Network, nodes: dict[str, Node], injector: TimedErrors | None) -> None:

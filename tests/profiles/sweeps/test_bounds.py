@@ -5,7 +5,10 @@ three methods; its figures are the max, median and 10th percentile of the per-me
 writes (recomputed here with `statistics.quantiles`); the same seed gives the same report; a
 bound one bit below what the simulation reaches — the analysis broken on purpose on the issue's
 hand-worked network — is reported as a defect, loudly, with exit status 3; bad arguments are one
-line and exit status 2.
+line and exit status 2. With ``--fd`` the same holds on CAN FD and mixed networks, whose frames
+follow ISO 11898-1:2015 (the FD lengths, BRS only in FD frames, FD frames only from FD-enabled
+controllers), and an error frame on such a bus (a classical controller destroying FD frames)
+fails the network rather than pass for a measurement.
 """
 
 from __future__ import annotations
@@ -22,9 +25,12 @@ import pytest
 import profiles.sweeps.bounds as bounds
 from profiles.sweeps.bounds import bounds_study, measure, summarise
 from profiles.sweeps.networks import MS, NetMsg, NetNode, Network
+from profiles.sweeps.releases import ModelAssumptionError
 from stack.cli import main
 
 TAU = 2_000  # ns, one bit at 500 kbit/s
+#: the data lengths a CAN FD frame can have (ISO 11898-1:2015, Table 5: DLC 0..15)
+FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
 def run(capsys, *args: str) -> tuple[int, str, str]:
@@ -197,9 +203,124 @@ def test_plot_file(tmp_path, capsys):
         (["--plot", "b.txt"], "unknown image suffix '.txt'"),
         (["--out", "m.json"], "write .csv or .parquet"),
         (["--engine", "sequential", "--workers", "2"], "--engine sequential runs in this process"),
+        (["--fd", "hybrid"], "argument --fd: invalid choice: 'hybrid' (choose from 'mixed', 'all')"),
+        (["--fd", "all", "--networks", "0"], "at least 1"),
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(capsys, args, message):
     code, stdout, err = run(capsys, *args)
     assert code == 2 and stdout == ""
     assert len(err.strip().splitlines()) == 1 and message in err, err
+
+
+def table_rows(stdout: str) -> dict[str, list[str]]:
+    """The method rows of the text table, by method."""
+    lines = stdout.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("method ")) + 1
+    return {ln.split()[0]: ln.split() for ln in lines[start : start + 4]}
+
+
+def test_fd_networks_exceed_no_bound_and_carry_fd_frames_with_and_without_brs(tmp_path, capsys):
+    out = tmp_path / "messages.csv"
+    code, stdout, err = run(capsys, "--fd", "--networks", "8", "--seed", "4", "--out", str(out))
+    assert code == 0, err
+    table = table_rows(stdout)
+    assert list(table) == ["davis2007", "fifo", "mailbox", "all"]
+    assert all(row[3] == "0" for row in table.values())  # the exceeded column
+    assert "DEFECT" not in err and "failed" not in err
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    fd = [r for r in rows if r["fd"] == "True"]
+    brs = [r for r in fd if r["brs"] == "True"]
+    classical = [r for r in rows if r["fd"] == "False"]
+    # FD frames with and without BRS, classical frames, and classical frames from tolerant nodes
+    assert brs and len(brs) < len(fd) and classical
+    assert any(r["controller"] == "tolerant" for r in classical)
+    for r in rows:  # the standard's rules on what each message sends
+        if r["fd"] == "True":
+            assert int(r["bytes"]) in FD_LENGTHS and r["controller"] == "fd", r
+        else:
+            assert 0 <= int(r["bytes"]) <= 8 and r["brs"] == "False", r
+        if r["bound_ns"]:
+            assert float(r["queued_ns"]) <= float(r["bound_ns"]) and float(r["nominal_ns"]) <= float(r["response_ns"])
+    # the table says what the networks carried
+    line = stdout.splitlines()[1]
+    assert line.startswith(
+        f"CAN FD, mixed: data phase 1..8 times the nominal bit rate; {len(fd)} FD frames ({len(brs)} with BRS), "
+        f"{len(classical)} classical; "
+    )
+    assert int(line.split("; ")[-1].split()[0]) >= 1 and line.endswith(" tolerant nodes")
+
+
+def test_fd_all_sends_every_message_as_an_fd_frame(tmp_path, capsys):
+    out = tmp_path / "messages.csv"
+    code, stdout, err = run(capsys, "--fd", "all", "--networks", "3", "--patterns", "critical", "--out", str(out))
+    assert code == 0, err
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and all(r["fd"] == "True" and r["controller"] == "fd" for r in rows)
+    assert "CAN FD, all: " in stdout and "0 classical; 0 tolerant nodes" in stdout
+
+
+def test_fd_studies_are_deterministic_and_differ_from_classical_ones(capsys):
+    code, first, _ = run(capsys, "--fd", "--networks", "3", "--seed", "9", "--json", "--patterns", "random,critical")
+    code2, second, _ = run(capsys, "--fd", "--networks", "3", "--seed", "9", "--json", "--patterns", "random,critical")
+    assert code == code2 == 0 and first == second
+    data = json.loads(first)
+    assert data["settings"]["fd"] == "mixed" and data["defects"] == [] and data["methods"]["all"]["exceeded"] == 0
+    frames = data["frames"]
+    assert frames["fd"] > 0 and frames["fd"] + frames["classical"] == data["messages"]
+    _, classical, _ = run(capsys, "--networks", "3", "--seed", "9", "--json", "--patterns", "random,critical")
+    assert json.loads(classical)["frames"] == {
+        "classical": json.loads(classical)["messages"],
+        "fd": 0,
+        "brs": 0,
+        "tolerant_nodes": 0,
+    }
+    three = bounds_study(3, seed=9, patterns=("random",), fd="all")
+    four = bounds_study(4, seed=9, patterns=("random",), fd="all")
+    assert four.rows[:3] == three.rows
+    assert all(r["data_bitrate"] in {r["bitrate"] * k for k in (1, 2, 4, 5, 8)} for r in four.rows)
+
+
+def fd_issue_network() -> Network:
+    """The issue's example as a CAN FD frame: 64 zero bytes with BRS at 500 kbit/s / 2 Mbit/s."""
+    m = NetMsg("m", "a", 0x100, False, bytes(64), 1 * MS, 900_000, 1 * MS, fd=True, brs=True)
+    return Network(500_000, [NetNode("a", fd="fd")], [m], exact=True, data_bitrate=2_000_000)
+
+
+def test_an_fd_frame_reaches_its_bound_up_to_the_intermission():
+    # as the classical case: bound = 2 C - 0.1 ms, C the frame at both rates with its 3-bit
+    # intermission (nominal bits); the simulation reaches it but for that intermission
+    net = fd_issue_network()
+    f = net.messages[0].frame
+    c = f.bits.duration_ns(500_000, 2_000_000) + 3 * TAU
+    assert f.bits.data_bits > 0 and c < (f.bits.length + 3) * TAU  # the data phase is faster
+    rows, defects = measure(net, ("critical",), 1)
+    assert defects == []
+    assert rows[0]["bound_ns"] == 2 * c - 100_000
+    assert rows[0]["queued_ns"] == 2 * c - 100_000 - 3 * TAU
+
+
+def test_an_fd_defect_report_names_each_message_format(monkeypatch, capsys):
+    broken(monkeypatch, bound_ns=10 * MS)  # every bound below what is measured
+    code, _, err = run(capsys, "--fd", "--networks", "2", "--patterns", "critical")
+    assert code == 3 and "DEFECT" in err
+    assert re.search(r"^network \d+ \(seed \d+\): \d+ bit/s, CAN FD data phase \d+ bit/s, ", err, re.M)
+    assert re.search(r"^  node n\d+: .*, (fd|tolerant) controller", err, re.M)
+    kinds = set(
+        re.findall(r"^    m\d+: id 0x[0-9A-F]+(?: \(29-bit\))?, (classical|FD|FD with BRS) \(\d+ bytes\), ", err, re.M)
+    )
+    assert kinds >= {"FD", "FD with BRS"}, kinds
+
+
+def test_an_error_frame_without_an_error_model_fails_the_network():
+    # a CAN 2.0 controller ("classic") on an FD bus destroys every FD frame with an error frame
+    # (ISO 11898-1:2015, 10.4.2.3's protocol exception is what a tolerant one has instead): the
+    # run is no measurement of an error-free bus
+    net = fd_issue_network()
+    net.nodes.append(NetNode("legacy", fd="classic"))
+    with pytest.raises(ModelAssumptionError, match=r"error frames in pattern random .* without an error model"):
+        measure(net, ("random",), 1)
+    net.nodes[-1].fd = "tolerant"
+    assert measure(net, ("random",), 1)[1] == []
