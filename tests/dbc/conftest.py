@@ -72,11 +72,3 @@ def read_once(monkeypatch, corpus_databases):
     for module in (scenario_cli, cli):
         assert module.load_database is load_database  # what the commands call is what is read here
         monkeypatch.setattr(module, "load_database", read_before)
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests that read the corpus go to one xdist worker (``--dist loadgroup``): the corpus
-    is then parsed once, not once on every worker."""
-    for item in items:
-        if "corpus_databases" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.xdist_group("dbc_corpus"))
