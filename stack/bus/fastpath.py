@@ -1,8 +1,8 @@
 """The simulated bus's fast loop: clean frames arbitrated and completed back to back, in one
 loop with local variables, while no timer, fault, tie, suspension or special receiver needs the
-general path (arbitration, then completion, one event at a time). It inlines the plain case of
-`Node.confirm`, of `IdStats.add` and of the transmit queue's bookkeeping; differential tests
-compare its traces with the general path's on random networks.
+general path (`stack.bus.arbitration`). It inlines the plain case of `Node.confirm`, of
+`IdStats.add` and of the transmit queue's bookkeeping; differential tests compare its traces with
+the general path's on random networks.
 
 Hand-written on purpose (DESIGN.md allows it for the event loop); `python -m stack.bench` and the
 benchmarks page say what it buys.
