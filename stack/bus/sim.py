@@ -29,9 +29,17 @@ random source, so a scenario with the same seed gives the same trace.
 
 Hot path, hand-written on purpose (DESIGN.md allows it for the event loop): the current
 transmission and the next arbitration are two slots compared with the timer heap instead of
-heap events, contenders sit in their own heap (O(log n) per round for 1000 nodes), and receivers
-that only buffer frames (no callbacks) read a shared delivery log lazily — batched when the log
-is flushed — instead of being visited per frame. See `python -m stack.bench` for the figures.
+heap events, contenders sit in their own heap (O(log n) per round for 1000 nodes), runs of clean
+frames go through one loop with local variables (`stack.bus.fastpath`), and receivers that only
+buffer frames (no callbacks) read a shared delivery log lazily — batched when the log is flushed
+— instead of being visited per frame (`stack.bus.delivery`). See `python -m stack.bench` for the
+figures.
+
+`SimBus` is assembled from parts, each a mixin in a module of its own: arbitration and the
+completion of clean frames (`stack.bus.arbitration`), the fast loop (`stack.bus.fastpath`), the
+delivery log (`stack.bus.delivery`), bit-level attempts (`stack.bus.bitlevel`) and statistics
+(`stack.bus.stats`). This module holds the fields, the nodes' bookkeeping, the clock, the run
+loop and rule 12's recovery count.
 """
 
 from __future__ import annotations
@@ -39,19 +47,19 @@ from __future__ import annotations
 import heapq
 import itertools
 import random
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from typing import Any
 
-from stack.bus.attempt import AttemptResult, brs_position, sent_frame
+from stack.bus.arbitration import Arbitration
+from stack.bus.attempt import AttemptResult, brs_position
 from stack.bus.bitlevel import BitLevelAttempts
-from stack.bus.delivery import LOG_LIMIT, LazyDelivery
-from stack.bus.fdnodes import classic_fd_attempt
+from stack.bus.delivery import LazyDelivery
+from stack.bus.fastpath import FastFrames
 from stack.bus.stats import BusStatistics, IdStats
 from stack.bus.trace import DiscardedTrace, TraceRecord
 from stack.controller.confinement import BUS_OFF, PASSIVE, RECOVERY_OCCURRENCES, RECOVERY_RECESSIVE_BITS, ErrorState
-from stack.controller.events import TxDone
 from stack.controller.node import CLASSIC, FD, Node, Timer
-from stack.controller.queues import QUEUED, SENT, TxRequest
+from stack.controller.queues import QUEUED, TxRequest
 from stack.wire.coding import INTERMISSION_BITS
 from stack.wire.frame import Frame
 
@@ -59,8 +67,6 @@ __all__ = ["SimBus", "TraceRecord", "IdStats", "SUSPEND_BITS", "MAX_DATA_BITRATE
 
 _heappush = heapq.heappush
 INF = float("inf")
-NEVER = 1 << 62  # a time no simulation reaches (ns: 146 years)
-_tuple_new = tuple.__new__
 SUSPEND_BITS = 8
 # ISO 11898-1:2015 sets no upper limit to the data phase; transceivers of ISO 11898-2:2016 are
 # specified for 2 and 5 Mbit/s, SIC ones up to 8 (the limit of `canstack frame --data-bitrate`)
@@ -68,7 +74,7 @@ MAX_DATA_BITRATE = 16_000_000
 FD_DURATION_CACHE = 4096  # FD frame durations kept per bus (by the frame's bits)
 
 
-class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
+class SimBus(Arbitration, FastFrames, LazyDelivery, BitLevelAttempts, BusStatistics):
     """A simulated CAN bus with a virtual clock (ns) and a bitrate (1 kbit/s .. 1 Mbit/s).
 
     ``data_bitrate`` makes it a CAN FD bus: the bit rate of the data phase of FD frames with BRS
@@ -492,213 +498,6 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             self.now_ns = until
         return self
 
-    fast = True  # the specialised loop below; tests turn it off to compare traces
-
-    def _fast_frames(self, tt: float, limit: float, stop: float) -> int:
-        """Arbitrate and complete clean frames back to back, in one loop with local variables,
-        while no timer, fault, tie, suspension or special receiver needs the general path.
-
-        Same results as `_arbitrate` + `_complete` (a test compares traces), and faster (the
-        benchmarks page has the figure): it saves two method calls, the transmission tuple, a loop turn and the stores of the
-        bus's clock and counters per frame (they live in locals until user code may run). Returns the
-        number of frames it completed (0: let the general path take this one).
-        """
-        heap = self._contenders
-        heappop = heapq.heappop
-        heappush = heapq.heappush
-        timers = self._timers
-        dur = self._dur
-        ifs = self._ifs_ns
-        eager = self._eager
-        lazy = self._lazy
-        log = self._log
-        id_stats = self.id_stats
-        record = self.record
-        rtr = self._rtr
-        busoff = self._busoff  # sets: their identity is stable, their content is read live
-        rec_nonzero = self._rec_nonzero
-        now = self.now_ns
-        idle_at = self._idle_at
-        frames_ok = self.frames_ok
-        rounds = self.rounds
-        delivered = self.delivered
-        flush_at = self._log_base + LOG_LIMIT  # the log is flushed when it holds LOG_LIMIT entries
-        # one int bound: a frame starts and ends before the next timer (tt) and at or before
-        # ``limit`` (int-to-int comparisons are cheaper than against float('inf'))
-        if tt == INF:
-            tt = NEVER
-        after = NEVER if limit == INF else int(limit // 1) + 1  # the first whole ns past limit
-        bound = tt if tt < after else after
-        first = frames_ok
-        busy = self.busy_ns
-        # what makes every frame run code beyond the loop, the node's own aside (re-read whenever
-        # user code ran: nothing else changes them while the loop runs)
-        watched = eager or rec_nonzero or record
-        non_fd = self._non_fd  # an FD frame with any of these on the bus takes the general path
-        # (a list changed in place: read once)
-        frame_ns = self.frame_ns
-        fd_ns = self._fd_ns
-        try:
-            while frames_ok < stop:
-                t0 = idle_at if idle_at > now else now
-                if t0 >= bound:
-                    break
-                try:
-                    req = heap[0][2]
-                except IndexError:  # nothing to send
-                    break
-                node = req.node
-                if (
-                    req.state is not QUEUED
-                    or node.offered is not req
-                    or not node.on_bus
-                    or node.ready_at > t0
-                    or node.state is PASSIVE
-                ):
-                    break
-                frame = req.frame
-                nbits = frame.nbits or frame.wire_bits
-                if frame.fd:
-                    if non_fd or frame.esi:
-                        break  # nodes that are not FD enabled, or an ESI to clear: the general path
-                    if frame.brs:  # SimBus.frame_ns, its cache hit inlined
-                        end = fd_ns.get(frame.encoded.bits)  # (encoded: nbits read it)
-                        end = t0 + (frame_ns(frame) if end is None else end)
-                    else:
-                        end = t0 + dur[nbits]
-                else:
-                    if rtr and frame.remote:
-                        break  # automatic replies: the general path
-                    end = t0 + dur[nbits]
-                heappop(heap)
-                if heap and heap[0][0] == req.key:
-                    heappush(heap, (req.key, req.seq, req))
-                    break
-                if end >= bound:
-                    heappush(heap, (req.key, req.seq, req))
-                    break
-                # arbitration; the bus's clock and counters live in locals and are stored back
-                # before any user code can run (and when the loop ends)
-                if t0 > idle_at and busoff:
-                    self._recessive_events += (t0 - idle_at) * self.bitrate // 11_000_000_000
-                lost = rounds - req.head_since
-                rounds += 1
-                if lost > 0:
-                    req.losses += lost
-                    node.rounds_lost += lost
-                req.head_since = rounds
-                # completion
-                now = end
-                idle_at = end + ifs
-                frames_ok += 1
-                busy += idle_at - t0
-                if busoff:
-                    self._recessive_events += 1
-                tx_listeners = node.tx_done_listeners
-                called = tx_listeners or watched or node.tec
-                if called:  # user code may run (callbacks, state-change listeners): bus state first
-                    self.rounds = rounds
-                    self.now_ns = end
-                    self._idle_at = idle_at
-                    self.frames_ok = frames_ok
-                    self.busy_ns = busy
-                if record:
-                    rec = TraceRecord("frame", t0, end, node.name, frame, nbits, req.losses, req.t_queued)
-                    self.trace.append(rec)
-                    for cb in self._bus_listeners:
-                        cb(rec)
-                if lazy:
-                    log.append((end, frame, node))
-                    delivered += 1
-                    if delivered >= flush_at:  # (delivered is _log_base + len(log): no len() a frame)
-                        self._flush()
-                        log = self._log
-                        flush_at = self._log_base + LOG_LIMIT
-                if called:
-                    self.delivered = delivered
-                for n in eager:
-                    n.deliver(end, frame, node, t0)
-                if rec_nonzero:
-                    for n in tuple(rec_nonzero):
-                        if n is not node and n.on_bus:
-                            n.on_rx_success()
-                st = id_stats.get(frame.key)
-                if st is None:
-                    st = id_stats[frame.key] = IdStats(frame.can_id, frame.extended)
-                lat = end - req.t_queued  # IdStats.add, inlined
-                st.count += 1
-                st.total += lat
-                st.losses += req.losses
-                if lat < st.min:
-                    st.min = lat
-                if lat > st.max:
-                    st.max = lat
-                if req.special or node.clock is not None:  # one-shot, latest start, drift
-                    self.rounds = rounds  # the node offers its next head at this round
-                    nxt = node.confirm(req, end, t0)  # the one bookkeeping of a success
-                    if nxt is not None:
-                        self.offer(node, nxt)
-                else:
-                    # Node.confirm's plain case, inlined (a plain request: not one-shot — a one-shot
-                    # node is watched, which keeps this loop off — no latest start, no local clock).
-                    # Calling it costs a large share of `python -m stack.bench`'s frame figures
-                    # (measured on the benchmarks page); test_fast_loop_matches_the_general_path_*
-                    # guard this copy
-                    req.state = SENT
-                    req.t_done = end
-                    req.sof = t0
-                    node.tx_frames += 1
-                    q = node.queue
-                    by = q.fifos
-                    if by is not None:  # PriorityQueue.remove, inlined
-                        dq = by.get(req.key)
-                        if dq and dq[0] is req:
-                            dq.popleft()
-                        q.size -= 1
-                    else:
-                        q.remove(req)
-                    if node.tec:
-                        node.on_tx_success()
-                    if tx_listeners:  # (`called`: the bus's state is stored)
-                        # confirm first, then pick the next head once (sends from the callbacks included)
-                        node.offered = None
-                        ev = _tuple_new(TxDone, (end, frame, req, t0))
-                        for cb in tx_listeners:
-                            cb(ev)
-                        if node.offered is None:
-                            node.update_head()
-                    elif by is not None and not called:
-                        # PriorityQueue.head, inlined: the same key again unless a lower key waits
-                        # (one queued while req was on the wire: `send` leaves the head alone then)
-                        if dq and dq[0].state is QUEUED and q.keys[0] == req.key:
-                            nxt = dq[0]
-                        else:
-                            nxt = q.head()
-                        node.offered = nxt
-                        if nxt is not None:
-                            nxt.head_since = rounds
-                            heappush(heap, (nxt.key, nxt.seq, nxt))
-                    else:
-                        self.rounds = rounds  # the node offers its next head at this round
-                        node.update_head()
-                if called:  # user code ran: it may have changed what the loop relies on
-                    if timers:
-                        tt = timers[0][0]
-                        bound = tt if tt < after else after
-                    eager = self._eager
-                    lazy = self._lazy
-                    watched = eager or rec_nonzero or record
-                    if self._arb_watch or self._faults is not None or self._suspended or self._ack_count < 2:
-                        break
-        finally:
-            self.rounds = rounds
-            self.delivered = delivered
-            self.now_ns = now
-            self._idle_at = idle_at
-            self.frames_ok = frames_ok
-            self.busy_ns = busy
-        return frames_ok - first
-
     def next_event_time(self) -> float:
         """Virtual time (ns) of the next thing the engine will do: a timer, the end of the
         current transmission, or the next arbitration; ``inf`` when idle with nothing queued.
@@ -731,230 +530,6 @@ class SimBus(LazyDelivery, BitLevelAttempts, BusStatistics):
             return any(a is not p and (not fd or a.fd == FD) for a in ackers)
 
         return not any(acknowledged(p) for p in pending)
-
-    def _wake(self, now: int) -> None:
-        still = []
-        for n in self._suspended:
-            if n.ready_at <= now:
-                n.suspended = False
-                h = n.offered
-                if h is not None and h.state is QUEUED:
-                    h.head_since = self.rounds
-                    heapq.heappush(self._contenders, (h.key, h.seq, h))
-            else:
-                still.append(n)
-        self._suspended = still
-
-    def _valid(self, req: TxRequest) -> bool:
-        return req.state is QUEUED and req.node.offered is req and req.node.on_bus
-
-    def _arbitrate(self) -> None:
-        now = self.now_ns
-        if self._suspended:
-            self._wake(now)
-        heap = self._contenders
-        heappop = heapq.heappop
-        winner = None
-        while heap:
-            req = heap[0][2]
-            node = req.node
-            if req.state is not QUEUED or node.offered is not req or not node.on_bus:
-                heappop(heap)
-                continue
-            if node.ready_at > now:  # error passive: suspend transmission
-                heappop(heap)
-                if not node.suspended:
-                    node.suspended = True
-                    self._suspended.append(node)
-                continue
-            winner = heappop(heap)[2]
-            break
-        if winner is None:
-            return
-        r = self.rounds
-        self.rounds = r + 1
-        if now > self._idle_at and self._busoff:  # rule 12 counts 11-bit recessive runs on an idle bus too
-            self._recessive_events += (now - self._idle_at) * self.bitrate // 11_000_000_000
-        if heap and heap[0][0] == winner.key:
-            txs = self._tied(winner, now)
-        else:
-            txs = (winner,)
-        for q in txs:
-            lost = r - q.head_since
-            if lost > 0:
-                q.losses += lost
-                q.node.rounds_lost += lost
-            q.head_since = r + 1
-            q.on_wire = True
-        if self._arb_watch:
-            self._notify_losers(now, r, txs)
-        frame = winner.frame
-        spec = self._faults.attempt(self, now, txs) if self._faults is not None else None
-        if len(txs) > 1:
-            # several nodes send the same arbitration field: replayed bit by bit, a collision if
-            # their frames differ, else each is a transmitter and none receives the frame
-            collision = self._first_difference(txs) is not None
-            self.collisions += collision
-            self._bitlevel(now, txs, collision=collision, **(spec or {}))
-            return
-        if spec is not None:
-            self._bitlevel(now, txs, **spec)
-            return
-        if frame.fd:
-            frame = sent_frame(frame, winner.node.state is PASSIVE)  # ESI: its state at SOF
-            if self._classic:  # CAN 2.0 nodes destroy it (`stack.bus.fdnodes`)
-                self._classic_attempt(now, winner, frame)
-                return
-            if self._fd_ack_count <= 1:  # only FD-enabled nodes acknowledge an FD frame
-                self._bitlevel(now, txs)  # ACK error
-                return
-        elif self._ack_count <= 1:  # nobody but the transmitter (never listen-only) to acknowledge
-            self._bitlevel(now, txs)  # ACK error
-            return
-        self._tx = (txs, now, None, frame)
-        self._tx_end = now + self.frame_ns(frame)
-
-    def _tied(self, winner: TxRequest, now: int) -> tuple[TxRequest, ...]:
-        """Other nodes sending the same arbitration field: they all go on transmitting."""
-        heap = self._contenders
-        key = winner.key
-        txs = [winner]
-        while heap and heap[0][0] == key:
-            q = heapq.heappop(heap)[2]
-            if not self._valid(q) or q in txs or q.node is winner.node:
-                continue
-            if q.node.ready_at > now:
-                if not q.node.suspended:
-                    q.node.suspended = True
-                    self._suspended.append(q.node)
-                continue
-            txs.append(q)
-        return tuple(txs)
-
-    def _classic_attempt(self, now: int, req: TxRequest, frame: Frame) -> None:
-        """An FD frame on a bus with CAN 2.0 nodes: their error frame destroys it, or, when all of
-        them are error passive or listen-only, their passive error flags leave it alone. The
-        outcome is fully determined by the nodes' kinds, states and counters (`stack.bus.fdnodes`
-        computes it without the bit-level replay, which a differential test compares it with);
-        anything it does not cover is replayed bit by bit."""
-        nodes = [n for n in self.nodes if n.on_bus]
-        res = classic_fd_attempt(req, frame, nodes) if self.fast_fd_attempts else None
-        if res is None:
-            self._bitlevel(now, (req,))
-        else:
-            self._start_attempt(now, (req,), nodes, res)
-
-    fast_fd_attempts = True  # `stack.bus.fdnodes` for FD frames with CAN 2.0 nodes; tests compare
-
-    @staticmethod
-    def _first_difference(txs: tuple[TxRequest, ...]) -> int | None:
-        def bits(q: TxRequest) -> str:
-            return sent_frame(q.frame, q.node.state is PASSIVE).bits.bits
-
-        bits0 = bits(txs[0])
-        diff = None
-        for q in txs[1:]:
-            b = bits(q)
-            if b != bits0:
-                d = next(i for i, (x, y) in enumerate(zip(bits0, b)) if x != y)
-                diff = d if diff is None else min(diff, d)
-        return diff
-
-    def _notify_losers(self, now: int, r: int, txs: tuple[TxRequest, ...]) -> None:
-        """Nodes that watch arbitration hear of each round their offered request lost
-        (`Node.lost_arbitration`: ArbitrationLost, and a one-shot request fails)."""
-        winners = {q.node for q in txs}
-        wframe = sent_frame(txs[0].frame, txs[0].node.state is PASSIVE)  # as on the wire (ESI)
-        for n in tuple(self._arb_watch):
-            h = n.offered
-            if n in winners or h is None or h.state is not QUEUED or h.on_wire or n.suspended:
-                continue
-            if not (n.connected and n.state is not BUS_OFF) or h.head_since > r:
-                continue
-            n.lost_arbitration(now, h, wframe)
-
-    def _complete(self) -> None:
-        assert self._tx is not None  # completing the attempt on the wire
-        txs, start, detail, frame = self._tx
-        self._tx = None
-        end = self._tx_end
-        idle = end + self._ifs_ns
-        if detail is not None:
-            self._complete_bitlevel(txs, start, end, idle, detail)
-            return
-        assert frame is not None  # a clean attempt carries its frame
-        winner = txs[0]
-        sender = winner.node
-        # an FD frame reaches the FD-enabled nodes only (a tolerant node integrates meanwhile)
-        skip = self._non_fd if frame.fd else ()
-        self.frames_ok += 1
-        self.busy_ns += idle - start
-        self._idle_at = idle
-        if self.record:
-            rec = TraceRecord(
-                "frame",
-                start,
-                end,
-                sender.name if len(txs) == 1 else "+".join(q.node.name for q in txs),
-                frame,
-                frame.bits.length,
-                winner.losses,
-                winner.t_queued,
-            )
-            self.trace.append(rec)
-            for cb in self._bus_listeners:
-                cb(rec)
-        # receivers validate the frame at the last-but-one EOF bit, before the transmitter
-        # does at the last one: deliver first, then confirm the transmission
-        if self._lazy:
-            log = self._log
-            log.append((end, frame, sender))
-            self.delivered += 1
-            if len(log) >= LOG_LIMIT:
-                self._flush()
-        for n in self._eager_fd if frame.fd else self._eager:
-            n.deliver(end, frame, sender, start)
-        if self._busoff:
-            self._recessive_events += 1  # ACK delimiter + EOF + intermission: 11 recessive bits
-        if self._rec_nonzero:
-            for n in tuple(self._rec_nonzero):
-                if n is not sender and n.on_bus and n not in skip:
-                    n.on_rx_success()
-        for q in txs:
-            q.on_wire = False
-            self._tx_success(q, end, idle, start, passive=q.node.state is PASSIVE, rule7=True)
-        if frame.remote and self._rtr:
-            self._auto_reply(frame, sender, self._rtr.get((frame.can_id, frame.extended), ()))
-
-    def _auto_reply(self, frame: Frame, sender: Node | None, receivers: Iterable[Node]) -> None:
-        """Mailboxes configured for automatic replies answer a remote frame they received."""
-        key = (frame.can_id, frame.extended)
-        holders = self._rtr.get(key, ())
-        for n in receivers:
-            if n in holders and n is not sender and n.on_bus and not n.listen_only:
-                n.send(n.remote_replies[key])  # the mailbox's frame (Node.remote_reply)
-
-    def _suspend(self, node: Node, idle: int) -> None:
-        """Suspend transmission: an error-passive node that transmitted waits 8 more bits after
-        the intermission; until then it is out of arbitration (not counted as losing)."""
-        node.ready_at = idle + self._suspend_ns
-        if not node.suspended:
-            node.suspended = True
-            self._suspended.append(node)
-
-    def _tx_success(self, q: TxRequest, end: int, idle: int, sof: int, *, passive: bool, rule7: bool) -> None:
-        """A transmission that went through: per-ID latency, suspend transmission if it was sent
-        error passive, then the node's own bookkeeping (`Node.confirm`: counters, rule 7 unless
-        the attempt's counters were applied already, the next head, `TxDone`)."""
-        st = self.id_stats.get(q.key)
-        if st is None:
-            st = self.id_stats[q.key] = IdStats(q.frame.can_id, q.frame.extended)
-        st.add(end - q.t_queued, q.losses)
-        if passive:
-            self._suspend(q.node, idle)
-        nxt = q.node.confirm(q, end, sof, rule7=rule7)
-        if nxt is not None:
-            self.offer(q.node, nxt)
 
     # ------------------------------------------------------------------ fault confinement
     def state_changed(self, node: Node, old: ErrorState, new: ErrorState, t: int) -> None:

@@ -1,11 +1,14 @@
 """The software controller: queue policies, filters, receive FIFO, remote replies, modes, counters."""
 
+import importlib
+import pkgutil
+
 import can
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stack.bus import sim as sim_mod
+import stack.bus
 from stack.bus.sim import SimBus
 from stack.controller.events import ArbitrationLost, Received, TxDone, TxFailed
 from stack.controller.filters import AcceptanceFilter
@@ -144,9 +147,18 @@ def _traffic(bus, n, ids=(0x100, 0x200, 0x300)):
         tx.send(Frame(ids[i % len(ids)], bytes([i & 0xFF])))
 
 
+def _flush_every(monkeypatch, entries):
+    """The delivery log is flushed at ``entries`` entries: the threshold set in every module of
+    the bus that reads it (the general path's and the fast loop's)."""
+    for info in pkgutil.iter_modules(stack.bus.__path__, "stack.bus."):
+        module = importlib.import_module(info.name)
+        if hasattr(module, "LOG_LIMIT"):
+            monkeypatch.setattr(module, "LOG_LIMIT", entries)
+
+
 @pytest.mark.parametrize("log_limit", [1 << 15, 7])
 def test_receive_fifo_overrun_counts_against_trace(monkeypatch, log_limit):
-    monkeypatch.setattr(sim_mod, "LOG_LIMIT", log_limit)
+    _flush_every(monkeypatch, log_limit)
     bus = SimBus()
     flt = [{"can_id": 0x200, "can_mask": 0x7FF}]
     poll = bus.node("poll", rx_fifo_size=4, filters=flt)
@@ -165,7 +177,7 @@ def test_receive_fifo_overrun_counts_against_trace(monkeypatch, log_limit):
 
 
 def test_reading_between_frames_keeps_everything(monkeypatch):
-    monkeypatch.setattr(sim_mod, "LOG_LIMIT", 5)
+    _flush_every(monkeypatch, 5)
     bus = SimBus()
     r = bus.node("r", rx_fifo_size=2)
     out = []
