@@ -7,12 +7,13 @@ retries, lost slaves, cycle overruns, bus off) and ``profile = "slave"``
 (`profiles.polling.slave`: answers after its processing delay or from its controller's
 remote-reply mailbox, change-of-state / cyclic production, the watchdogs). The identifier plans
 are in `profiles.polling.plan` (DeviceNet, checked against its sources, or user-given), the
-scenario keys in `profiles.polling.config`, DeviceNet's connection timers (expected packet rate,
-heartbeat, watchdogs, acknowledge handler) in `profiles.polling.connection`, its duplicate MAC ID
-check in `profiles.polling.dupmac`, its I/O fragmentation in `profiles.polling.fragment`, the
-analysis — the cycle's worst case from frame lengths, and the holistic response-time model of a
-shared bus — in `profiles.polling.analysis`, the poll-cycle plot in `profiles.polling.plots`,
-and what the profiles add to scenario files and results in `profiles.polling.kind`.
+scenario keys in `profiles.polling.config` (read and checked by `profiles.polling.parse` and
+`profiles.polling.entries`), DeviceNet's connection timers (expected packet rate, heartbeat,
+watchdogs, acknowledge handler) in `profiles.polling.connection`, its duplicate MAC ID check in
+`profiles.polling.dupmac`, its I/O fragmentation in `profiles.polling.fragment`, the analysis —
+the cycle's worst case from frame lengths, and the holistic response-time model of a shared bus
+— in `profiles.polling.analysis`, the poll-cycle plot in `profiles.polling.plots`, and what the
+profiles add to scenario files and results in `profiles.polling.kind`.
 
 Where canstack's policy differs from DeviceNet's Predefined Master/Slave Connection Set:
 

@@ -13,9 +13,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from profiles.polling.analysis import cycle_bound_ns, holistic, message_bits, transaction_bound_ns
-from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, SLAVE_MESSAGE_KEYS, parse_network
+from profiles.polling.config import MASTER_KEYS, NETWORK_TABLE, SLAVE_KEYS, SLAVE_MESSAGE_KEYS
 from profiles.polling.convert import express_message_set  # noqa: F401  (the profiles study finds it here)
 from profiles.polling.master import Master
+from profiles.polling.parse import parse_network
 from profiles.polling.plots import poll_cycle
 from profiles.polling.slave import Slave
 from profiles.registry import ProfileKind
