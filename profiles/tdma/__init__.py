@@ -7,7 +7,8 @@ has its own time window in a system matrix of 1..64 basic cycles. Potential time
 the global time and the drift correction. CSMA nodes on the same bus are gated into the
 arbitrating windows unless ``tdma_gated = false``.
 
-- `profiles.tdma.schedule` — the ``[tdma]`` table, its checks, the reference message layout;
+- `profiles.tdma.schedule` — the schedule (system matrix) and the reference message layout;
+- `profiles.tdma.parse` — the ``[tdma]`` table and its checks;
 - `profiles.tdma.fse` — a node's frame synchronisation entity (cycle time, sync and master
   states, reference messages, level 2 time unit ratio);
 - `profiles.tdma.profile` — the profile on a node (messages in their windows) and the gate of a

@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Any
 from profiles.registry import ProfileKind
 from profiles.tdma.convert import express_message_set  # noqa: F401  (the profiles study finds it here)
 from profiles.tdma.monitor import message_bounds
+from profiles.tdma.parse import check_scenario
 from profiles.tdma.plots import tdma_schedule
 from profiles.tdma.profile import TdmaProfile
-from profiles.tdma.schedule import check_scenario
 from profiles.text import table
 
 if TYPE_CHECKING:  # pragma: no cover
