@@ -10,7 +10,8 @@ a process pool or a Dask cluster.
 - `profiles.sweeps.bounds` — the bounds study: the analysis against simulation on random
   networks (`profiles.sweeps.networks`) released in several patterns (`profiles.sweeps.releases`);
 - `profiles.sweeps.plots`, `profiles.sweeps.cli` — their plots and ``canstack sweep`` /
-  ``canstack study`` (``study bounds`` in `profiles.sweeps.bounds_cli`);
+  ``canstack study`` (``study bounds`` in `profiles.sweeps.bounds_cli`, the options both share in
+  `profiles.sweeps.options_cli`);
   `profiles.sweeps.bench` — the speed figures of the runner and the sweeps.
 
 The sweeps build on the experiment pipeline (`profiles.pipeline`), never the reverse.

@@ -14,16 +14,21 @@ reported).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import math
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-from stack.cli import CliError, count_type, plural, seconds_type
-from stack.cli.runs import check_output, check_plot_output, writing
+from profiles.sweeps.options_cli import (
+    at_most_type,
+    check_before_runs,
+    int_type,
+    run_options,
+    run_settings,
+    utilisation_type,
+)
+from stack.cli import plural
+from stack.cli.runs import check_plot_output, writing
 
 __all__ = ["register_bounds", "DEFECT", "MESSAGE_COLUMNS"]
 
@@ -56,6 +61,8 @@ MESSAGE_COLUMNS = (
 
 #: the most nodes and messages a node: every message needs its own 11-bit identifier
 MAX_NODES, MAX_PER_NODE = 32, 64
+#: the lowest --utilisation (the largest utilisation a network may draw)
+MIN_UTILISATION = 0.01
 
 
 def _library(parse: Callable[[str], Any]) -> Callable[[str], Any]:
@@ -70,57 +77,11 @@ def _library(parse: Callable[[str], Any]) -> Callable[[str], Any]:
     return typed
 
 
-def _at_most(what: str, most: int) -> Callable[[str], int]:
-    base = count_type(what)
-
-    def parse(text: str) -> int:
-        v = base(text)
-        if v > most:
-            raise argparse.ArgumentTypeError(f"{text}: {what} is at most {most:,}")
-        return v
-
-    return parse
-
-
-def _max_utilisation(text: str) -> float:
-    try:
-        f = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a utilisation (a fraction, 0.5 for 50 %)") from None
-    if not (math.isfinite(f) and 0.01 <= f <= 1.5):
-        raise argparse.ArgumentTypeError(f"{text!r}: the utilisation is from 0.01 to 1.5 (a fraction: 0.5 is 50 %)")
-    return f
-
-
-def _seed(text: str) -> int:
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-
-
-def _check_out(path: str) -> None:
-    """``--out``: a writable .csv, or .parquet with pyarrow installed (the sweeps' own rule)."""
-    check_output(path, "--out")
-    suffix = Path(path).suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise CliError(f"--out {path!r}: write .csv or .parquet")
-    if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
-        raise CliError(
-            f"--out {path!r}: Parquet needs pyarrow, which is not installed: pip install 'canstack[parquet]'"
-        )
-
-
 def _bounds(args: argparse.Namespace) -> int:
     from profiles.sweeps.bounds import bounds_json, bounds_plot, bounds_study, bounds_table, defect_text
-    from profiles.sweeps.execute import choose_engine
     from profiles.sweeps.sweep import write_table
 
-    if args.out:
-        _check_out(args.out)
-    if args.plot:
-        check_plot_output(args.plot)
-    choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
+    check_before_runs(args, check_plot_output)
     study = bounds_study(
         args.networks,
         seed=args.seed,
@@ -131,11 +92,7 @@ def _bounds(args: argparse.Namespace) -> int:
         patterns=args.patterns,
         drift=args.drift,
         fd=args.fd,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        engine=args.engine,
-        progress=args.progress,
-        time_limit=args.time_limit,
+        **run_settings(args),
     )
     if args.out:
         writing(args.out, "--out", lambda: write_table(study.messages, MESSAGE_COLUMNS, args.out))
@@ -187,14 +144,14 @@ def register_bounds(studies: Any) -> None:
     )
     b.add_argument(
         "--networks",
-        type=_at_most("networks", MAX_RUNS),
+        type=at_most_type("networks", MAX_RUNS),
         default=100,
         help="random networks (default 100; network i is the same whatever N)",
     )
-    b.add_argument("--seed", type=_seed, default=1, help="the study seed (default 1)")
+    b.add_argument("--seed", type=int_type, default=1, help="the study seed (default 1)")
     b.add_argument(
         "--utilisation",
-        type=_max_utilisation,
+        type=utilisation_type(MIN_UTILISATION),
         default=0.85,
         metavar="U",
         help="the largest bus utilisation drawn (worst-case frames; default 0.85): each network's is uniform in "
@@ -202,13 +159,13 @@ def register_bounds(studies: Any) -> None:
     )
     b.add_argument(
         "--nodes",
-        type=_at_most("nodes a network", MAX_NODES),
+        type=at_most_type("nodes a network", MAX_NODES),
         default=5,
         help=f"nodes a network, at most (default 5: each network has 2..5; at most {MAX_NODES})",
     )
     b.add_argument(
         "--per-node",
-        type=_at_most("messages a node", MAX_PER_NODE),
+        type=at_most_type("messages a node", MAX_PER_NODE),
         default=4,
         help=f"messages a node, at most (default 4; at most {MAX_PER_NODE})",
     )
@@ -246,37 +203,12 @@ def register_bounds(studies: Any) -> None:
         + "; ".join(f"{k}: {v}" for k, v in FD_NETWORKS.items())
         + " (--fd alone: mixed; default classical CAN)",
     )
-    b.add_argument(
-        "--workers",
-        type=count_type("the number of worker processes"),
-        default=1,
-        help="run on N processes (default 1: in this process)",
-    )
-    b.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on a Dask cluster (the dask extra)")
-    b.add_argument(
-        "--engine",
-        choices=("auto", "sequential", "processes", "dask"),
-        default="auto",
-        help="where the runs go (default auto)",
-    )
+    run_options(b)
     b.add_argument("--json", action="store_true", help="print one JSON object instead of the text table")
     b.add_argument("--out", help="write one row per message here: .csv, or .parquet (the parquet extra)")
     b.add_argument(
         "--plot",
         metavar="FILE",
         help="draw the distribution of measured/bound per method into FILE (.png, .svg, .pdf; the plot extra)",
-    )
-    b.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: when stderr is a terminal)",
-    )
-    b.add_argument(
-        "--time-limit",
-        type=seconds_type(1e6),
-        default=900.0,
-        metavar="S",
-        help="stop a network's simulation after S seconds of wall clock and record it as failed (default 900)",
     )
     b.set_defaults(func=_bounds)

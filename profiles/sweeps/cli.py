@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib.util
 import json
 import math
 import sys
@@ -25,46 +24,25 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from profiles.sweeps.options_cli import (
+    at_most_type,
+    check_before_runs,
+    check_engine,
+    check_table_output,
+    int_type,
+    run_options,
+    run_settings,
+    utilisation_type,
+)
 from stack.cli import CliError, count_type, parse_bitrate, plural, seconds_type
-from stack.cli.runs import check_output, check_plot_dir, writing
+from stack.cli.runs import check_plot_dir, writing
 
-__all__ = ["register", "register_sweep", "register_study", "check_table_output"]
+__all__ = ["register", "register_sweep", "register_study"]
 
 DEFAULT_METRICS = ("worst_misses", "bus_load")
 
-DEFAULT_TIME_LIMIT = 900.0
-"""Wall-clock seconds a run of a sweep or study may take before it is stopped and recorded as
-failed (a run that never ends must not stall the others)."""
-
 #: exit status when some runs failed (their rows carry the error; the table is written)
 FAILED_RUNS = 1
-
-
-def check_table_output(path: str, option: str = "--out") -> None:
-    """A results table: .csv, or .parquet with pyarrow installed (the ``parquet`` extra), in a
-    writable place — checked before anything runs."""
-    check_output(path, option)
-    suffix = Path(path).suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise CliError(f"{option} {path!r}: write .csv or .parquet")
-    if suffix == ".parquet" and importlib.util.find_spec("pyarrow") is None:
-        raise CliError(
-            f"{option} {path!r}: Parquet needs pyarrow, which is not installed: "
-            "pip install 'canstack[parquet]' (or write .csv)"
-        )
-
-
-def _check_engine(args: argparse.Namespace) -> None:
-    from profiles.sweeps.execute import choose_engine
-
-    choose_engine(args.workers, args.scheduler, args.engine)  # ExecuteError: one line, exit 2
-
-
-def _int(text: str) -> int:
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
 
 
 #: the longest period a study draws, ms (an hour: a set with longer periods holds no instance in a run)
@@ -90,67 +68,11 @@ def _period_range(text: str) -> tuple[float, float]:
     return a, b
 
 
-def _utilisation(text: str) -> float:
-    try:
-        f = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a utilisation (a fraction, 0.5 for 50 %)") from None
-    if not (math.isfinite(f) and MIN_UTILISATION <= f <= 1.5):
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: a utilisation is from {MIN_UTILISATION:g} to 1.5 (a fraction: 0.5 is 50 %)"
-        )
-    return f
-
-
-def _bounded_count(what: str, most: int) -> Any:
-    base = count_type(what)
-
-    def parse(text: str) -> int:
-        v = base(text)
-        if v > most:
-            raise argparse.ArgumentTypeError(f"{text}: {what} is at most {most:,}")
-        return v
-
-    return parse
-
-
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--workers",
-        type=count_type("the number of worker processes"),
-        default=1,
-        help="run on N processes: a standard library process pool, or a Dask LocalCluster with "
-        "--engine dask (default 1: in this process)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="tcp://HOST:8786",
-        help="run on a Dask cluster (the dask extra; canstack installed on every worker)",
-    )
-    p.add_argument(
-        "--engine",
-        choices=("auto", "sequential", "processes", "dask"),
-        default="auto",
-        help="where --workers runs go (default auto: one worker in this process, more on a process pool, "
-        "--scheduler on Dask)",
-    )
+    run_options(p)
     p.add_argument("--out", help="write the table here: .csv, or .parquet (the parquet extra)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text table")
     p.add_argument("--plot", metavar="DIR", help="write the plots into DIR (the plot extra)")
-    p.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar of the runs with the time left on stderr (default: when stderr is a terminal)",
-    )
-    p.add_argument(
-        "--time-limit",
-        type=seconds_type(1e6),
-        default=DEFAULT_TIME_LIMIT,
-        metavar="S",
-        help=f"stop a run that takes longer than S seconds of wall clock and record it as failed (default "
-        f"{DEFAULT_TIME_LIMIT:g})",
-    )
 
 
 # --- sweep -----------------------------------------------------------------------------------------
@@ -222,7 +144,7 @@ def _sweep(args: argparse.Namespace) -> int:
             raise CliError(f"--plot draws one or two varied keys; this sweep varies {n_keys}")
     elif args.metric:
         raise CliError("--metric chooses what --plot draws: give --plot DIR too")
-    _check_engine(args)
+    check_engine(args)
     scenario = load_scenario(scenario_path(args.scenario))
     raw = scenario.raw
     if args.duration is not None:
@@ -240,11 +162,7 @@ def _sweep(args: argparse.Namespace) -> int:
         varies,
         seeds=args.seeds,
         sweep_seed=args.seed,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        engine=args.engine,
-        progress=args.progress,
-        time_limit=args.time_limit,
+        **run_settings(args),
     )
     if args.out:
         writing(args.out, "--out", lambda: write_table(res.rows, res.columns, args.out))
@@ -336,7 +254,7 @@ def register_sweep(sub: Any) -> None:
         default=1,
         help="runs per combination, each with its own derived seed (default 1)",
     )
-    p.add_argument("--seed", type=_int, help="the sweep seed every run's seed derives from (default: [bus] seed)")
+    p.add_argument("--seed", type=int_type, help="the sweep seed every run's seed derives from (default: [bus] seed)")
     p.add_argument(
         "--duration", type=seconds_type(1e6), help="simulated seconds of every run instead of [bus] duration"
     )
@@ -406,11 +324,7 @@ def _schedulability(args: argparse.Namespace) -> int:
     from profiles.sweeps.schedulability import schedulability_study
     from profiles.sweeps.sweep import table_columns, write_table
 
-    if args.out:
-        check_table_output(args.out)
-    if args.plot:
-        check_plot_dir(args.plot)
-    _check_engine(args)
+    check_before_runs(args, check_plot_dir)
     study = schedulability_study(
         args.utilisation,
         sets=args.sets,
@@ -421,11 +335,7 @@ def _schedulability(args: argparse.Namespace) -> int:
         generator=args.generator,
         priorities=args.priorities,
         seed=args.seed,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        engine=args.engine,
-        progress=args.progress,
-        time_limit=args.time_limit,
+        **run_settings(args),
     )
     if args.out:
         cols = table_columns(study.rows, ["utilisation", "set"])
@@ -505,11 +415,7 @@ def _profiles(args: argparse.Namespace) -> int:
     from profiles.sweeps.random_sets import generate_set
     from profiles.sweeps.sweep import run_seed, table_columns, write_table
 
-    if args.out:
-        check_table_output(args.out)
-    if args.plot:
-        check_plot_dir(args.plot)
-    _check_engine(args)
+    check_before_runs(args, check_plot_dir)
     if args.scenario:
         from profiles.pipeline.examples import scenario_path
         from profiles.pipeline.scenario import load_scenario
@@ -535,11 +441,7 @@ def _profiles(args: argparse.Namespace) -> int:
         mset = dataclasses.replace(mset, duration_s=args.duration)
     study = profiles_study(
         mset,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        engine=args.engine,
-        progress=args.progress,
-        time_limit=args.time_limit,
+        **run_settings(args),
     )
     if args.out:
         cols = table_columns(study.rows, ["profile"])
@@ -590,13 +492,13 @@ def _profiles(args: argparse.Namespace) -> int:
 def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) -> None:
     p.add_argument(
         "--messages",
-        type=_bounded_count("messages per set (each has its own 11-bit identifier)", MAX_SET_MESSAGES),
+        type=at_most_type("messages per set (each has its own 11-bit identifier)", MAX_SET_MESSAGES),
         default=messages,
         help=f"messages per set (default {messages}, at most {MAX_SET_MESSAGES})",
     )
     p.add_argument(
         "--per-node",
-        type=_bounded_count("messages per node", MAX_SET_MESSAGES),
+        type=at_most_type("messages per node", MAX_SET_MESSAGES),
         default=per_node,
         help=f"messages per node (default {per_node})",
     )
@@ -626,7 +528,7 @@ def _set_options(p: argparse.ArgumentParser, *, messages: int, per_node: int) ->
         default="deadline",
         help="deadline: identifiers in deadline-monotonic order (default); random: as drawn",
     )
-    p.add_argument("--seed", type=_int, default=1, help="the study seed (default 1)")
+    p.add_argument("--seed", type=int_type, default=1, help="the study seed (default 1)")
 
 
 def register_study(sub: Any) -> None:
@@ -657,7 +559,7 @@ def register_study(sub: Any) -> None:
         help="utilisation points, fractions (default 0.1:1.0:0.1, i.e. 10 %% .. 100 %%)",
     )
     s.add_argument(
-        "--sets", type=_bounded_count("sets per point", 100_000), default=100, help="sets per point (default 100)"
+        "--sets", type=at_most_type("sets per point", 100_000), default=100, help="sets per point (default 100)"
     )
     _set_options(s, messages=10, per_node=3)
     _common(s)
@@ -669,7 +571,12 @@ def register_study(sub: Any) -> None:
         "converter (express_message_set), and compare worst-case latency, jitter and bus load.",
     )
     q.add_argument("--scenario", help="take the message set from this scenario file (default: a random set)")
-    q.add_argument("--utilisation", type=_utilisation, default=0.5, help="utilisation of the random set (default 0.5)")
+    q.add_argument(
+        "--utilisation",
+        type=utilisation_type(MIN_UTILISATION),
+        default=0.5,
+        help="utilisation of the random set (default 0.5)",
+    )
     q.add_argument(
         "--duration",
         type=seconds_type(1e6),

@@ -191,7 +191,7 @@ def test_plot_file(tmp_path, capsys):
     [
         (["--networks", "0"], "at least 1"),
         (["--networks", "many"], "'many'"),
-        (["--utilisation", "2"], "the utilisation is from 0.01 to 1.5"),
+        (["--utilisation", "2"], "a utilisation is from 0.01 to 1.5"),
         (["--utilisation", "half"], "is not a utilisation"),
         (["--nodes", "33"], "nodes a network is at most 32"),
         (["--per-node", "0"], "at least 1"),
